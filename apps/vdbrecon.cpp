@@ -1,0 +1,389 @@
+// vdbrecon command line.
+//
+//   vdbrecon INPUT [options]            reconstruct a mesh (+ .vdb volumes) from a point cloud
+//   vdbrecon eval RECON REF [options]   compare a mesh with a reference, print JSON
+//
+// Exit codes: 0 ok, 2 usage or invalid argument, 3 I/O or file format, 4 anything else.
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <charconv>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <cstring>
+#include <iostream>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
+#include "vdbrecon/io.h"
+#include "vdbrecon/log.h"
+#include "vdbrecon/pipeline.h"
+
+namespace {
+
+using namespace vdbrecon;
+
+constexpr int kExitOk = 0, kExitUsage = 2, kExitIo = 3, kExitOther = 4;
+
+struct UsageError : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+std::string fmt(double v) {
+    std::ostringstream s;
+    s << v;
+    return s.str();
+}
+
+/// The names an enum option accepts on the command line, in --help order.
+template <typename E>
+using Choices = std::vector<std::pair<std::string, E>>;
+
+const Choices<NormalMode> kNormalModes = {
+    {"auto", NormalMode::automatic}, {"estimate", NormalMode::estimate}, {"keep", NormalMode::keep}};
+const Choices<ScaleMode> kScaleModes = {
+    {"auto", ScaleMode::automatic}, {"knn", ScaleMode::knn}, {"none", ScaleMode::none}};
+const Choices<Mesher> kMeshers = {{"vdb", Mesher::vdb}};
+
+template <typename E>
+std::string choice_list(const Choices<E>& choices, const char* sep) {
+    std::string s;
+    for (const auto& c : choices) s += (s.empty() ? "" : sep) + c.first;
+    return s;
+}
+
+template <typename E>
+std::string choice_name(const Choices<E>& choices, E value) {
+    for (const auto& c : choices) {
+        if (c.second == value) return c.first;
+    }
+    return "?";
+}
+
+template <typename E>
+E parse_choice(const std::string& opt, const std::string& value, const Choices<E>& choices) {
+    for (const auto& c : choices) {
+        if (c.first == value) return c.second;
+    }
+    throw UsageError(opt + ": '" + value + "' is not one of " + choice_list(choices, ", "));
+}
+
+void print_help() {
+    const PipelineOptions d;
+    const EvalOptions e;
+    std::cout
+        << "vdbrecon " << version() << " - surface reconstruction from point clouds on OpenVDB\n"
+        << "\n"
+        << "usage: vdbrecon INPUT [options]\n"
+        << "       vdbrecon eval RECON REF [--tau T[,T...]] [--samples N]\n"
+        << "\n"
+        << "INPUT: .ply (ascii/binary), .xyz/.pts/.txt (x y z [nx ny nz]), .obj (v/vn)\n"
+        << "\n"
+        << "reconstruction options:\n"
+        << "  -o, --output PATH      mesh to write, .ply or .obj [<input stem>.recon.ply]\n"
+        << "                         the volume goes to <output stem>.splat.vdb\n"
+        << "  --voxel V              voxel edge, world units [auto: " << fmt(d.auto_voxel_factor)
+        << " x median point spacing]\n"
+        << "  --sigma S              kernel width, sigma = S x per-point scale ["
+        << fmt(d.splat.scale_factor) << "]\n"
+        << "  --sigma-voxels S       sigma for points without a scale, voxels ["
+        << fmt(d.splat.sigma_voxels) << "]\n"
+        << "  --min-sigma S          smallest sigma, voxels [" << fmt(d.splat.min_sigma_voxels)
+        << "]\n"
+        << "  --max-sigma S          largest sigma, voxels [" << fmt(d.splat.max_sigma_voxels)
+        << "]\n"
+        << "  --support R            kernel support radius, sigmas [" << fmt(d.splat.support)
+        << "]\n"
+        << "  --min-weight W         voxels with less summed weight are empty ["
+        << fmt(d.splat.min_weight) << "]\n"
+        << "  --surface-weight W     faces on less summed weight are trimmed ["
+        << fmt(d.mesh.min_surface_weight) << "]\n"
+        << "  --max-gap G            faces farther than G voxels from every point are trimmed ["
+        << fmt(d.mesh.max_gap) << "]\n"
+        << "  --normals MODE         " << choice_list(kNormalModes, "|") << " ["
+        << choice_name(kNormalModes, d.normals.mode) << "]\n"
+        << "  --k K                  neighbours for normals and spacing [" << d.normals.k << "]\n"
+        << "  --scale MODE           per-point scale: " << choice_list(kScaleModes, "|") << " ["
+        << choice_name(kScaleModes, d.normals.scale) << "]\n"
+        << "  --viewpoint x,y,z      sensor position; estimated normals face it [none: MST]\n"
+        << "  --mesher NAME          " << choice_list(kMeshers, "|") << " ["
+        << choice_name(kMeshers, d.mesh.method) << "]\n"
+        << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
+        << "]\n"
+        << "  --ascii                write ascii PLY [binary little endian]\n"
+        << "  --threads N            worker threads, 0 = all cores [" << d.threads << "]\n"
+        << "  --no-vdb               do not write the .vdb volume\n"
+        << "  -q, --quiet            no progress or timings on stderr\n"
+        << "  --help, --version\n"
+        << "\n"
+        << "eval options:\n"
+        << "  --tau T[,T...]         F-score thresholds, world units [0.2% of REF's diagonal]\n"
+        << "  --samples N            samples per mesh [" << e.samples << "]\n"
+        << "\n"
+        << "exit codes: 0 ok, 2 usage/invalid argument, 3 I/O or file format, 4 other error\n";
+}
+
+double parse_number(const std::string& opt, const std::string& s) {
+    double v = 0.0;
+    const char* b = s.c_str();
+    const auto r = std::from_chars(b, b + s.size(), v);
+    if (r.ec != std::errc() || r.ptr != b + s.size() || !std::isfinite(v)) {
+        throw UsageError(opt + ": '" + s + "' is not a finite number");
+    }
+    return v;
+}
+
+int parse_int(const std::string& opt, const std::string& s) {
+    int v = 0;
+    const char* b = s.c_str();
+    const auto r = std::from_chars(b, b + s.size(), v);
+    if (r.ec != std::errc() || r.ptr != b + s.size()) {
+        throw UsageError(opt + ": '" + s + "' is not an integer");
+    }
+    return v;
+}
+
+std::vector<double> parse_list(const std::string& opt, const std::string& s) {
+    std::vector<double> out;
+    std::size_t start = 0;
+    while (start <= s.size()) {
+        const std::size_t comma = s.find(',', start);
+        const std::string part = s.substr(start, comma == std::string::npos ? std::string::npos
+                                                                            : comma - start);
+        out.push_back(parse_number(opt, part));
+        if (comma == std::string::npos) break;
+        start = comma + 1;
+    }
+    return out;
+}
+
+struct Args {
+    std::vector<std::string> positional;
+    std::size_t i = 0;
+    std::vector<std::string> argv;
+
+    bool done() const { return i >= argv.size(); }
+    const std::string& next() { return argv[i++]; }
+    std::string value(const std::string& opt) {
+        if (done()) throw UsageError(opt + " needs a value");
+        return next();
+    }
+};
+
+void install_signal_handlers() {
+    auto handler = [](int sig) {
+        remove_temp_files_now();
+        std::signal(sig, SIG_DFL);
+        std::raise(sig);
+    };
+    std::signal(SIGINT, handler);
+    std::signal(SIGTERM, handler);
+}
+
+long peak_rss_mb() {
+    struct rusage ru {};
+    getrusage(RUSAGE_SELF, &ru);
+    return ru.ru_maxrss / 1024;
+}
+
+int run_eval(Args& args) {
+    EvalOptions options;
+    std::vector<std::string> files;
+    while (!args.done()) {
+        const std::string a = args.next();
+        if (a == "--tau") {
+            options.taus = parse_list(a, args.value(a));
+        } else if (a == "--samples") {
+            const double n = parse_number(a, args.value(a));
+            if (n < 1000 || n > 1e8 || n != std::floor(n)) {
+                throw UsageError("--samples must be a whole number in 1000..1e8");
+            }
+            options.samples = std::size_t(n);
+        } else if (!a.empty() && a[0] == '-') {
+            throw UsageError("eval: unknown option '" + a + "'");
+        } else {
+            files.push_back(a);
+        }
+    }
+    if (files.size() != 2) throw UsageError("eval needs two meshes: RECON REF");
+    for (double t : options.taus) {
+        if (!(t > 0.0)) throw UsageError("--tau values must be positive");
+    }
+    const Mesh recon = read_mesh(files[0]);
+    const Mesh ref = read_mesh(files[1]);
+    std::cout << to_json(evaluate(recon, ref, options));
+    return kExitOk;
+}
+
+int run_reconstruct(Args& args) {
+    PipelineOptions o;
+    std::string input, output;
+    bool quiet = false;
+    while (!args.done()) {
+        const std::string a = args.next();
+        if (a == "-o" || a == "--output") {
+            output = args.value(a);
+        } else if (a == "--voxel") {
+            o.splat.voxel_size = parse_number(a, args.value(a));
+            if (!(o.splat.voxel_size > 0.0)) {
+                throw UsageError("--voxel must be a positive number (got " +
+                                 fmt(o.splat.voxel_size) + ")");
+            }
+        } else if (a == "--sigma") {
+            o.splat.scale_factor = parse_number(a, args.value(a));
+        } else if (a == "--sigma-voxels") {
+            o.splat.sigma_voxels = parse_number(a, args.value(a));
+        } else if (a == "--min-sigma") {
+            o.splat.min_sigma_voxels = parse_number(a, args.value(a));
+        } else if (a == "--max-sigma") {
+            o.splat.max_sigma_voxels = parse_number(a, args.value(a));
+        } else if (a == "--support") {
+            o.splat.support = parse_number(a, args.value(a));
+        } else if (a == "--min-weight") {
+            o.splat.min_weight = parse_number(a, args.value(a));
+        } else if (a == "--surface-weight") {
+            o.mesh.min_surface_weight = parse_number(a, args.value(a));
+        } else if (a == "--max-gap") {
+            o.mesh.max_gap = parse_number(a, args.value(a));
+        } else if (a == "--normals") {
+            o.normals.mode = parse_choice(a, args.value(a), kNormalModes);
+        } else if (a == "--k") {
+            o.normals.k = parse_int(a, args.value(a));
+        } else if (a == "--scale") {
+            o.normals.scale = parse_choice(a, args.value(a), kScaleModes);
+        } else if (a == "--viewpoint") {
+            const std::vector<double> v = parse_list(a, args.value(a));
+            if (v.size() != 3) throw UsageError("--viewpoint needs three numbers: x,y,z");
+            o.normals.viewpoint = Vec3d{v[0], v[1], v[2]};
+        } else if (a == "--mesher") {
+            o.mesh.method = parse_choice(a, args.value(a), kMeshers);
+        } else if (a == "--adaptivity") {
+            o.mesh.adaptivity = parse_number(a, args.value(a));
+        } else if (a == "--ascii") {
+            o.write.encoding = PlyEncoding::ascii;
+        } else if (a == "--threads") {
+            o.threads = parse_int(a, args.value(a));
+            if (o.threads < 0) throw UsageError("--threads must be >= 0");
+        } else if (a == "--no-vdb") {
+            o.write_vdb = false;
+        } else if (a == "-q" || a == "--quiet") {
+            quiet = true;
+        } else if (a.size() > 1 && a[0] == '-') {
+            throw UsageError("unknown option '" + a + "' (see --help)");
+        } else if (input.empty()) {
+            input = a;
+        } else {
+            throw UsageError("more than one input given ('" + input + "' and '" + a + "')");
+        }
+    }
+    if (input.empty()) throw UsageError("no input file (see --help)");
+
+    set_log_handler([quiet](LogLevel level, const std::string& m) {
+        if (level == LogLevel::warning) {
+            std::cerr << "vdbrecon: warning: " << m << "\n";
+        } else if (level == LogLevel::info && !quiet) {
+            std::cerr << "vdbrecon: " << m << "\n";
+        }
+    });
+    auto on_stage = [quiet](const std::string& stage) {
+        if (!quiet) std::cerr << "vdbrecon: " << stage << " ...\n";
+    };
+    const RunResult r = run(input, output, o, on_stage);
+    const PipelineResult& p = r.result;
+    if (!quiet) {
+        std::ostringstream s;
+        s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << ")";
+        if (r.read.dropped_nonfinite) s << ", dropped " << r.read.dropped_nonfinite << " NaN/inf";
+        s << "\n";
+        s << "vdbrecon: normals: ";
+        if (p.normals.estimated == 0) {
+            s << "from the file";
+        } else if (p.normals.oriented_to_viewpoint) {
+            s << p.normals.estimated << " estimated (k=" << o.normals.k
+              << "), oriented towards the viewpoint";
+        } else {
+            s << p.normals.estimated << " estimated (k=" << o.normals.k
+              << "), oriented by MST in " << p.normals.components << " component(s)";
+        }
+        s << "; median spacing " << p.normals.median_scale << "\n";
+        s << "vdbrecon: voxel " << p.voxel_size;
+        if (p.voxel_chosen) {
+            s << " (chosen: " << o.auto_voxel_factor << " x median spacing; set --voxel to override)";
+        }
+        s << "\n";
+        s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max
+          << " (median " << p.splat.sigma_median << "), " << p.splat.active_voxels
+          << " valid voxels in " << p.splat.leaves << " leaves, " << p.splat.updates
+          << " kernel updates";
+        if (p.splat.skipped_points) s << ", " << p.splat.skipped_points << " points without normal";
+        s << "\n";
+        s << "vdbrecon: mesh: " << p.mesh.vertices.size() << " vertices, " << p.mesh.faces.size()
+          << " triangles (" << p.mesh_stats.dropped_faces << " dropped outside valid cells, "
+          << p.mesh_stats.trimmed_faces << " trimmed for low weight)\n";
+        double total = 0.0;
+        s << "vdbrecon: time:";
+        for (const StageTiming& t : p.timings) {
+            s << " " << t.stage << " " << std::fixed;
+            s.precision(3);
+            s << t.seconds << " s,";
+            total += t.seconds;
+        }
+        s << " total " << total << " s; peak memory " << peak_rss_mb() << " MB\n";
+        std::cerr << s.str();
+        std::cout << "mesh: " << r.mesh_path << "\n";
+        if (!r.vdb_path.empty()) std::cout << "volume: " << r.vdb_path << "\n";
+    }
+    return kExitOk;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    Args args;
+    args.argv.assign(argv + 1, argv + argc);
+    install_signal_handlers();
+    try {
+        if (args.argv.empty()) {
+            print_help();
+            return kExitUsage;
+        }
+        for (const std::string& a : args.argv) {
+            if (a == "--help" || a == "-h") {
+                print_help();
+                return kExitOk;
+            }
+            if (a == "--version") {
+                std::cout << "vdbrecon " << version() << "\n";
+                return kExitOk;
+            }
+        }
+        if (args.argv[0] == "eval") {
+            args.i = 1;
+            return run_eval(args);
+        }
+        return run_reconstruct(args);
+    } catch (const UsageError& e) {
+        std::cerr << "vdbrecon: error: " << e.what() << "\n";
+        return kExitUsage;
+    } catch (const InvalidArgument& e) {
+        std::cerr << "vdbrecon: error: " << e.what() << "\n";
+        return kExitUsage;
+    } catch (const IoError& e) {
+        std::cerr << "vdbrecon: error: " << e.what() << "\n";
+        return kExitIo;
+    } catch (const FormatError& e) {
+        std::cerr << "vdbrecon: error: " << e.what() << "\n";
+        return kExitIo;
+    } catch (const std::bad_alloc&) {
+        std::cerr << "vdbrecon: error: out of memory. Hint: a larger --voxel\n";
+        return kExitOther;
+    } catch (const std::exception& e) {
+        std::cerr << "vdbrecon: error: " << e.what() << "\n";
+        return kExitOther;
+    }
+}

@@ -1,0 +1,93 @@
+// Evaluation of a reconstruction against a reference mesh, and mesh topology statistics.
+//
+// Both meshes are sampled uniformly by area; each sample's distance to the other mesh is the
+// exact point-to-triangle distance (bounding-volume hierarchy). With d_r = distances of
+// reconstruction samples to the reference and d_g = of reference samples to the reconstruction:
+//   accuracy = mean d_r, completeness = mean d_g, chamfer_l1 = (accuracy + completeness) / 2,
+//   hausdorff = max(max d_r, max d_g), precision(tau) = P(d_r < tau), recall(tau) = P(d_g < tau),
+//   F(tau) = 2 P R / (P + R) (Knapitsch et al., "Tanks and Temples", 2017),
+//   normal_consistency = mean |n . n_closest| over both directions (Mescheder et al. 2019).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "vdbrecon/types.h"
+
+namespace vdbrecon {
+
+struct EvalOptions {
+    /// Distance thresholds for precision/recall/F, world units. Empty: 0.2 % of the reference's
+    /// bounding-box diagonal (0.5 mm on the Stanford bunny).
+    std::vector<double> taus;
+    /// Samples drawn on each mesh (count).
+    std::size_t samples = 1000000;
+    /// Seed of the sampler; the same seed gives the same numbers.
+    std::uint64_t seed = 1;
+
+    void validate() const;
+};
+
+struct TopologyStats {
+    std::size_t vertices = 0;
+    std::size_t faces = 0;
+    std::size_t components = 0;         ///< edge-connected components of faces
+    std::size_t boundary_edges = 0;     ///< edges with one incident face
+    std::size_t nonmanifold_edges = 0;  ///< edges with more than two incident faces
+    std::size_t degenerate_faces = 0;   ///< faces with a repeated vertex index
+    std::int64_t euler = 0;             ///< V - E + F (counting referenced vertices only)
+    double area = 0.0;                  ///< world units squared
+    double signed_volume = 0.0;         ///< positive for closed outward-facing meshes
+    bool watertight() const { return boundary_edges == 0 && nonmanifold_edges == 0; }
+};
+
+struct FScore {
+    double tau = 0, precision = 0, recall = 0, fscore = 0;
+};
+
+struct EvalResult {
+    double accuracy = 0, completeness = 0, chamfer_l1 = 0, hausdorff = 0;
+    double normal_consistency = 0;
+    std::vector<FScore> fscores;  ///< one per tau
+    std::size_t samples = 0;
+    TopologyStats recon, reference;
+};
+
+/// Topology statistics of a mesh.
+TopologyStats mesh_topology(const Mesh& mesh);
+
+/// Samples `count` points uniformly by area (deterministic for a seed); also returns the face
+/// each sample lies on when `faces` is non-null.
+std::vector<Vec3f> sample_surface(const Mesh& mesh, std::size_t count, std::uint64_t seed,
+                                  std::vector<std::int32_t>* faces = nullptr);
+
+/// Exact distance queries from points to a triangle mesh.
+class MeshDistance {
+public:
+    explicit MeshDistance(const Mesh& mesh);
+    ~MeshDistance();
+    MeshDistance(const MeshDistance&) = delete;
+    MeshDistance& operator=(const MeshDistance&) = delete;
+
+    /// Distance (world units) from `p` to the closest point of the mesh; `face` receives the
+    /// index of the closest face when non-null.
+    double distance(const Vec3f& p, std::int32_t* face = nullptr) const;
+    /// Distances of many points, in parallel.
+    std::vector<double> distances(const std::vector<Vec3f>& points,
+                                  std::vector<std::int32_t>* faces = nullptr) const;
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+/// Compares a reconstruction with a reference. Both meshes must share a world frame (their
+/// origins may differ). Throws InvalidArgument for empty meshes.
+EvalResult evaluate(const Mesh& recon, const Mesh& reference, const EvalOptions& options = {});
+
+/// The result as a JSON object (what `vdbrecon eval` prints).
+std::string to_json(const EvalResult& result);
+
+}  // namespace vdbrecon

@@ -1,0 +1,74 @@
+// Reading point clouds and meshes, writing meshes and point clouds.
+//
+// Readers: PLY (ascii, binary little/big endian, any property order, every scalar type and alias,
+// other elements and list properties skipped), XYZ/PTS text (x y z [nx ny nz]), OBJ (v, vn, f).
+// Writers: PLY (three encodings) and OBJ, chosen by extension. Every write goes to a temporary
+// file in the target directory and is renamed into place, so a failed run never leaves a
+// half-written file under the final name.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "vdbrecon/types.h"
+
+namespace vdbrecon {
+
+/// What a reader does with a row whose coordinates are NaN or infinite.
+enum class NonFinitePolicy {
+    drop,   ///< drop the row and report the count (a warning through the log handler)
+    error,  ///< throw FormatError naming the first such row
+};
+
+struct ReadOptions {
+    /// Rows with NaN/inf coordinates: dropped with a counted warning, or an error.
+    NonFinitePolicy non_finite = NonFinitePolicy::drop;
+    /// Re-centre far-away coordinates (georeferenced scans) into a local float frame;
+    /// the offset is kept in PointCloud::origin.
+    bool local_frame = true;
+};
+
+/// What a point reader found.
+struct ReadResult {
+    PointCloud cloud;
+    std::string format;                 ///< e.g. "ply binary_little_endian", "xyz", "obj"
+    std::size_t rows = 0;               ///< rows in the file (before dropping)
+    std::size_t dropped_nonfinite = 0;  ///< rows dropped for NaN/inf coordinates
+    std::size_t invalid_normals = 0;    ///< normals that were zero or NaN (set to 0,0,0)
+};
+
+/// Reads a point cloud; the format comes from the extension (.ply .xyz .pts .txt .obj), or from
+/// the content when the extension is unknown. Throws IoError / FormatError naming the file.
+ReadResult read_points(const std::string& path, const ReadOptions& options = {});
+
+/// Reads a triangle mesh (PLY with a face element, or OBJ with f lines; polygons are fanned
+/// into triangles). Throws IoError / FormatError naming the file.
+Mesh read_mesh(const std::string& path);
+
+enum class PlyEncoding { binary_little_endian, binary_big_endian, ascii };
+
+struct WriteOptions {
+    /// PLY encoding (ignored for OBJ).
+    PlyEncoding encoding = PlyEncoding::binary_little_endian;
+    /// Extra header comments (PLY) or # lines (OBJ).
+    std::vector<std::string> comments;
+};
+
+/// Writes a mesh as PLY or OBJ (by extension; anything else is an InvalidArgument). Vertex
+/// normals and colours are written when present; world = origin + vertex (as double when the
+/// origin is not zero). Atomic: temp file + rename.
+void write_mesh(const std::string& path, const Mesh& mesh, const WriteOptions& options = {});
+
+/// Writes a point cloud as PLY (every attribute the cloud has) or XYZ text. Atomic.
+void write_points(const std::string& path, const PointCloud& cloud,
+                  const WriteOptions& options = {});
+
+/// Unlinks every temporary file a writer currently has open. Async-signal-safe, so a SIGINT /
+/// SIGTERM handler may call it before the process dies (no partial outputs survive).
+void remove_temp_files_now();
+
+/// Lower-case extension of a path without the dot ("" when there is none).
+std::string file_extension(const std::string& path);
+
+}  // namespace vdbrecon

@@ -1,0 +1,46 @@
+// k-nearest-neighbour queries over a fixed point set. The kd-tree backend (FLANN's exact
+// single-tree index) is hidden behind this class so it can be swapped without an API change.
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "vdbrecon/types.h"
+
+namespace vdbrecon {
+
+/// The k nearest neighbours of a set of query points, `k` entries per query, nearest first.
+struct KnnResult {
+    int k = 0;
+    std::vector<int> indices;       ///< #Q*k point indices
+    std::vector<float> sq_distances;  ///< #Q*k squared distances, world units squared
+
+    const int* neighbours(std::size_t q) const { return indices.data() + q * std::size_t(k); }
+    const float* sq_dists(std::size_t q) const { return sq_distances.data() + q * std::size_t(k); }
+};
+
+/// An exact kd-tree over points; build once, query many times from any number of threads.
+class KnnIndex {
+public:
+    /// Builds the tree. `points` is copied (the caller's vector may go away).
+    explicit KnnIndex(const std::vector<Vec3f>& points);
+    ~KnnIndex();
+    KnnIndex(const KnnIndex&) = delete;
+    KnnIndex& operator=(const KnnIndex&) = delete;
+
+    std::size_t size() const;
+
+    /// For every indexed point, its k nearest *other* points (the point itself is excluded, even
+    /// when exact duplicates exist). Runs in parallel; the result does not depend on the thread
+    /// count. `k` is clamped to size() - 1.
+    KnnResult self_neighbours(int k) const;
+
+    /// The k nearest indexed points of arbitrary query points, in parallel.
+    KnnResult query(const std::vector<Vec3f>& queries, int k) const;
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace vdbrecon

@@ -1,0 +1,65 @@
+// Normal and scale estimation for point clouds.
+//
+// Normal: the eigenvector of the smallest eigenvalue of the covariance of the k nearest
+// neighbours (PCA). Orientation, in order of preference: towards a known viewpoint (sensor
+// position); otherwise minimum-spanning-tree propagation over the kNN graph with edge cost
+// 1 - |n_i . n_j|, seeded in each connected component at its highest point, whose normal is
+// turned to point up (+z) -- H. Hoppe et al., "Surface reconstruction from unorganized points",
+// SIGGRAPH 1992.
+// Scale: the mean distance to the k nearest neighbours (the sample footprint FSSR expects,
+// S. Fuhrmann and M. Goesele, "Floating scale surface reconstruction", SIGGRAPH 2014).
+#pragma once
+
+#include <cstddef>
+#include <optional>
+#include <vector>
+
+#include "vdbrecon/types.h"
+
+namespace vdbrecon {
+
+enum class NormalMode {
+    automatic,  ///< keep the file's normals when every point has one, estimate otherwise
+    estimate,   ///< always estimate (ignore the file's normals)
+    keep,       ///< use the file's normals; error when the cloud has none
+};
+
+enum class ScaleMode {
+    automatic,  ///< the file's per-point scale when present, else the kNN spacing
+    knn,        ///< always the mean kNN distance
+    none,       ///< no per-point scale (splat falls back to a fixed sigma in voxels)
+};
+
+struct NormalOptions {
+    /// Where normals come from.
+    NormalMode mode = NormalMode::automatic;
+    /// Neighbours used for PCA normals, orientation and the kNN scale (count).
+    int k = 10;
+    /// Sensor position in world coordinates; when set, normals are turned towards it.
+    std::optional<Vec3d> viewpoint;
+    /// Where the per-point scale comes from.
+    ScaleMode scale = ScaleMode::automatic;
+
+    /// Throws InvalidArgument naming the field when out of range.
+    void validate() const;
+};
+
+struct NormalResult {
+    std::vector<Vec3f> normals;  ///< #P unit normals (the kept ones, or estimated)
+    std::vector<float> scales;   ///< #P per-point scale in world units, or empty (ScaleMode::none)
+    std::size_t estimated = 0;   ///< points whose normal was estimated here
+    std::size_t repaired = 0;    ///< kept normals that were zero/NaN and were re-estimated
+    std::size_t flipped = 0;     ///< estimated normals flipped by the orientation step
+    std::size_t components = 0;  ///< kNN-graph components oriented separately (MST mode)
+    bool oriented_to_viewpoint = false;
+    double median_scale = 0.0;   ///< median of `scales` (0 when none), world units
+};
+
+/// Estimates (or checks) normals and per-point scale. Deterministic for any thread count.
+NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options = {});
+
+/// PCA normal (unit, unoriented) of a neighbourhood; returns false when it is degenerate
+/// (fewer than 3 distinct points, or collinear).
+bool pca_normal(const Vec3f* points, std::size_t count, Vec3f& normal);
+
+}  // namespace vdbrecon

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages vdbrecon needs (only the missing ones), then configures and
+# builds it in ./build (Release). Used by demo.sh and test.sh; safe to run repeatedly.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PACKAGES=(
+  cmake g++ make ccache
+  libopenvdb-dev libboost-iostreams-dev   # OpenVDB 10; FindOpenVDB needs boost_iostreams
+  libtbb-dev libeigen3-dev
+  libflann-dev liblz4-dev                 # FLANN's header API emits LZ4 calls
+  catch2                                  # Catch2 v2 tests
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "setup: installing ${missing[*]}"
+  SUDO=""
+  if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+JOBS=${JOBS:-$(nproc)}
+if ((JOBS > 2)); then JOBS=2; fi   # OpenVDB translation units take ~2 GB each to compile
+cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build build -j"$JOBS"

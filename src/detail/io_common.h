@@ -1,0 +1,100 @@
+// Internals shared by the readers and writers.
+#pragma once
+
+#include <cstdint>
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "vdbrecon/io.h"
+#include "vdbrecon/types.h"
+
+namespace vdbrecon::detail {
+
+/// Points as a reader produces them: double coordinates (before choosing a local frame) and
+/// optional attributes, each either empty or one entry per row.
+struct RawPoints {
+    std::vector<double> xyz;            ///< 3 per row
+    std::vector<float> normals;         ///< 3 per row or empty
+    std::vector<float> colors;          ///< 3 per row or empty, 0..1
+    std::vector<float> scales;          ///< 1 per row or empty
+    std::vector<float> confidences;     ///< 1 per row or empty
+    std::vector<Triangle> faces;        ///< only for meshes
+
+    std::size_t rows() const { return xyz.size() / 3; }
+};
+
+/// The whole file in memory. Throws IoError naming the file (missing, a directory, unreadable).
+std::string read_file(const std::string& path);
+
+/// Drops non-finite rows (or throws, per options), normalises normals (zero/NaN ones become
+/// 0,0,0 and are counted), picks the local frame, and fills a ReadResult.
+ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::string& format,
+                           const ReadOptions& options);
+
+/// Converts raw mesh rows into a Mesh (faces must index existing rows; checked by the reader).
+Mesh finalize_mesh(RawPoints&& raw, const std::string& path);
+
+/// Picks a local frame for coordinates: (0,0,0) unless the points are far from the origin
+/// compared with their extent, then the box centre rounded to a power-of-two grid.
+Vec3d choose_origin(const double* xyz, std::size_t rows);
+
+/// "file: message" — the prefix every reader error carries.
+std::string where(const std::string& path, const std::string& message);
+
+/// Writes to a temporary file in the target directory; commit() renames it onto the final
+/// path. If never committed, the destructor removes the temporary file.
+class AtomicFile {
+public:
+    explicit AtomicFile(const std::string& final_path);
+    ~AtomicFile();
+    AtomicFile(const AtomicFile&) = delete;
+    AtomicFile& operator=(const AtomicFile&) = delete;
+
+    const std::string& temp_path() const { return temp_; }
+    const std::string& final_path() const { return final_; }
+    /// An open stdio stream on the temp file (for writers that stream bytes).
+    std::FILE* stream();
+    /// Closes the stream (if any), checks for write errors and renames. Throws IoError.
+    void commit();
+
+private:
+    std::string final_, temp_;
+    std::FILE* file_ = nullptr;
+    bool committed_ = false;
+};
+
+/// Buffered writer on an AtomicFile's stream; errors surface at commit.
+class ByteWriter {
+public:
+    explicit ByteWriter(std::FILE* f) : f_(f) { buf_.reserve(kSize); }
+    ~ByteWriter() { flush(); }
+    void write(const void* data, std::size_t n);
+    void put(const std::string& s) { write(s.data(), s.size()); }
+    void flush();
+
+private:
+    static constexpr std::size_t kSize = 1 << 20;
+    std::FILE* f_;
+    std::string buf_;
+};
+
+/// Shortest round-trip decimal text of a float / double (std::to_chars).
+std::string format_number(float v);
+std::string format_number(double v);
+
+/// Reads a PLY file into raw rows; `want_faces` also reads the face element.
+RawPoints read_ply_raw(const std::string& path, const std::string& content, bool want_faces,
+                       std::string& format);
+/// Reads XYZ / PTS text.
+RawPoints read_xyz_raw(const std::string& path, const std::string& content);
+/// Reads OBJ (v, vn, f).
+RawPoints read_obj_raw(const std::string& path, const std::string& content, bool want_faces);
+
+/// PLY writer for clouds and meshes. `faces` may be null.
+void write_ply(const std::string& path, const std::vector<Vec3f>& positions, const Vec3d& origin,
+               const std::vector<Vec3f>* normals, const std::vector<Vec3f>* colors,
+               const std::vector<float>* scales, const std::vector<float>* confidences,
+               const std::vector<Triangle>* faces, const WriteOptions& options);
+
+}  // namespace vdbrecon::detail

@@ -1,0 +1,485 @@
+// Reconstruction metrics and mesh topology (see eval.h).
+#include "vdbrecon/eval.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+#include <tbb/parallel_sort.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <numeric>
+
+#include "vdbrecon/error.h"
+
+namespace vdbrecon {
+
+void EvalOptions::validate() const {
+    for (double t : taus) {
+        if (!(std::isfinite(t) && t > 0.0)) {
+            throw InvalidArgument("eval.taus: every tau must be a positive number");
+        }
+    }
+    if (samples < 1000 || samples > 100000000) {
+        throw InvalidArgument("eval.samples = " + std::to_string(samples) +
+                              ": must be in 1000..1e8");
+    }
+}
+
+namespace {
+
+using V3 = std::array<double, 3>;
+
+inline V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+inline V3 add(const V3& a, const V3& b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
+inline V3 mul(const V3& a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
+inline double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+inline V3 cross(const V3& a, const V3& b) {
+    return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+
+/// Closest point on triangle abc to p (C. Ericson, "Real-Time Collision Detection", 5.1.5).
+V3 closest_on_triangle(const V3& p, const V3& a, const V3& b, const V3& c) {
+    const V3 ab = sub(b, a), ac = sub(c, a), ap = sub(p, a);
+    const double d1 = dot(ab, ap), d2 = dot(ac, ap);
+    if (d1 <= 0 && d2 <= 0) return a;
+    const V3 bp = sub(p, b);
+    const double d3 = dot(ab, bp), d4 = dot(ac, bp);
+    if (d3 >= 0 && d4 <= d3) return b;
+    const double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) return add(a, mul(ab, d1 / (d1 - d3)));
+    const V3 cp = sub(p, c);
+    const double d5 = dot(ab, cp), d6 = dot(ac, cp);
+    if (d6 >= 0 && d5 <= d6) return c;
+    const double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) return add(a, mul(ac, d2 / (d2 - d6)));
+    const double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        return add(b, mul(sub(c, b), (d4 - d3) / ((d4 - d3) + (d5 - d6))));
+    }
+    const double denom = 1.0 / (va + vb + vc);
+    return add(a, add(mul(ab, vb * denom), mul(ac, vc * denom)));
+}
+
+/// SplitMix64 (S. Vigna): a counter-based stream, so sample i is the same on any thread.
+inline std::uint64_t splitmix(std::uint64_t x) {
+    x += 0x9e3779b97f4a7c15ULL;
+    x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+    x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+    return x ^ (x >> 31);
+}
+inline double uniform(std::uint64_t seed, std::uint64_t i, int which) {
+    const std::uint64_t h = splitmix(seed * 0x100000001b3ULL + i * 4 + std::uint64_t(which));
+    return double(h >> 11) * (1.0 / 9007199254740992.0);  // [0, 1)
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Bounding-volume hierarchy over triangles
+
+struct MeshDistance::Impl {
+    struct Node {
+        float lo[3], hi[3];
+        std::int32_t left = -1, right = -1;  // children, or -1 for a leaf
+        std::int32_t begin = 0, end = 0;     // triangle range (leaves)
+    };
+    std::vector<V3> a, b, c;          // triangle corners, world frame relative to `origin`
+    std::vector<std::int32_t> order;  // triangle index per BVH slot
+    std::vector<Node> nodes;
+    Vec3d origin{0, 0, 0};
+
+    void build(const Mesh& m) {
+        origin = m.origin;
+        const std::size_t nf = m.faces.size();
+        a.resize(nf);
+        b.resize(nf);
+        c.resize(nf);
+        for (std::size_t f = 0; f < nf; ++f) {
+            const auto& t = m.faces[f];
+            auto get = [&](std::int32_t i) {
+                const Vec3f& v = m.vertices[std::size_t(i)];
+                return V3{double(v[0]), double(v[1]), double(v[2])};
+            };
+            a[f] = get(t[0]);
+            b[f] = get(t[1]);
+            c[f] = get(t[2]);
+        }
+        order.resize(nf);
+        std::iota(order.begin(), order.end(), 0);
+        std::vector<V3> centre(nf);
+        for (std::size_t f = 0; f < nf; ++f) centre[f] = mul(add(add(a[f], b[f]), c[f]), 1.0 / 3);
+        nodes.reserve(2 * nf / 4 + 2);
+        build_node(0, std::int32_t(nf), centre);
+    }
+
+    std::int32_t build_node(std::int32_t begin, std::int32_t end, const std::vector<V3>& centre) {
+        const std::int32_t id = std::int32_t(nodes.size());
+        nodes.emplace_back();
+        Node nd;
+        double lo[3] = {1e300, 1e300, 1e300}, hi[3] = {-1e300, -1e300, -1e300};
+        double clo[3] = {1e300, 1e300, 1e300}, chi[3] = {-1e300, -1e300, -1e300};
+        for (std::int32_t i = begin; i < end; ++i) {
+            const std::size_t f = std::size_t(order[std::size_t(i)]);
+            for (const V3* v : {&a[f], &b[f], &c[f]}) {
+                for (int k = 0; k < 3; ++k) {
+                    lo[k] = std::min(lo[k], (*v)[k]);
+                    hi[k] = std::max(hi[k], (*v)[k]);
+                }
+            }
+            for (int k = 0; k < 3; ++k) {
+                clo[k] = std::min(clo[k], centre[f][k]);
+                chi[k] = std::max(chi[k], centre[f][k]);
+            }
+        }
+        for (int k = 0; k < 3; ++k) {
+            // Round outwards so the float box contains the double triangle.
+            nd.lo[k] = std::nextafter(float(lo[k]), -std::numeric_limits<float>::infinity());
+            nd.hi[k] = std::nextafter(float(hi[k]), std::numeric_limits<float>::infinity());
+        }
+        if (end - begin <= 4) {
+            nd.begin = begin;
+            nd.end = end;
+            nodes[std::size_t(id)] = nd;
+            return id;
+        }
+        int axis = 0;
+        for (int k = 1; k < 3; ++k) {
+            if (chi[k] - clo[k] > chi[axis] - clo[axis]) axis = k;
+        }
+        const std::int32_t mid = begin + (end - begin) / 2;
+        std::nth_element(order.begin() + begin, order.begin() + mid, order.begin() + end,
+                         [&](std::int32_t x, std::int32_t y) {
+                             const double cx = centre[std::size_t(x)][axis];
+                             const double cy = centre[std::size_t(y)][axis];
+                             return cx != cy ? cx < cy : x < y;
+                         });
+        nd.left = build_node(begin, mid, centre);
+        nd.right = build_node(mid, end, centre);
+        nodes[std::size_t(id)] = nd;
+        return id;
+    }
+
+    static double box_dist2(const Node& n, const V3& p) {
+        double d2 = 0.0;
+        for (int k = 0; k < 3; ++k) {
+            const double v = p[k] < n.lo[k] ? n.lo[k] - p[k] : (p[k] > n.hi[k] ? p[k] - n.hi[k] : 0.0);
+            d2 += v * v;
+        }
+        return d2;
+    }
+
+    double query(const V3& p, std::int32_t* face) const {
+        double best = std::numeric_limits<double>::infinity();
+        std::int32_t best_face = -1;
+        std::int32_t stack[128];
+        int top = 0;
+        stack[top++] = 0;
+        while (top > 0) {
+            const Node& n = nodes[std::size_t(stack[--top])];
+            if (box_dist2(n, p) >= best) continue;
+            if (n.left < 0) {
+                for (std::int32_t i = n.begin; i < n.end; ++i) {
+                    const std::size_t f = std::size_t(order[std::size_t(i)]);
+                    const V3 q = closest_on_triangle(p, a[f], b[f], c[f]);
+                    const V3 d = sub(p, q);
+                    const double d2 = dot(d, d);
+                    if (d2 < best || (d2 == best && std::int32_t(f) < best_face)) {
+                        best = d2;
+                        best_face = std::int32_t(f);
+                    }
+                }
+                continue;
+            }
+            const Node& l = nodes[std::size_t(n.left)];
+            const Node& r = nodes[std::size_t(n.right)];
+            const double dl = box_dist2(l, p), dr = box_dist2(r, p);
+            // Push the farther child first so the nearer one is visited next.
+            if (dl < dr) {
+                if (dr < best) stack[top++] = n.right;
+                if (dl < best) stack[top++] = n.left;
+            } else {
+                if (dl < best) stack[top++] = n.left;
+                if (dr < best) stack[top++] = n.right;
+            }
+        }
+        if (face) *face = best_face;
+        return std::sqrt(best);
+    }
+};
+
+MeshDistance::MeshDistance(const Mesh& mesh) : impl_(std::make_unique<Impl>()) {
+    if (mesh.faces.empty()) throw InvalidArgument("MeshDistance: the mesh has no faces");
+    impl_->build(mesh);
+}
+
+MeshDistance::~MeshDistance() = default;
+
+double MeshDistance::distance(const Vec3f& p, std::int32_t* face) const {
+    return impl_->query({double(p[0]), double(p[1]), double(p[2])}, face);
+}
+
+std::vector<double> MeshDistance::distances(const std::vector<Vec3f>& points,
+                                            std::vector<std::int32_t>* faces) const {
+    std::vector<double> d(points.size());
+    if (faces) faces->resize(points.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, points.size(), 1024),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            d[i] = distance(points[i], faces ? &(*faces)[i] : nullptr);
+        }
+    });
+    return d;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Sampling and topology
+
+std::vector<Vec3f> sample_surface(const Mesh& mesh, std::size_t count, std::uint64_t seed,
+                                  std::vector<std::int32_t>* faces) {
+    const std::size_t nf = mesh.faces.size();
+    if (nf == 0) throw InvalidArgument("sample_surface: the mesh has no faces");
+    std::vector<double> cdf(nf);
+    double total = 0.0;
+    for (std::size_t f = 0; f < nf; ++f) {
+        const auto& t = mesh.faces[f];
+        const Vec3f &p = mesh.vertices[std::size_t(t[0])], &q = mesh.vertices[std::size_t(t[1])],
+                    &r = mesh.vertices[std::size_t(t[2])];
+        const V3 e1{double(q[0]) - p[0], double(q[1]) - p[1], double(q[2]) - p[2]};
+        const V3 e2{double(r[0]) - p[0], double(r[1]) - p[1], double(r[2]) - p[2]};
+        const V3 cr = cross(e1, e2);
+        total += 0.5 * std::sqrt(dot(cr, cr));
+        cdf[f] = total;
+    }
+    if (!(total > 0.0)) throw InvalidArgument("sample_surface: the mesh has zero area");
+    std::vector<Vec3f> out(count);
+    if (faces) faces->resize(count);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
+            const double u = uniform(seed, i, 0) * total;
+            std::size_t f = std::size_t(std::upper_bound(cdf.begin(), cdf.end(), u) - cdf.begin());
+            f = std::min(f, nf - 1);
+            // Uniform barycentrics (W. Turk, "Generating random points in triangles", 1990).
+            const double s = std::sqrt(uniform(seed, i, 1)), t = uniform(seed, i, 2);
+            const double wa = 1.0 - s, wb = s * (1.0 - t), wc = s * t;
+            const auto& tri = mesh.faces[f];
+            const Vec3f &p = mesh.vertices[std::size_t(tri[0])],
+                        &q = mesh.vertices[std::size_t(tri[1])],
+                        &r = mesh.vertices[std::size_t(tri[2])];
+            for (int k = 0; k < 3; ++k) out[i][k] = float(wa * p[k] + wb * q[k] + wc * r[k]);
+            if (faces) (*faces)[i] = std::int32_t(f);
+        }
+    });
+    return out;
+}
+
+TopologyStats mesh_topology(const Mesh& mesh) {
+    TopologyStats s;
+    const std::size_t nf = mesh.faces.size();
+    s.faces = nf;
+    std::vector<char> used(mesh.vertices.size(), 0);
+    for (const Triangle& t : mesh.faces) {
+        for (std::int32_t i : t) used[std::size_t(i)] = 1;
+        if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) ++s.degenerate_faces;
+    }
+    for (char u : used) s.vertices += u;
+
+    // Edges as sorted (min, max) keys with their face.
+    struct EdgeRef {
+        std::uint64_t key;
+        std::uint32_t face;
+        bool operator<(const EdgeRef& o) const { return key != o.key ? key < o.key : face < o.face; }
+    };
+    std::vector<EdgeRef> edges;
+    edges.reserve(3 * nf);
+    for (std::size_t f = 0; f < nf; ++f) {
+        const Triangle& t = mesh.faces[f];
+        for (int e = 0; e < 3; ++e) {
+            std::uint32_t u = std::uint32_t(t[e]), v = std::uint32_t(t[(e + 1) % 3]);
+            if (u == v) continue;
+            if (u > v) std::swap(u, v);
+            edges.push_back({(std::uint64_t(u) << 32) | v, std::uint32_t(f)});
+        }
+    }
+    tbb::parallel_sort(edges.begin(), edges.end());
+
+    std::vector<std::uint32_t> parent(nf);
+    std::iota(parent.begin(), parent.end(), 0u);
+    auto find = [&](std::uint32_t x) {
+        while (parent[x] != x) {
+            parent[x] = parent[parent[x]];
+            x = parent[x];
+        }
+        return x;
+    };
+    std::size_t unique_edges = 0;
+    for (std::size_t i = 0; i < edges.size();) {
+        std::size_t j = i;
+        while (j < edges.size() && edges[j].key == edges[i].key) ++j;
+        const std::size_t m = j - i;
+        ++unique_edges;
+        if (m == 1) ++s.boundary_edges;
+        if (m > 2) ++s.nonmanifold_edges;
+        for (std::size_t k = i + 1; k < j; ++k) {
+            const std::uint32_t ra = find(edges[i].face), rb = find(edges[k].face);
+            if (ra != rb) parent[std::max(ra, rb)] = std::min(ra, rb);
+        }
+        i = j;
+    }
+    for (std::uint32_t f = 0; f < nf; ++f) s.components += find(f) == f;
+    s.euler = std::int64_t(s.vertices) - std::int64_t(unique_edges) + std::int64_t(nf);
+
+    for (const Triangle& t : mesh.faces) {
+        const Vec3f &p = mesh.vertices[std::size_t(t[0])], &q = mesh.vertices[std::size_t(t[1])],
+                    &r = mesh.vertices[std::size_t(t[2])];
+        const V3 a{p[0], p[1], p[2]}, b{q[0], q[1], q[2]}, c{r[0], r[1], r[2]};
+        const V3 cr = cross(sub(b, a), sub(c, a));
+        s.area += 0.5 * std::sqrt(dot(cr, cr));
+        s.signed_volume += dot(a, cross(b, c)) / 6.0;
+    }
+    return s;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Evaluation
+
+namespace {
+
+/// Moves a mesh's vertices into another origin's frame (in double, then float).
+Mesh in_frame(const Mesh& m, const Vec3d& origin) {
+    if (m.origin == origin) return m;
+    Mesh out = m;
+    out.origin = origin;
+    for (Vec3f& v : out.vertices) {
+        for (int k = 0; k < 3; ++k) v[k] = float(double(v[k]) + m.origin[k] - origin[k]);
+    }
+    return out;
+}
+
+std::vector<V3> face_normals(const Mesh& m) {
+    std::vector<V3> n(m.faces.size());
+    for (std::size_t f = 0; f < m.faces.size(); ++f) {
+        const auto& t = m.faces[f];
+        const Vec3f &p = m.vertices[std::size_t(t[0])], &q = m.vertices[std::size_t(t[1])],
+                    &r = m.vertices[std::size_t(t[2])];
+        const V3 cr = cross(V3{double(q[0]) - p[0], double(q[1]) - p[1], double(q[2]) - p[2]},
+                            V3{double(r[0]) - p[0], double(r[1]) - p[1], double(r[2]) - p[2]});
+        const double l = std::sqrt(dot(cr, cr));
+        n[f] = l > 0 ? mul(cr, 1.0 / l) : V3{0, 0, 0};
+    }
+    return n;
+}
+
+}  // namespace
+
+EvalResult evaluate(const Mesh& recon_in, const Mesh& reference, const EvalOptions& options) {
+    options.validate();
+    if (recon_in.faces.empty()) throw InvalidArgument("evaluate: the reconstruction has no faces");
+    if (reference.faces.empty()) throw InvalidArgument("evaluate: the reference has no faces");
+    const Mesh recon = in_frame(recon_in, reference.origin);
+
+    EvalResult r;
+    r.samples = options.samples;
+    r.recon = mesh_topology(recon);
+    r.reference = mesh_topology(reference);
+
+    std::vector<std::int32_t> rf, gf, rcl, gcl;
+    const std::vector<Vec3f> rs = sample_surface(recon, options.samples, options.seed, &rf);
+    const std::vector<Vec3f> gs = sample_surface(reference, options.samples, options.seed + 1, &gf);
+    const MeshDistance to_ref(reference), to_recon(recon);
+    const std::vector<double> dr = to_ref.distances(rs, &rcl);
+    const std::vector<double> dg = to_recon.distances(gs, &gcl);
+    const std::vector<V3> rn = face_normals(recon), gn = face_normals(reference);
+
+    auto mean = [](const std::vector<double>& v) {
+        double s = 0.0;
+        for (double x : v) s += x;
+        return s / double(v.size());
+    };
+    r.accuracy = mean(dr);
+    r.completeness = mean(dg);
+    r.chamfer_l1 = 0.5 * (r.accuracy + r.completeness);
+    r.hausdorff = std::max(*std::max_element(dr.begin(), dr.end()),
+                           *std::max_element(dg.begin(), dg.end()));
+    double nc = 0.0;
+    for (std::size_t i = 0; i < rs.size(); ++i) {
+        nc += std::fabs(dot(rn[std::size_t(rf[i])], gn[std::size_t(rcl[i])]));
+    }
+    for (std::size_t i = 0; i < gs.size(); ++i) {
+        nc += std::fabs(dot(gn[std::size_t(gf[i])], rn[std::size_t(gcl[i])]));
+    }
+    r.normal_consistency = nc / double(rs.size() + gs.size());
+
+    std::vector<double> taus = options.taus;
+    if (taus.empty()) {
+        BBox b = bounding_box(reference.vertices);
+        taus.push_back(0.002 * b.diagonal());
+    }
+    for (double tau : taus) {
+        FScore f;
+        f.tau = tau;
+        f.precision = double(std::count_if(dr.begin(), dr.end(), [&](double d) { return d < tau; })) /
+                      double(dr.size());
+        f.recall = double(std::count_if(dg.begin(), dg.end(), [&](double d) { return d < tau; })) /
+                   double(dg.size());
+        f.fscore = f.precision + f.recall > 0
+                       ? 2.0 * f.precision * f.recall / (f.precision + f.recall)
+                       : 0.0;
+        r.fscores.push_back(f);
+    }
+    return r;
+}
+
+namespace {
+
+std::string num(double v) {
+    char buf[64];
+    std::snprintf(buf, sizeof(buf), "%.9g", v);
+    return buf;
+}
+
+std::string topology_json(const TopologyStats& t, const std::string& indent) {
+    std::string s = "{\n";
+    s += indent + "  \"vertices\": " + std::to_string(t.vertices) + ",\n";
+    s += indent + "  \"faces\": " + std::to_string(t.faces) + ",\n";
+    s += indent + "  \"components\": " + std::to_string(t.components) + ",\n";
+    s += indent + "  \"boundary_edges\": " + std::to_string(t.boundary_edges) + ",\n";
+    s += indent + "  \"nonmanifold_edges\": " + std::to_string(t.nonmanifold_edges) + ",\n";
+    s += indent + "  \"degenerate_faces\": " + std::to_string(t.degenerate_faces) + ",\n";
+    s += indent + "  \"euler\": " + std::to_string(t.euler) + ",\n";
+    s += indent + "  \"watertight\": " + (t.watertight() ? "true" : "false") + ",\n";
+    s += indent + "  \"area\": " + num(t.area) + ",\n";
+    s += indent + "  \"signed_volume\": " + num(t.signed_volume) + "\n";
+    s += indent + "}";
+    return s;
+}
+
+}  // namespace
+
+std::string to_json(const EvalResult& r) {
+    std::string s = "{\n";
+    s += "  \"accuracy\": " + num(r.accuracy) + ",\n";
+    s += "  \"completeness\": " + num(r.completeness) + ",\n";
+    s += "  \"chamfer_l1\": " + num(r.chamfer_l1) + ",\n";
+    s += "  \"hausdorff\": " + num(r.hausdorff) + ",\n";
+    s += "  \"normal_consistency\": " + num(r.normal_consistency) + ",\n";
+    s += "  \"fscore\": [";
+    for (std::size_t i = 0; i < r.fscores.size(); ++i) {
+        const FScore& f = r.fscores[i];
+        s += (i ? ", " : "") + std::string("{\"tau\": ") + num(f.tau) +
+             ", \"precision\": " + num(f.precision) + ", \"recall\": " + num(f.recall) +
+             ", \"fscore\": " + num(f.fscore) + "}";
+    }
+    s += "],\n";
+    s += "  \"samples\": " + std::to_string(r.samples) + ",\n";
+    s += "  \"recon\": " + topology_json(r.recon, "  ") + ",\n";
+    s += "  \"reference\": " + topology_json(r.reference, "  ") + "\n";
+    s += "}\n";
+    return s;
+}
+
+}  // namespace vdbrecon

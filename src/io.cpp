@@ -1,0 +1,461 @@
+// Format dispatch, the local frame, atomic writes, and the OBJ / XYZ writers.
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstring>
+#include <mutex>
+#include <set>
+#include <sstream>
+
+#include "detail/io_common.h"
+#include "detail/temp_files.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/io.h"
+#include "vdbrecon/log.h"
+
+namespace vdbrecon {
+
+double BBox::diagonal() const {
+    if (empty()) return 0.0;
+    double s = 0.0;
+    for (int a = 0; a < 3; ++a) {
+        const double d = double(max[a]) - double(min[a]);
+        s += d * d;
+    }
+    return std::sqrt(s);
+}
+
+BBox bounding_box(const std::vector<Vec3f>& positions) {
+    BBox b;
+    if (positions.empty()) return b;
+    b.min = b.max = positions[0];
+    for (const Vec3f& p : positions) {
+        for (int a = 0; a < 3; ++a) {
+            b.min[a] = std::min(b.min[a], p[a]);
+            b.max[a] = std::max(b.max[a], p[a]);
+        }
+    }
+    return b;
+}
+
+std::string file_extension(const std::string& path) {
+    const std::size_t slash = path.find_last_of('/');
+    const std::size_t dot = path.find_last_of('.');
+    if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return {};
+    std::string ext = path.substr(dot + 1);
+    std::transform(ext.begin(), ext.end(), ext.begin(),
+                   [](unsigned char c) { return char(std::tolower(c)); });
+    return ext;
+}
+
+namespace detail {
+
+std::string where(const std::string& path, const std::string& message) {
+    return path + ": " + message;
+}
+
+std::string read_file(const std::string& path) {
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0) {
+        throw IoError(where(path, std::string("cannot open: ") + std::strerror(errno)));
+    }
+    if (S_ISDIR(st.st_mode)) throw IoError(where(path, "is a directory, not a file"));
+    std::FILE* f = std::fopen(path.c_str(), "rb");
+    if (!f) throw IoError(where(path, std::string("cannot open: ") + std::strerror(errno)));
+    std::string content;
+    char chunk[1 << 16];
+    if (S_ISREG(st.st_mode)) content.reserve(std::size_t(st.st_size));
+    std::size_t n;
+    while ((n = std::fread(chunk, 1, sizeof(chunk), f)) > 0) content.append(chunk, n);
+    const bool failed = std::ferror(f) != 0;
+    const int err = errno;
+    std::fclose(f);
+    if (failed) throw IoError(where(path, std::string("read error: ") + std::strerror(err)));
+    return content;
+}
+
+Vec3d choose_origin(const double* xyz, std::size_t rows) {
+    if (rows == 0) return {0.0, 0.0, 0.0};
+    double lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) lo[a] = hi[a] = xyz[a];
+    for (std::size_t i = 0; i < rows; ++i) {
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = std::min(lo[a], xyz[3 * i + a]);
+            hi[a] = std::max(hi[a], xyz[3 * i + a]);
+        }
+    }
+    double diag2 = 0.0, magnitude = 0.0;
+    for (int a = 0; a < 3; ++a) {
+        diag2 += (hi[a] - lo[a]) * (hi[a] - lo[a]);
+        magnitude = std::max({magnitude, std::fabs(lo[a]), std::fabs(hi[a])});
+    }
+    const double diag = std::sqrt(diag2);
+    // A float carries 24 bits: at magnitude M its spacing is M * 2^-23. Keep that below
+    // extent * 2^-20 (a millionth of the scan), i.e. re-centre once M > 8 * extent.
+    if (magnitude <= 8.0 * std::max(diag, 1e-30) || magnitude < 1.0) return {0.0, 0.0, 0.0};
+    const double q = std::ldexp(1.0, int(std::ceil(std::log2(std::max(diag, 1e-6)))));
+    Vec3d origin;
+    for (int a = 0; a < 3; ++a) origin[a] = std::round(0.5 * (lo[a] + hi[a]) / q) * q;
+    return origin;
+}
+
+ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::string& format,
+                           const ReadOptions& options) {
+    ReadResult result;
+    result.format = format;
+    const std::size_t rows = raw.rows();
+    result.rows = rows;
+    if (rows == 0) throw FormatError(where(path, "contains no points"));
+
+    // Drop rows with non-finite coordinates, compacting every attribute in place.
+    std::size_t kept = 0, first_bad = rows;
+    for (std::size_t i = 0; i < rows; ++i) {
+        const double* p = &raw.xyz[3 * i];
+        if (!(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) {
+            if (first_bad == rows) first_bad = i;
+            continue;
+        }
+        if (kept != i) {
+            for (int a = 0; a < 3; ++a) raw.xyz[3 * kept + a] = p[a];
+            for (auto* v : {&raw.normals, &raw.colors}) {
+                if (!v->empty()) std::copy_n(v->data() + 3 * i, 3, v->data() + 3 * kept);
+            }
+            for (auto* v : {&raw.scales, &raw.confidences}) {
+                if (!v->empty()) (*v)[kept] = (*v)[i];
+            }
+        }
+        ++kept;
+    }
+    result.dropped_nonfinite = rows - kept;
+    if (result.dropped_nonfinite > 0) {
+        if (options.non_finite == NonFinitePolicy::error) {
+            throw FormatError(where(path, "row " + std::to_string(first_bad) +
+                                              ": NaN or infinite coordinate"));
+        }
+        if (kept == 0) {
+            throw FormatError(where(path, "all " + std::to_string(rows) +
+                                              " rows have NaN or infinite coordinates"));
+        }
+        log_warning(where(path, "dropped " + std::to_string(result.dropped_nonfinite) + " of " +
+                                    std::to_string(rows) +
+                                    " rows with NaN or infinite coordinates (first: row " +
+                                    std::to_string(first_bad) + ")"));
+    }
+
+    PointCloud& cloud = result.cloud;
+    cloud.origin = options.local_frame ? choose_origin(raw.xyz.data(), kept) : Vec3d{0, 0, 0};
+    cloud.positions.resize(kept);
+    for (std::size_t i = 0; i < kept; ++i) {
+        for (int a = 0; a < 3; ++a) {
+            cloud.positions[i][a] = float(raw.xyz[3 * i + a] - cloud.origin[a]);
+        }
+    }
+    raw.xyz = {};
+    auto to_vec3 = [kept](std::vector<float>& src, std::vector<Vec3f>& dst) {
+        if (src.empty()) return;
+        dst.resize(kept);
+        std::memcpy(dst.data(), src.data(), kept * sizeof(Vec3f));
+        src = {};
+    };
+    to_vec3(raw.normals, cloud.normals);
+    to_vec3(raw.colors, cloud.colors);
+    if (!raw.scales.empty()) {
+        raw.scales.resize(kept);
+        cloud.scales = std::move(raw.scales);
+    }
+    if (!raw.confidences.empty()) {
+        raw.confidences.resize(kept);
+        cloud.confidences = std::move(raw.confidences);
+    }
+    for (Vec3f& n : cloud.normals) {
+        const double len = std::sqrt(double(n[0]) * n[0] + double(n[1]) * n[1] + double(n[2]) * n[2]);
+        if (!std::isfinite(len) || len < 1e-12) {
+            n = {0.0f, 0.0f, 0.0f};
+            ++result.invalid_normals;
+        } else if (std::fabs(len - 1.0) > 1e-6) {  // unit normals stay bit-exact
+            for (float& c : n) c = float(c / len);
+        }
+    }
+    if (result.invalid_normals > 0) {
+        log_warning(where(path, std::to_string(result.invalid_normals) +
+                                    " normals are zero or NaN; they will be re-estimated"));
+    }
+    for (float& s : cloud.scales) {
+        if (!std::isfinite(s) || s < 0.0f) s = 0.0f;  // 0 = unknown; the normals stage fills it
+    }
+    return result;
+}
+
+Mesh finalize_mesh(RawPoints&& raw, const std::string& path) {
+    Mesh mesh;
+    const std::size_t rows = raw.rows();
+    for (std::size_t i = 0; i < rows; ++i) {
+        for (int a = 0; a < 3; ++a) {
+            if (!std::isfinite(raw.xyz[3 * i + a])) {
+                throw FormatError(where(path, "vertex " + std::to_string(i) +
+                                                  ": NaN or infinite coordinate"));
+            }
+        }
+    }
+    mesh.origin = choose_origin(raw.xyz.data(), rows);
+    mesh.vertices.resize(rows);
+    for (std::size_t i = 0; i < rows; ++i) {
+        for (int a = 0; a < 3; ++a) {
+            mesh.vertices[i][a] = float(raw.xyz[3 * i + a] - mesh.origin[a]);
+        }
+    }
+    if (!raw.normals.empty()) {
+        mesh.normals.resize(rows);
+        std::memcpy(mesh.normals.data(), raw.normals.data(), rows * sizeof(Vec3f));
+    }
+    if (!raw.colors.empty()) {
+        mesh.colors.resize(rows);
+        std::memcpy(mesh.colors.data(), raw.colors.data(), rows * sizeof(Vec3f));
+    }
+    mesh.faces = std::move(raw.faces);
+    return mesh;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Atomic files
+
+AtomicFile::AtomicFile(const std::string& final_path) : final_(final_path) {
+    static std::atomic<unsigned> counter{0};
+    const std::size_t slash = final_path.find_last_of('/');
+    const std::string dir = slash == std::string::npos ? "" : final_path.substr(0, slash + 1);
+    const std::string base = slash == std::string::npos ? final_path : final_path.substr(slash + 1);
+    if (base.empty()) throw IoError(where(final_path, "output path names a directory"));
+    temp_ = dir + "." + base + ".tmp." + std::to_string(::getpid()) + "." +
+            std::to_string(counter++);
+    register_temp_file(temp_);
+}
+
+AtomicFile::~AtomicFile() {
+    if (file_) std::fclose(file_);
+    if (!committed_) std::remove(temp_.c_str());
+    unregister_temp_file(temp_);
+}
+
+std::FILE* AtomicFile::stream() {
+    if (!file_) {
+        struct stat st {};
+        if (::stat(final_.c_str(), &st) == 0 && S_ISDIR(st.st_mode)) {
+            throw IoError(where(final_, "cannot write: is a directory"));
+        }
+        file_ = std::fopen(temp_.c_str(), "wb");
+        if (!file_) {
+            throw IoError(where(final_, std::string("cannot create: ") + std::strerror(errno)));
+        }
+    }
+    return file_;
+}
+
+void AtomicFile::commit() {
+    if (file_) {
+        const bool bad = std::ferror(file_) != 0;
+        const int close_rc = std::fclose(file_);
+        const int err = errno;
+        file_ = nullptr;
+        if (bad || close_rc != 0) {
+            throw IoError(where(final_, std::string("write failed: ") + std::strerror(err)));
+        }
+    }
+    if (std::rename(temp_.c_str(), final_.c_str()) != 0) {
+        throw IoError(where(final_, std::string("cannot rename the temporary file into place: ") +
+                                        std::strerror(errno)));
+    }
+    committed_ = true;
+}
+
+void ByteWriter::write(const void* data, std::size_t n) {
+    if (buf_.size() + n > kSize) flush();
+    if (n > kSize) {
+        std::fwrite(data, 1, n, f_);
+        return;
+    }
+    buf_.append(static_cast<const char*>(data), n);
+}
+
+void ByteWriter::flush() {
+    if (!buf_.empty()) std::fwrite(buf_.data(), 1, buf_.size(), f_);
+    buf_.clear();
+}
+
+template <typename T>
+static std::string format_number_impl(T v) {
+    char buf[64];
+    auto r = std::to_chars(buf, buf + sizeof(buf), v);
+    return std::string(buf, r.ptr);
+}
+std::string format_number(float v) { return format_number_impl(v); }
+std::string format_number(double v) { return format_number_impl(v); }
+
+}  // namespace detail
+
+// ---------------------------------------------------------------------------------------------
+// Dispatch
+
+namespace {
+
+enum class Format { ply, xyz, obj };
+
+Format detect_format(const std::string& path, const std::string& content) {
+    const std::string ext = file_extension(path);
+    if (ext == "ply") return Format::ply;
+    if (ext == "xyz" || ext == "pts" || ext == "txt" || ext == "asc" || ext == "xyzn") {
+        return Format::xyz;
+    }
+    if (ext == "obj") return Format::obj;
+    if (content.compare(0, 3, "ply") == 0) return Format::ply;
+    throw FormatError(detail::where(
+        path, "unknown file type '." + ext + "' (supported: .ply, .xyz/.pts/.txt, .obj)"));
+}
+
+}  // namespace
+
+namespace {
+
+/// Reads any supported file into raw rows; `want_faces` also reads faces (meshes).
+detail::RawPoints read_raw(const std::string& path, bool want_faces, std::string& format) {
+    const std::string content = detail::read_file(path);
+    if (content.empty()) throw FormatError(detail::where(path, "file is empty"));
+    switch (detect_format(path, content)) {
+        case Format::ply:
+            return detail::read_ply_raw(path, content, want_faces, format);
+        case Format::xyz:
+            if (want_faces) {
+                throw FormatError(detail::where(path, "a text point file holds no faces"));
+            }
+            format = "xyz";
+            return detail::read_xyz_raw(path, content);
+        case Format::obj:
+            format = "obj";
+            return detail::read_obj_raw(path, content, want_faces);
+    }
+    return {};
+}
+
+}  // namespace
+
+ReadResult read_points(const std::string& path, const ReadOptions& options) {
+    std::string format;
+    detail::RawPoints raw = read_raw(path, false, format);
+    return detail::finalize_points(std::move(raw), path, format, options);
+}
+
+Mesh read_mesh(const std::string& path) {
+    std::string format;
+    detail::RawPoints raw = read_raw(path, true, format);
+    if (raw.faces.empty()) throw FormatError(detail::where(path, "has no faces"));
+    return detail::finalize_mesh(std::move(raw), path);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writers
+
+namespace {
+
+void write_obj(const std::string& path, const Mesh& mesh, const WriteOptions& options) {
+    detail::AtomicFile file(path);
+    detail::ByteWriter out(file.stream());
+    out.put("# vdbrecon mesh\n");
+    for (const std::string& c : options.comments) out.put("# " + c + "\n");
+    const bool far = mesh.origin != Vec3d{0, 0, 0};
+    const bool colors = mesh.colors.size() == mesh.vertices.size() && !mesh.colors.empty();
+    std::string line;
+    for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
+        line = "v";
+        for (int a = 0; a < 3; ++a) {
+            line += ' ';
+            line += far ? detail::format_number(mesh.origin[a] + double(mesh.vertices[i][a]))
+                        : detail::format_number(mesh.vertices[i][a]);
+        }
+        if (colors) {
+            for (int a = 0; a < 3; ++a) line += ' ' + detail::format_number(mesh.colors[i][a]);
+        }
+        line += '\n';
+        out.put(line);
+    }
+    const bool normals = mesh.normals.size() == mesh.vertices.size() && !mesh.normals.empty();
+    if (normals) {
+        for (const Vec3f& n : mesh.normals) {
+            out.put("vn " + detail::format_number(n[0]) + ' ' + detail::format_number(n[1]) + ' ' +
+                    detail::format_number(n[2]) + '\n');
+        }
+    }
+    for (const Triangle& t : mesh.faces) {
+        line = "f";
+        for (int c = 0; c < 3; ++c) {
+            const std::string idx = std::to_string(t[c] + 1);
+            line += ' ' + idx;
+            if (normals) line += "//" + idx;
+        }
+        line += '\n';
+        out.put(line);
+    }
+    out.flush();
+    file.commit();
+}
+
+void write_xyz(const std::string& path, const PointCloud& cloud) {
+    detail::AtomicFile file(path);
+    detail::ByteWriter out(file.stream());
+    const bool far = cloud.origin != Vec3d{0, 0, 0};
+    std::string line;
+    for (std::size_t i = 0; i < cloud.size(); ++i) {
+        line.clear();
+        for (int a = 0; a < 3; ++a) {
+            if (a) line += ' ';
+            line += far ? detail::format_number(cloud.origin[a] + double(cloud.positions[i][a]))
+                        : detail::format_number(cloud.positions[i][a]);
+        }
+        if (cloud.has_normals()) {
+            for (int a = 0; a < 3; ++a) line += ' ' + detail::format_number(cloud.normals[i][a]);
+        }
+        line += '\n';
+        out.put(line);
+    }
+    out.flush();
+    file.commit();
+}
+
+}  // namespace
+
+void write_mesh(const std::string& path, const Mesh& mesh, const WriteOptions& options) {
+    const std::string ext = file_extension(path);
+    if (ext == "ply") {
+        const bool n = !mesh.normals.empty() && mesh.normals.size() == mesh.vertices.size();
+        const bool c = !mesh.colors.empty() && mesh.colors.size() == mesh.vertices.size();
+        detail::write_ply(path, mesh.vertices, mesh.origin, n ? &mesh.normals : nullptr,
+                          c ? &mesh.colors : nullptr, nullptr, nullptr, &mesh.faces, options);
+    } else if (ext == "obj") {
+        write_obj(path, mesh, options);
+    } else {
+        throw InvalidArgument("output '" + path +
+                              "': unknown mesh extension (use .ply or .obj)");
+    }
+}
+
+void write_points(const std::string& path, const PointCloud& cloud, const WriteOptions& options) {
+    const std::string ext = file_extension(path);
+    if (ext == "ply") {
+        detail::write_ply(path, cloud.positions, cloud.origin,
+                          cloud.has_normals() ? &cloud.normals : nullptr,
+                          cloud.has_colors() ? &cloud.colors : nullptr,
+                          cloud.has_scales() ? &cloud.scales : nullptr,
+                          cloud.has_confidences() ? &cloud.confidences : nullptr, nullptr,
+                          options);
+    } else if (ext == "xyz") {
+        write_xyz(path, cloud);
+    } else {
+        throw InvalidArgument("output '" + path +
+                              "': unknown point-cloud extension (use .ply or .xyz)");
+    }
+}
+
+}  // namespace vdbrecon

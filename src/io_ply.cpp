@@ -1,0 +1,666 @@
+// PLY reading and writing (G. Turk, "The PLY Polygon File Format", 1994).
+//
+// Reader: ascii and binary little/big endian; every scalar type and its alias (char/int8,
+// uchar/uint8, short/int16, ushort/uint16, int/int32, uint/uint32, float/float32,
+// double/float64); vertex properties in any order; list properties and other elements walked
+// and skipped. The header's counts are checked against the file size before anything is
+// allocated, so a hostile header cannot make us reserve terabytes.
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "detail/io_common.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/pipeline.h"
+
+namespace vdbrecon::detail {
+namespace {
+
+enum class PlyType : std::uint8_t { int8, uint8, int16, uint16, int32, uint32, float32, float64 };
+enum class Encoding { ascii, binary_le, binary_be };
+
+std::size_t type_size(PlyType t) {
+    switch (t) {
+        case PlyType::int8:
+        case PlyType::uint8: return 1;
+        case PlyType::int16:
+        case PlyType::uint16: return 2;
+        case PlyType::int32:
+        case PlyType::uint32:
+        case PlyType::float32: return 4;
+        case PlyType::float64: return 8;
+    }
+    return 0;
+}
+
+bool parse_type(const std::string& s, PlyType& t) {
+    static const struct {
+        const char* name;
+        PlyType type;
+    } table[] = {{"char", PlyType::int8},      {"int8", PlyType::int8},
+                 {"uchar", PlyType::uint8},    {"uint8", PlyType::uint8},
+                 {"short", PlyType::int16},    {"int16", PlyType::int16},
+                 {"ushort", PlyType::uint16},  {"uint16", PlyType::uint16},
+                 {"int", PlyType::int32},      {"int32", PlyType::int32},
+                 {"uint", PlyType::uint32},    {"uint32", PlyType::uint32},
+                 {"float", PlyType::float32},  {"float32", PlyType::float32},
+                 {"double", PlyType::float64}, {"float64", PlyType::float64}};
+    for (const auto& e : table) {
+        if (s == e.name) {
+            t = e.type;
+            return true;
+        }
+    }
+    return false;
+}
+
+bool is_integer(PlyType t) { return t != PlyType::float32 && t != PlyType::float64; }
+
+/// Full-scale value of an integer colour channel (uchar 255, ushort 65535, ...).
+double colour_scale(PlyType t) {
+    switch (t) {
+        case PlyType::int8: return 127.0;
+        case PlyType::uint8: return 255.0;
+        case PlyType::int16: return 32767.0;
+        case PlyType::uint16: return 65535.0;
+        case PlyType::int32:
+        case PlyType::uint32: return 255.0;  // rare; assume 8-bit values stored wide
+        default: return 1.0;
+    }
+}
+
+struct Property {
+    std::string name;
+    PlyType type = PlyType::float32;
+    bool list = false;
+    PlyType count_type = PlyType::uint8;
+};
+
+struct Element {
+    std::string name;
+    std::uint64_t count = 0;
+    std::vector<Property> props;
+    std::size_t line = 0;  // header line, for messages
+};
+
+struct Header {
+    Encoding encoding = Encoding::ascii;
+    std::vector<Element> elements;
+    std::size_t body = 0;  // byte offset of the body
+};
+
+std::vector<std::string> split_words(const std::string& line) {
+    std::vector<std::string> w;
+    std::size_t i = 0;
+    while (i < line.size()) {
+        while (i < line.size() && (line[i] == ' ' || line[i] == '\t')) ++i;
+        std::size_t j = i;
+        while (j < line.size() && line[j] != ' ' && line[j] != '\t') ++j;
+        if (j > i) w.push_back(line.substr(i, j - i));
+        i = j;
+    }
+    return w;
+}
+
+Header parse_header(const std::string& path, const std::string& content) {
+    Header h;
+    std::size_t pos = 0, lineno = 0;
+    bool have_format = false, ended = false;
+    while (pos < content.size()) {
+        std::size_t eol = content.find('\n', pos);
+        if (eol == std::string::npos) break;
+        std::string line = content.substr(pos, eol - pos);
+        pos = eol + 1;
+        ++lineno;
+        if (!line.empty() && line.back() == '\r') line.pop_back();
+        if (lineno == 1) {
+            if (line != "ply") throw FormatError(where(path, "not a PLY file (no 'ply' magic)"));
+            continue;
+        }
+        const std::vector<std::string> w = split_words(line);
+        const std::string at = "header line " + std::to_string(lineno) + ": ";
+        if (w.empty() || w[0] == "comment" || w[0] == "obj_info") continue;
+        if (w[0] == "end_header") {
+            ended = true;
+            break;
+        }
+        if (w[0] == "format") {
+            if (w.size() != 3) throw FormatError(where(path, at + "malformed format line"));
+            if (w[1] == "ascii") {
+                h.encoding = Encoding::ascii;
+            } else if (w[1] == "binary_little_endian") {
+                h.encoding = Encoding::binary_le;
+            } else if (w[1] == "binary_big_endian") {
+                h.encoding = Encoding::binary_be;
+            } else {
+                throw FormatError(where(path, at + "unknown format '" + w[1] + "'"));
+            }
+            if (w[2] != "1.0" && w[2] != "1") {
+                throw FormatError(where(path, at + "unsupported PLY version '" + w[2] + "'"));
+            }
+            have_format = true;
+        } else if (w[0] == "element") {
+            if (w.size() != 3) throw FormatError(where(path, at + "malformed element line"));
+            Element e;
+            e.name = w[1];
+            e.line = lineno;
+            const char* b = w[2].data();
+            const auto r = std::from_chars(b, b + w[2].size(), e.count);
+            if (r.ec != std::errc() || r.ptr != b + w[2].size()) {
+                throw FormatError(where(path, at + "bad element count '" + w[2] + "'"));
+            }
+            h.elements.push_back(std::move(e));
+        } else if (w[0] == "property") {
+            if (h.elements.empty()) {
+                throw FormatError(where(path, at + "property before any element"));
+            }
+            Property p;
+            if (w.size() == 5 && w[1] == "list") {
+                p.list = true;
+                if (!parse_type(w[2], p.count_type) || !parse_type(w[3], p.type)) {
+                    throw FormatError(where(path, at + "unknown list type"));
+                }
+                if (!is_integer(p.count_type)) {
+                    throw FormatError(where(path, at + "list count type must be an integer"));
+                }
+                p.name = w[4];
+            } else if (w.size() == 3) {
+                if (!parse_type(w[1], p.type)) {
+                    throw FormatError(where(path, at + "unknown property type '" + w[1] + "'"));
+                }
+                p.name = w[2];
+            } else {
+                throw FormatError(where(path, at + "malformed property line"));
+            }
+            h.elements.back().props.push_back(std::move(p));
+        } else {
+            throw FormatError(where(path, at + "unknown header keyword '" + w[0] + "'"));
+        }
+    }
+    if (!ended) throw FormatError(where(path, "header has no end_header line (truncated?)"));
+    if (!have_format) throw FormatError(where(path, "header has no format line"));
+    h.body = pos;
+    return h;
+}
+
+// Reads one scalar of type t; returns false at end of data.
+class Cursor {
+public:
+    Cursor(const std::string& content, std::size_t offset, Encoding enc)
+        : p_(reinterpret_cast<const unsigned char*>(content.data()) + offset),
+          end_(reinterpret_cast<const unsigned char*>(content.data()) + content.size()),
+          enc_(enc) {}
+
+    std::size_t remaining() const { return std::size_t(end_ - p_); }
+
+    // Status of the last failed read.
+    enum class Fail { none, eof, not_a_number };
+    Fail fail = Fail::none;
+    std::string bad_token;
+
+    bool read(PlyType t, double& v) {
+        if (enc_ == Encoding::ascii) return read_ascii(v);
+        const std::size_t n = type_size(t);
+        if (remaining() < n) {
+            fail = Fail::eof;
+            return false;
+        }
+        unsigned char b[8];
+        if (enc_ == Encoding::binary_le) {
+            std::memcpy(b, p_, n);
+        } else {
+            for (std::size_t i = 0; i < n; ++i) b[i] = p_[n - 1 - i];
+        }
+        p_ += n;
+        switch (t) {
+            case PlyType::int8: v = double(std::int8_t(b[0])); break;
+            case PlyType::uint8: v = double(b[0]); break;
+            case PlyType::int16: v = double(load<std::int16_t>(b)); break;
+            case PlyType::uint16: v = double(load<std::uint16_t>(b)); break;
+            case PlyType::int32: v = double(load<std::int32_t>(b)); break;
+            case PlyType::uint32: v = double(load<std::uint32_t>(b)); break;
+            case PlyType::float32: v = double(load<float>(b)); break;
+            case PlyType::float64: v = load<double>(b); break;
+        }
+        return true;
+    }
+
+    // Skips n binary bytes; false at end of data.
+    bool skip(std::size_t n) {
+        if (remaining() < n) {
+            fail = Fail::eof;
+            return false;
+        }
+        p_ += n;
+        return true;
+    }
+
+private:
+    template <typename T>
+    static T load(const unsigned char* b) {
+        T v;
+        std::memcpy(&v, b, sizeof(T));
+        return v;
+    }
+
+    bool read_ascii(double& v) {
+        while (p_ < end_ && (*p_ == ' ' || *p_ == '\t' || *p_ == '\n' || *p_ == '\r')) ++p_;
+        if (p_ == end_) {
+            fail = Fail::eof;
+            return false;
+        }
+        const unsigned char* s = p_;
+        while (p_ < end_ && !(*p_ == ' ' || *p_ == '\t' || *p_ == '\n' || *p_ == '\r')) ++p_;
+        const char* b = reinterpret_cast<const char*>(s);
+        const char* e = reinterpret_cast<const char*>(p_);
+        // from_chars does not accept a leading '+'.
+        const char* parse_from = (b < e && *b == '+') ? b + 1 : b;
+        const auto r = std::from_chars(parse_from, e, v);
+        if (r.ec == std::errc::result_out_of_range) {
+            v = (*b == '-') ? -std::numeric_limits<double>::infinity()
+                            : std::numeric_limits<double>::infinity();
+            return true;
+        }
+        if (r.ec != std::errc() || r.ptr != e) {
+            fail = Fail::not_a_number;
+            bad_token.assign(b, std::min<std::size_t>(std::size_t(e - b), 32));
+            return false;
+        }
+        return true;
+    }
+
+    const unsigned char* p_;
+    const unsigned char* end_;
+    Encoding enc_;
+};
+
+// What a vertex property feeds.
+enum class Role : std::uint8_t {
+    ignore, x, y, z, nx, ny, nz, red, green, blue, scale, confidence
+};
+
+Role role_of(const std::string& name) {
+    static const struct {
+        const char* name;
+        Role role;
+    } table[] = {{"x", Role::x},
+                 {"y", Role::y},
+                 {"z", Role::z},
+                 {"nx", Role::nx},
+                 {"ny", Role::ny},
+                 {"nz", Role::nz},
+                 {"normal_x", Role::nx},
+                 {"normal_y", Role::ny},
+                 {"normal_z", Role::nz},
+                 {"red", Role::red},
+                 {"green", Role::green},
+                 {"blue", Role::blue},
+                 {"diffuse_red", Role::red},
+                 {"diffuse_green", Role::green},
+                 {"diffuse_blue", Role::blue},
+                 {"r", Role::red},
+                 {"g", Role::green},
+                 {"b", Role::blue},
+                 {"value", Role::scale},  // MVE / FSSR writes the sample scale as "value"
+                 {"scale", Role::scale},
+                 {"confidence", Role::confidence}};
+    for (const auto& e : table) {
+        if (name == e.name) return e.role;
+    }
+    return Role::ignore;
+}
+
+[[noreturn]] void fail_at(const std::string& path, const Element& e, std::uint64_t row,
+                          const Cursor& c, Encoding enc) {
+    std::string what;
+    if (c.fail == Cursor::Fail::not_a_number) {
+        what = "'" + c.bad_token + "' is not a number";
+    } else if (enc == Encoding::ascii) {
+        what = "unexpected end of file";
+    } else {
+        what = "truncated binary data";
+    }
+    throw FormatError(where(path, e.name + " " + std::to_string(row) + ": " + what));
+}
+
+// Smallest number of bytes (binary) or tokens (ascii) one record of `e` can occupy.
+std::size_t min_record_size(const Element& e, Encoding enc) {
+    std::size_t n = 0;
+    for (const Property& p : e.props) {
+        if (enc == Encoding::ascii) {
+            n += 1;  // at least a digit (a bound against absurd counts; parsing names the row)
+        } else {
+            n += p.list ? type_size(p.count_type) : type_size(p.type);
+        }
+    }
+    return n;
+}
+
+bool fixed_size(const Element& e) {
+    return std::none_of(e.props.begin(), e.props.end(), [](const Property& p) { return p.list; });
+}
+
+// Reads the list length; validates it against the remaining data.
+std::uint64_t read_list_count(const std::string& path, const Element& e, std::uint64_t row,
+                              const Property& p, Cursor& c, Encoding enc) {
+    double v = 0.0;
+    if (!c.read(p.count_type, v)) fail_at(path, e, row, c, enc);
+    if (!(v >= 0.0) || v != std::floor(v)) {
+        throw FormatError(where(path, e.name + " " + std::to_string(row) + ": list '" + p.name +
+                                          "' has invalid length " + format_number(v)));
+    }
+    const std::size_t per_item = enc == Encoding::ascii ? 1 : type_size(p.type);
+    if (v * double(per_item) > double(c.remaining())) {
+        throw FormatError(where(path, e.name + " " + std::to_string(row) + ": list '" + p.name +
+                                          "' of length " + format_number(v) +
+                                          " runs past the end of the file"));
+    }
+    return std::uint64_t(v);
+}
+
+void skip_element(const std::string& path, const Element& e, Cursor& c, Encoding enc) {
+    if (enc != Encoding::ascii && fixed_size(e)) {
+        const std::size_t rec = min_record_size(e, enc);
+        if (!c.skip(std::size_t(e.count) * rec)) {
+            const std::uint64_t row = rec ? c.remaining() / rec : 0;
+            fail_at(path, e, row, c, enc);
+        }
+        return;
+    }
+    double v;
+    for (std::uint64_t row = 0; row < e.count; ++row) {
+        for (const Property& p : e.props) {
+            if (p.list) {
+                const std::uint64_t n = read_list_count(path, e, row, p, c, enc);
+                for (std::uint64_t k = 0; k < n; ++k) {
+                    if (!c.read(p.type, v)) fail_at(path, e, row, c, enc);
+                }
+            } else if (!c.read(p.type, v)) {
+                fail_at(path, e, row, c, enc);
+            }
+        }
+    }
+}
+
+void read_vertices(const std::string& path, const Element& e, Cursor& c, Encoding enc,
+                   RawPoints& raw) {
+    std::vector<Role> roles;
+    bool has[12] = {};
+    PlyType colour_type = PlyType::uint8;
+    for (const Property& p : e.props) {
+        Role r = p.list ? Role::ignore : role_of(p.name);
+        if (r != Role::ignore && has[int(r)]) r = Role::ignore;  // first one wins
+        if (r != Role::ignore) has[int(r)] = true;
+        if (r == Role::red) colour_type = p.type;
+        roles.push_back(r);
+    }
+    for (Role r : {Role::x, Role::y, Role::z}) {
+        if (!has[int(r)]) {
+            const char* n = r == Role::x ? "x" : r == Role::y ? "y" : "z";
+            throw FormatError(where(path, "element '" + e.name + "' has no '" + n +
+                                              "' property"));
+        }
+    }
+    const bool normals = has[int(Role::nx)] && has[int(Role::ny)] && has[int(Role::nz)];
+    const bool colors = has[int(Role::red)] && has[int(Role::green)] && has[int(Role::blue)];
+    const double cscale = 1.0 / colour_scale(colour_type);
+
+    const std::size_t n = std::size_t(e.count);
+    raw.xyz.resize(3 * n);
+    if (normals) raw.normals.resize(3 * n);
+    if (colors) raw.colors.resize(3 * n);
+    if (has[int(Role::scale)]) raw.scales.resize(n);
+    if (has[int(Role::confidence)]) raw.confidences.resize(n);
+
+    double v;
+    for (std::size_t row = 0; row < n; ++row) {
+        for (std::size_t k = 0; k < e.props.size(); ++k) {
+            const Property& p = e.props[k];
+            if (p.list) {
+                const std::uint64_t len = read_list_count(path, e, row, p, c, enc);
+                for (std::uint64_t i = 0; i < len; ++i) {
+                    if (!c.read(p.type, v)) fail_at(path, e, row, c, enc);
+                }
+                continue;
+            }
+            if (!c.read(p.type, v)) fail_at(path, e, row, c, enc);
+            switch (roles[k]) {
+                case Role::ignore: break;
+                case Role::x: raw.xyz[3 * row] = v; break;
+                case Role::y: raw.xyz[3 * row + 1] = v; break;
+                case Role::z: raw.xyz[3 * row + 2] = v; break;
+                case Role::nx: if (normals) raw.normals[3 * row] = float(v); break;
+                case Role::ny: if (normals) raw.normals[3 * row + 1] = float(v); break;
+                case Role::nz: if (normals) raw.normals[3 * row + 2] = float(v); break;
+                case Role::red: if (colors) raw.colors[3 * row] = float(v * cscale); break;
+                case Role::green: if (colors) raw.colors[3 * row + 1] = float(v * cscale); break;
+                case Role::blue: if (colors) raw.colors[3 * row + 2] = float(v * cscale); break;
+                case Role::scale: raw.scales[row] = float(v); break;
+                case Role::confidence: raw.confidences[row] = float(v); break;
+            }
+        }
+    }
+}
+
+void read_faces(const std::string& path, const Element& e, Cursor& c, Encoding enc,
+                RawPoints& raw) {
+    int index_prop = -1;
+    for (std::size_t k = 0; k < e.props.size(); ++k) {
+        const Property& p = e.props[k];
+        if (p.list && (p.name == "vertex_indices" || p.name == "vertex_index")) {
+            index_prop = int(k);
+            break;
+        }
+    }
+    if (index_prop < 0) {
+        throw FormatError(where(path, "element 'face' has no 'vertex_indices' list"));
+    }
+    std::vector<std::int64_t> poly;
+    double v;
+    for (std::uint64_t row = 0; row < e.count; ++row) {
+        for (std::size_t k = 0; k < e.props.size(); ++k) {
+            const Property& p = e.props[k];
+            if (!p.list) {
+                if (!c.read(p.type, v)) fail_at(path, e, row, c, enc);
+                continue;
+            }
+            const std::uint64_t len = read_list_count(path, e, row, p, c, enc);
+            poly.clear();
+            for (std::uint64_t i = 0; i < len; ++i) {
+                if (!c.read(p.type, v)) fail_at(path, e, row, c, enc);
+                if (int(k) == index_prop) {
+                    if (!(v >= 0.0) || v > double(std::numeric_limits<std::int32_t>::max()) ||
+                        v != std::floor(v)) {
+                        throw FormatError(where(path, "face " + std::to_string(row) +
+                                                          ": invalid vertex index " +
+                                                          format_number(v)));
+                    }
+                    poly.push_back(std::int64_t(v));
+                }
+            }
+            // Fan triangulation of polygons (triangles pass through unchanged).
+            for (std::size_t i = 2; i < poly.size(); ++i) {
+                raw.faces.push_back({std::int32_t(poly[0]), std::int32_t(poly[i - 1]),
+                                     std::int32_t(poly[i])});
+            }
+        }
+    }
+}
+
+}  // namespace
+
+RawPoints read_ply_raw(const std::string& path, const std::string& content, bool want_faces,
+                       std::string& format) {
+    const Header h = parse_header(path, content);
+    format = h.encoding == Encoding::ascii       ? "ply ascii"
+             : h.encoding == Encoding::binary_le ? "ply binary_little_endian"
+                                                 : "ply binary_big_endian";
+    const auto vertex = std::find_if(h.elements.begin(), h.elements.end(),
+                                     [](const Element& e) { return e.name == "vertex"; });
+    if (vertex == h.elements.end()) throw FormatError(where(path, "no 'vertex' element"));
+
+    // Every element must fit in what is left of the file before we allocate for it.
+    const std::size_t body = content.size() - h.body;
+    double needed = 0.0;
+    for (const Element& e : h.elements) {
+        const double before = needed;
+        const std::size_t rec = min_record_size(e, h.encoding);
+        needed += double(e.count) * double(rec);
+        if (needed > double(body) + 1.0) {
+            const std::string declared = " (the header declares " + std::to_string(e.count) +
+                                         " rows";
+            if (h.encoding != Encoding::ascii && fixed_size(e) && rec > 0) {
+                const auto whole = std::uint64_t((double(body) - before) / double(rec));
+                throw FormatError(where(path, e.name + " " + std::to_string(whole) +
+                                                  ": truncated binary data" + declared +
+                                                  ", the file holds " + std::to_string(whole) +
+                                                  ")"));
+            }
+            throw FormatError(where(path, e.name + ": the file is too short for its rows" +
+                                              declared + ", " + std::to_string(body) +
+                                              " bytes of data)"));
+        }
+        if (&e == &*vertex && !want_faces) break;  // later elements are never read
+    }
+
+    RawPoints raw;
+    Cursor c(content, h.body, h.encoding);
+    bool have_faces = false;
+    for (const Element& e : h.elements) {
+        if (&e == &*vertex) {
+            read_vertices(path, e, c, h.encoding, raw);
+            if (!want_faces) break;
+        } else if (want_faces && e.name == "face" && !have_faces) {
+            read_faces(path, e, c, h.encoding, raw);
+            have_faces = true;
+        } else {
+            skip_element(path, e, c, h.encoding);
+        }
+    }
+    if (want_faces) {
+        const std::size_t nv = raw.rows();
+        for (std::size_t f = 0; f < raw.faces.size(); ++f) {
+            for (std::int32_t i : raw.faces[f]) {
+                if (std::size_t(i) >= nv) {
+                    throw FormatError(where(path, "face " + std::to_string(f) +
+                                                      ": vertex index " + std::to_string(i) +
+                                                      " out of range (" + std::to_string(nv) +
+                                                      " vertices)"));
+                }
+            }
+        }
+    }
+    return raw;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writer
+
+namespace {
+
+template <typename T>
+void put_binary(std::string& rec, T v, bool big_endian) {
+    unsigned char b[sizeof(T)];
+    std::memcpy(b, &v, sizeof(T));
+    if (big_endian) std::reverse(b, b + sizeof(T));
+    rec.append(reinterpret_cast<const char*>(b), sizeof(T));
+}
+
+std::uint8_t to_byte(float c) {
+    const float v = std::round(std::clamp(std::isfinite(c) ? c : 0.0f, 0.0f, 1.0f) * 255.0f);
+    return std::uint8_t(v);
+}
+
+}  // namespace
+
+void write_ply(const std::string& path, const std::vector<Vec3f>& positions, const Vec3d& origin,
+               const std::vector<Vec3f>* normals, const std::vector<Vec3f>* colors,
+               const std::vector<float>* scales, const std::vector<float>* confidences,
+               const std::vector<Triangle>* faces, const WriteOptions& options) {
+    const bool far = origin != Vec3d{0, 0, 0};
+    const bool ascii = options.encoding == PlyEncoding::ascii;
+    const bool big = options.encoding == PlyEncoding::binary_big_endian;
+
+    std::string header = "ply\nformat ";
+    header += ascii ? "ascii" : big ? "binary_big_endian" : "binary_little_endian";
+    header += " 1.0\ncomment written by vdbrecon ";
+    header += version();
+    header += "\n";
+    for (const std::string& c : options.comments) {
+        std::string line = c;
+        std::replace(line.begin(), line.end(), '\n', ' ');
+        header += "comment " + line + "\n";
+    }
+    header += "element vertex " + std::to_string(positions.size()) + "\n";
+    const char* coord = far ? "double" : "float";
+    for (const char* a : {"x", "y", "z"}) header += std::string("property ") + coord + " " + a + "\n";
+    if (normals) header += "property float nx\nproperty float ny\nproperty float nz\n";
+    if (colors) header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+    if (scales) header += "property float value\n";
+    if (confidences) header += "property float confidence\n";
+    if (faces) {
+        header += "element face " + std::to_string(faces->size()) + "\n";
+        header += "property list uchar int vertex_indices\n";
+    }
+    header += "end_header\n";
+
+    AtomicFile file(path);
+    ByteWriter out(file.stream());
+    out.put(header);
+    std::string rec;
+    for (std::size_t i = 0; i < positions.size(); ++i) {
+        rec.clear();
+        if (ascii) {
+            for (int a = 0; a < 3; ++a) {
+                if (a) rec += ' ';
+                rec += far ? format_number(origin[a] + double(positions[i][a]))
+                           : format_number(positions[i][a]);
+            }
+            if (normals) {
+                for (float v : (*normals)[i]) rec += ' ' + format_number(v);
+            }
+            if (colors) {
+                for (float v : (*colors)[i]) rec += ' ' + std::to_string(int(to_byte(v)));
+            }
+            if (scales) rec += ' ' + format_number((*scales)[i]);
+            if (confidences) rec += ' ' + format_number((*confidences)[i]);
+            rec += '\n';
+        } else {
+            for (int a = 0; a < 3; ++a) {
+                if (far) {
+                    put_binary(rec, origin[a] + double(positions[i][a]), big);
+                } else {
+                    put_binary(rec, positions[i][a], big);
+                }
+            }
+            if (normals) {
+                for (float v : (*normals)[i]) put_binary(rec, v, big);
+            }
+            if (colors) {
+                for (float v : (*colors)[i]) put_binary(rec, to_byte(v), big);
+            }
+            if (scales) put_binary(rec, (*scales)[i], big);
+            if (confidences) put_binary(rec, (*confidences)[i], big);
+        }
+        out.write(rec.data(), rec.size());
+    }
+    if (faces) {
+        for (const Triangle& t : *faces) {
+            rec.clear();
+            if (ascii) {
+                rec = "3 " + std::to_string(t[0]) + ' ' + std::to_string(t[1]) + ' ' +
+                      std::to_string(t[2]) + '\n';
+            } else {
+                put_binary(rec, std::uint8_t(3), big);
+                for (std::int32_t v : t) put_binary(rec, v, big);
+            }
+            out.write(rec.data(), rec.size());
+        }
+    }
+    out.flush();
+    file.commit();
+}
+
+}  // namespace vdbrecon::detail

@@ -1,0 +1,317 @@
+// Normals and per-point scale (see normals.h for the method and references).
+#include "vdbrecon/normals.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <queue>
+
+#include "vdbrecon/error.h"
+#include "vdbrecon/knn.h"
+#include "vdbrecon/log.h"
+
+namespace vdbrecon {
+
+void NormalOptions::validate() const {
+    if (k < 3 || k > 1000) {
+        throw InvalidArgument("normals.k = " + std::to_string(k) + ": must be in 3..1000");
+    }
+    if (viewpoint) {
+        for (double c : *viewpoint) {
+            if (!std::isfinite(c)) throw InvalidArgument("normals.viewpoint: must be finite");
+        }
+    }
+}
+
+namespace {
+
+bool is_zero(const Vec3f& n) { return n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f; }
+
+float dot(const Vec3f& a, const Vec3f& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+void flip(Vec3f& n) {
+    for (float& c : n) c = -c;
+}
+
+/// PCA normal of point i and its neighbours (coordinates taken relative to point i).
+bool neighbourhood_normal(const std::vector<Vec3f>& pts, std::size_t i, const int* nb, int k,
+                          Vec3f& normal) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    const Vec3f& c = pts[i];
+    auto rel = [&](std::size_t j) {
+        return Eigen::Vector3d(double(pts[j][0]) - c[0], double(pts[j][1]) - c[1],
+                               double(pts[j][2]) - c[2]);
+    };
+    for (int j = 0; j < k; ++j) mean += rel(std::size_t(nb[j]));
+    mean /= double(k + 1);  // the point itself contributes (0,0,0)
+    Eigen::Matrix3d cov = mean * mean.transpose();  // the point itself: (0 - mean)(0 - mean)^T
+    for (int j = 0; j < k; ++j) {
+        const Eigen::Vector3d d = rel(std::size_t(nb[j])) - mean;
+        cov += d * d.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
+    if (es.info() != Eigen::Success) return false;
+    const Eigen::Vector3d ev = es.eigenvalues();  // ascending
+    // Degenerate: all points coincide, or they lie on a line (two vanishing eigenvalues).
+    if (!(ev[2] > 0.0) || ev[1] <= 1e-12 * ev[2]) return false;
+    const Eigen::Vector3d n = es.eigenvectors().col(0).normalized();
+    normal = {float(n[0]), float(n[1]), float(n[2])};
+    return std::isfinite(normal[0]) && std::isfinite(normal[1]) && std::isfinite(normal[2]);
+}
+
+/// Hoppe-style orientation: Prim's minimum spanning tree over the symmetric kNN graph with edge
+/// cost 1 - |n_i . n_j|, propagating the sign from the seed along tree edges. Points in state
+/// kFree are re-oriented; kFixed points (already oriented) seed their neighbourhoods; kExcluded
+/// points (no normal) take no part. Returns the number of components seeded at a free point.
+enum : char { kExcluded = 0, kFree = 1, kFixed = 2 };
+std::size_t orient_mst(const std::vector<Vec3f>& pts, std::vector<Vec3f>& normals,
+                       const KnnResult& knn, const std::vector<char>& state,
+                       std::size_t& flipped) {
+    const std::size_t n = pts.size();
+    const int k = knn.k;
+    // Symmetric adjacency in CSR form.
+    std::vector<std::uint32_t> degree(n + 1, 0);
+    for (std::size_t i = 0; i < n; ++i) {
+        const int* nb = knn.neighbours(i);
+        for (int j = 0; j < k; ++j) {
+            ++degree[i];
+            ++degree[std::size_t(nb[j])];
+        }
+    }
+    std::vector<std::size_t> start(n + 1, 0);
+    for (std::size_t i = 0; i < n; ++i) start[i + 1] = start[i] + degree[i];
+    std::vector<std::int32_t> adj(start[n]);
+    std::vector<std::size_t> fill(start.begin(), start.end() - 1);
+    for (std::size_t i = 0; i < n; ++i) {
+        const int* nb = knn.neighbours(i);
+        for (int j = 0; j < k; ++j) {
+            adj[fill[i]++] = nb[j];
+            adj[fill[std::size_t(nb[j])]++] = std::int32_t(i);
+        }
+    }
+
+    struct Edge {
+        float cost;
+        std::int32_t to, from;
+        bool operator>(const Edge& o) const {
+            if (cost != o.cost) return cost > o.cost;
+            if (to != o.to) return to > o.to;
+            return from > o.from;
+        }
+    };
+    std::priority_queue<Edge, std::vector<Edge>, std::greater<Edge>> heap;
+    std::vector<char> done(n, 0);
+    auto push_neighbours = [&](std::size_t i) {
+        for (std::size_t e = start[i]; e < start[i + 1]; ++e) {
+            const std::size_t j = std::size_t(adj[e]);
+            if (done[j] || state[j] != kFree) continue;
+            const float c = 1.0f - std::fabs(dot(normals[i], normals[j]));
+            heap.push({c, std::int32_t(j), std::int32_t(i)});
+        }
+    };
+    auto grow = [&]() {
+        while (!heap.empty()) {
+            const Edge e = heap.top();
+            heap.pop();
+            const std::size_t j = std::size_t(e.to);
+            if (done[j]) continue;
+            done[j] = 1;
+            if (dot(normals[j], normals[std::size_t(e.from)]) < 0.0f) {
+                flip(normals[j]);
+                ++flipped;
+            }
+            push_neighbours(j);
+        }
+    };
+
+    // Fixed (already oriented) points first: they seed their neighbourhoods.
+    for (std::size_t i = 0; i < n; ++i) {
+        if (state[i] != kFree) done[i] = 1;
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+        if (state[i] == kFixed) push_neighbours(i);
+    }
+    grow();
+
+    // Remaining components: seed at the highest unvisited point, normal turned away from the
+    // cloud's centroid (for the top of a closed object that is "up and out").
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const Vec3f& p : pts) centroid += Eigen::Vector3d(p[0], p[1], p[2]);
+    centroid /= double(n);
+    std::vector<std::int32_t> order(n);
+    for (std::size_t i = 0; i < n; ++i) order[i] = std::int32_t(i);
+    std::sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) {
+        if (pts[std::size_t(a)][2] != pts[std::size_t(b)][2]) {
+            return pts[std::size_t(a)][2] > pts[std::size_t(b)][2];
+        }
+        return a < b;
+    });
+    std::size_t components = 0;
+    for (std::int32_t s : order) {
+        const std::size_t i = std::size_t(s);
+        if (done[i]) continue;
+        ++components;
+        done[i] = 1;
+        const Vec3f& p = pts[i];
+        Vec3f out = {float(p[0] - centroid[0]), float(p[1] - centroid[1]),
+                     float(p[2] - centroid[2])};
+        if (dot(out, out) == 0.0f) out = {0.0f, 0.0f, 1.0f};
+        if (dot(normals[i], out) < 0.0f) {
+            flip(normals[i]);
+            ++flipped;
+        }
+        push_neighbours(i);
+        grow();
+    }
+    return components;
+}
+
+}  // namespace
+
+bool pca_normal(const Vec3f* points, std::size_t count, Vec3f& normal) {
+    if (count < 3) return false;
+    std::vector<Vec3f> pts(points, points + count);
+    std::vector<int> nb(count - 1);
+    for (std::size_t j = 1; j < count; ++j) nb[j - 1] = int(j);
+    return neighbourhood_normal(pts, 0, nb.data(), int(count - 1), normal);
+}
+
+NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options) {
+    options.validate();
+    const std::size_t n = cloud.size();
+    NormalResult result;
+    if (n == 0) throw InvalidArgument("normals: the point cloud is empty");
+
+    if (options.mode == NormalMode::keep && !cloud.has_normals()) {
+        throw InvalidArgument(
+            "normals: the input has no normals and --normals keep was given. Hint: --normals "
+            "estimate");
+    }
+    const bool estimate_all =
+        options.mode == NormalMode::estimate || !cloud.has_normals();
+    std::vector<char> needs(n, 0);
+    std::size_t needed = 0;
+    if (estimate_all) {
+        std::fill(needs.begin(), needs.end(), 1);
+        needed = n;
+    } else {
+        for (std::size_t i = 0; i < n; ++i) {
+            if (is_zero(cloud.normals[i])) {
+                needs[i] = 1;
+                ++needed;
+            }
+        }
+    }
+    bool need_scale = false;
+    if (options.scale == ScaleMode::knn) {
+        need_scale = true;
+    } else if (options.scale == ScaleMode::automatic) {
+        need_scale = !cloud.has_scales() ||
+                     std::any_of(cloud.scales.begin(), cloud.scales.end(),
+                                 [](float s) { return !(s > 0.0f); });
+    }
+
+    result.normals = estimate_all ? std::vector<Vec3f>(n, Vec3f{0, 0, 0}) : cloud.normals;
+    if (options.scale != ScaleMode::none && cloud.has_scales()) result.scales = cloud.scales;
+
+    if (needed == 0 && !need_scale) {
+        if (!result.scales.empty()) {
+            std::vector<float> s = result.scales;
+            std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
+            result.median_scale = s[s.size() / 2];
+        }
+        return result;
+    }
+    if (n < 2) {
+        throw NumericalError("normals: " + std::to_string(n) +
+                             " point(s) are too few to estimate normals or spacing");
+    }
+
+    const KnnIndex index(cloud.positions);
+    const KnnResult knn = index.self_neighbours(options.k);
+    const int k = knn.k;
+
+    // PCA normals where needed.
+    std::vector<char> degenerate(n, 0);
+    if (needed > 0) {
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                if (!needs[i]) continue;
+                Vec3f nrm;
+                if (k >= 2 && neighbourhood_normal(cloud.positions, i, knn.neighbours(i), k, nrm)) {
+                    result.normals[i] = nrm;
+                } else {
+                    degenerate[i] = 1;
+                }
+            }
+        });
+        std::size_t bad = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+            if (degenerate[i]) {
+                ++bad;
+                result.normals[i] = {0.0f, 0.0f, 0.0f};  // left unsplatted
+            }
+        }
+        if (bad > 0) {
+            log_warning("normals: " + std::to_string(bad) +
+                        " points have degenerate neighbourhoods (coincident or collinear) and "
+                        "get no normal");
+        }
+        result.estimated = needed - bad;
+        if (!estimate_all) result.repaired = needed - bad;
+        if (bad == n) {
+            throw NumericalError("normals: every neighbourhood is degenerate (all points "
+                                 "coincident or collinear); no surface can be reconstructed");
+        }
+
+        // Orientation.
+        if (options.viewpoint) {
+            result.oriented_to_viewpoint = true;
+            const Vec3d& v = *options.viewpoint;
+            for (std::size_t i = 0; i < n; ++i) {
+                if (!needs[i] || degenerate[i]) continue;
+                const Vec3f& p = cloud.positions[i];
+                const Vec3f to_view = {float(v[0] - cloud.origin[0] - p[0]),
+                                       float(v[1] - cloud.origin[1] - p[1]),
+                                       float(v[2] - cloud.origin[2] - p[2])};
+                if (dot(result.normals[i], to_view) < 0.0f) {
+                    flip(result.normals[i]);
+                    ++result.flipped;
+                }
+            }
+        } else {
+            std::vector<char> state(n);
+            for (std::size_t i = 0; i < n; ++i) {
+                state[i] = degenerate[i] ? kExcluded : needs[i] ? kFree : kFixed;
+            }
+            result.components =
+                orient_mst(cloud.positions, result.normals, knn, state, result.flipped);
+        }
+    }
+
+    if (need_scale) {
+        if (result.scales.empty()) result.scales.assign(n, 0.0f);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                if (options.scale == ScaleMode::automatic && result.scales[i] > 0.0f) continue;
+                const float* d = knn.sq_dists(i);
+                double s = 0.0;
+                for (int j = 0; j < k; ++j) s += std::sqrt(double(d[j]));
+                result.scales[i] = float(s / double(k));
+            }
+        });
+    }
+    if (!result.scales.empty()) {
+        std::vector<float> s = result.scales;
+        std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
+        result.median_scale = s[s.size() / 2];
+    }
+    return result;
+}
+
+}  // namespace vdbrecon

@@ -1,0 +1,183 @@
+// The reconstruction pipeline (see pipeline.h).
+#include "vdbrecon/pipeline.h"
+
+#include <sys/stat.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <sstream>
+
+#include "vdbrecon/error.h"
+#include "vdbrecon/log.h"
+
+#ifndef VDBRECON_VERSION
+#define VDBRECON_VERSION "0.0.0"
+#endif
+
+namespace vdbrecon {
+
+const char* version() { return VDBRECON_VERSION; }
+
+void PipelineOptions::validate() const {
+    normals.validate();
+    // voxel_size 0 means "choose"; check the rest with a stand-in voxel.
+    SplatOptions s = splat;
+    if (s.voxel_size == 0.0) s.voxel_size = 1.0;
+    s.validate();
+    mesh.validate();
+    if (threads < 0 || threads > 1024) {
+        throw InvalidArgument("threads = " + std::to_string(threads) + ": must be in 0..1024");
+    }
+    if (!(std::isfinite(auto_voxel_factor) && auto_voxel_factor > 0.0)) {
+        throw InvalidArgument("auto_voxel_factor must be a positive number");
+    }
+    if (!(auto_voxel_max_cells >= 16.0 && auto_voxel_max_cells <= 65536.0)) {
+        throw InvalidArgument("auto_voxel_max_cells must be in 16..65536");
+    }
+}
+
+double choose_voxel_size(const PointCloud& cloud, double median_scale,
+                         const PipelineOptions& options) {
+    const double diag = bounding_box(cloud.positions).diagonal();
+    double voxel = options.auto_voxel_factor * median_scale;
+    if (!(voxel > 0.0)) voxel = diag / 300.0;  // no spacing information
+    voxel = std::max(voxel, diag / options.auto_voxel_max_cells);
+    if (!(voxel > 0.0)) {
+        throw NumericalError("cannot choose a voxel size: all points coincide. Hint: --voxel");
+    }
+    return voxel;
+}
+
+std::string stage_volume_path(const std::string& mesh_path, const std::string& stage) {
+    const std::size_t slash = mesh_path.find_last_of('/');
+    const std::size_t dot = mesh_path.find_last_of('.');
+    std::string stem = mesh_path;
+    if (dot != std::string::npos && (slash == std::string::npos || dot > slash)) {
+        stem = mesh_path.substr(0, dot);
+    }
+    return stem + "." + stage + ".vdb";
+}
+
+namespace {
+
+class StageClock {
+public:
+    StageClock(std::vector<StageTiming>& timings, const StageCallback& cb, const char* name)
+        : timings_(timings), name_(name), start_(std::chrono::steady_clock::now()) {
+        if (cb) cb(name);
+    }
+    ~StageClock() {
+        const auto end = std::chrono::steady_clock::now();
+        timings_.push_back({name_, std::chrono::duration<double>(end - start_).count()});
+    }
+
+private:
+    std::vector<StageTiming>& timings_;
+    std::string name_;
+    std::chrono::steady_clock::time_point start_;
+};
+
+template <typename F>
+auto in_arena(int threads, F&& f) {
+    tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
+    return arena.execute(std::forward<F>(f));
+}
+
+std::string basename_stem(const std::string& path) {
+    const std::size_t slash = path.find_last_of('/');
+    std::string base = slash == std::string::npos ? path : path.substr(slash + 1);
+    const std::size_t dot = base.find_last_of('.');
+    if (dot != std::string::npos && dot > 0) base = base.substr(0, dot);
+    return base;
+}
+
+bool same_file(const std::string& a, const std::string& b) {
+    struct stat sa {}, sb {};
+    if (::stat(a.c_str(), &sa) != 0 || ::stat(b.c_str(), &sb) != 0) return false;
+    return sa.st_dev == sb.st_dev && sa.st_ino == sb.st_ino;
+}
+
+}  // namespace
+
+PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
+                           const StageCallback& on_stage) {
+    options.validate();
+    if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
+    PipelineResult r;
+    in_arena(options.threads, [&] {
+        {
+            StageClock clock(r.timings, on_stage, "normals");
+            r.normals = estimate_normals(cloud, options.normals);
+            cloud.normals = std::move(r.normals.normals);
+            cloud.scales = std::move(r.normals.scales);
+            r.normals.normals.clear();
+            r.normals.scales.clear();
+        }
+        SplatOptions splat_options = options.splat;
+        if (splat_options.voxel_size == 0.0) {
+            splat_options.voxel_size = choose_voxel_size(cloud, r.normals.median_scale, options);
+            r.voxel_chosen = true;
+        }
+        r.voxel_size = splat_options.voxel_size;
+        {
+            StageClock clock(r.timings, on_stage, "splat");
+            r.splat = splat(cloud, splat_options);
+            r.volume = std::move(r.splat.volume);
+            r.splat.volume = Volume{};
+        }
+        {
+            StageClock clock(r.timings, on_stage, "mesh");
+            r.mesh_stats = extract_mesh(r.volume, options.mesh);
+            r.mesh = std::move(r.mesh_stats.mesh);
+            r.mesh_stats.mesh = Mesh{};
+        }
+    });
+    if (r.mesh.faces.empty()) {
+        log_warning("reconstruct: the surface is empty (no valid cell crosses zero)");
+    }
+    return r;
+}
+
+RunResult run(const std::string& input, const std::string& output, const PipelineOptions& options,
+              const StageCallback& on_stage) {
+    options.validate();
+    RunResult out;
+    out.mesh_path = output.empty() ? basename_stem(input) + ".recon.ply" : output;
+    const std::string ext = file_extension(out.mesh_path);
+    if (ext != "ply" && ext != "obj") {
+        throw InvalidArgument("output '" + out.mesh_path + "': unknown mesh extension (use .ply or .obj)");
+    }
+    if (same_file(input, out.mesh_path)) {
+        throw InvalidArgument("output '" + out.mesh_path + "' is the input file; refusing to overwrite it");
+    }
+    if (options.write_vdb) out.vdb_path = stage_volume_path(out.mesh_path, "splat");
+
+    std::vector<StageTiming> timings;
+    PointCloud cloud;
+    {
+        StageClock clock(timings, on_stage, "read");
+        out.read = read_points(input, options.read);
+        cloud = std::move(out.read.cloud);
+        out.read.cloud = PointCloud{};
+    }
+    out.result = reconstruct(cloud, options, on_stage);
+    cloud = PointCloud{};
+    timings.insert(timings.end(), out.result.timings.begin(), out.result.timings.end());
+    {
+        StageClock clock(timings, on_stage, "write");
+        WriteOptions w = options.write;
+        std::ostringstream c;
+        c << "vdbrecon " << version() << " from " << input << ", voxel " << out.result.voxel_size;
+        w.comments.insert(w.comments.begin(), c.str());
+        in_arena(options.threads, [&] {
+            write_mesh(out.mesh_path, out.result.mesh, w);
+            if (options.write_vdb) write_volume(out.vdb_path, out.result.volume);
+        });
+    }
+    out.result.timings = std::move(timings);
+    return out;
+}
+
+}  // namespace vdbrecon

@@ -1,0 +1,155 @@
+#include <openvdb/tools/LevelSetSphere.h>
+
+#include "support.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
+#include "vdbrecon/mesh.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+Mesh cube(double s = 1.0, const Vec3d& origin = {0, 0, 0}) {
+    Mesh m;
+    m.origin = origin;
+    for (int i = 0; i < 8; ++i) {
+        m.vertices.push_back({float(s * (i & 1)), float(s * ((i >> 1) & 1)), float(s * (i >> 2))});
+    }
+    // Outward, counter-clockwise.
+    m.faces = {{0, 2, 1}, {1, 2, 3}, {4, 5, 6}, {5, 7, 6}, {0, 1, 4}, {1, 5, 4},
+               {2, 6, 3}, {3, 6, 7}, {0, 4, 2}, {2, 4, 6}, {1, 3, 5}, {3, 7, 5}};
+    return m;
+}
+
+Mesh sphere_mesh(float r, float voxel) {
+    initialize_openvdb();
+    Volume v;
+    v.sdf = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(r, openvdb::Vec3f(0.0f),
+                                                                     voxel, 3.0f);
+    v.voxel_size = voxel;
+    return extract_mesh(v).mesh;
+}
+
+}  // namespace
+
+TEST_CASE("topology of a closed cube and of an open one", "[eval]") {
+    Mesh c = cube();
+    TopologyStats t = mesh_topology(c);
+    REQUIRE(t.vertices == 8);
+    REQUIRE(t.faces == 12);
+    REQUIRE(t.euler == 2);
+    REQUIRE(t.watertight());
+    REQUIRE(t.components == 1);
+    REQUIRE(t.area == Approx(6.0));
+    REQUIRE(t.signed_volume == Approx(1.0));
+    c.faces.pop_back();
+    c.faces.pop_back();  // remove the +x face
+    t = mesh_topology(c);
+    REQUIRE(t.boundary_edges == 4);
+    REQUIRE(t.euler == 1);
+    // A third face on an edge makes it non-manifold; a separate triangle is a component.
+    c = cube();
+    c.vertices.push_back({0.5f, -1.0f, 0.0f});
+    c.faces.push_back({0, 1, 8});
+    c.vertices.push_back({5, 5, 5});
+    c.vertices.push_back({6, 5, 5});
+    c.vertices.push_back({5, 6, 5});
+    c.faces.push_back({9, 10, 11});
+    t = mesh_topology(c);
+    REQUIRE(t.nonmanifold_edges == 1);
+    REQUIRE(t.components == 2);
+}
+
+TEST_CASE("exact point-to-mesh distances", "[eval]") {
+    const MeshDistance d(cube());
+    REQUIRE(d.distance({0.5f, 0.5f, 2.0f}) == Approx(1.0));    // above the top face
+    REQUIRE(d.distance({2.0f, 2.0f, 2.0f}) == Approx(std::sqrt(3.0)));  // corner
+    REQUIRE(d.distance({0.5f, -1.0f, -1.0f}) == Approx(std::sqrt(2.0)));  // edge
+    REQUIRE(d.distance({0.5f, 0.5f, 0.25f}) == Approx(0.25));  // inside, nearest face z = 0
+    // Against brute force (the minimum over every single triangle) on a coarse sphere mesh.
+    const Mesh s = sphere_mesh(1.0f, 0.25f);
+    REQUIRE(s.faces.size() > 100);
+    std::vector<std::unique_ptr<MeshDistance>> single;
+    for (const Triangle& t : s.faces) {
+        Mesh one;
+        one.vertices = s.vertices;
+        one.faces = {t};
+        single.push_back(std::make_unique<MeshDistance>(one));
+    }
+    const MeshDistance ds(s);
+    for (const Vec3f& p : sample_surface(cube(3.0), 200, 9)) {
+        double best = 1e9;
+        for (const auto& f : single) best = std::min(best, f->distance(p));
+        REQUIRE(ds.distance(p) == Approx(best).margin(1e-12));
+    }
+}
+
+TEST_CASE("sampling is area-uniform and deterministic", "[eval]") {
+    const Mesh c = cube();
+    std::vector<std::int32_t> faces;
+    const std::vector<Vec3f> a = sample_surface(c, 60000, 42, &faces);
+    const std::vector<Vec3f> b = sample_surface(c, 60000, 42);
+    REQUIRE(a == b);
+    REQUIRE(sample_surface(c, 100, 43) != sample_surface(c, 100, 42));
+    // Equal-area faces: each gets 1/12 of the samples (binomial sd ~ 68).
+    std::vector<int> count(12, 0);
+    for (std::int32_t f : faces) ++count[std::size_t(f)];
+    for (int n : count) REQUIRE(std::abs(n - 5000) < 400);
+    for (const Vec3f& p : a) {
+        for (float v : p) REQUIRE((v >= -1e-6f && v <= 1.0f + 1e-6f));
+    }
+}
+
+TEST_CASE("metrics: identical meshes score perfectly, offset meshes by the offset", "[eval]") {
+    const Mesh s = sphere_mesh(1.0f, 0.02f);
+    EvalOptions o;
+    o.samples = 100000;
+    o.taus = {0.01, 0.05};
+    EvalResult r = evaluate(s, s, o);
+    REQUIRE(r.accuracy < 1e-6);
+    REQUIRE(r.completeness < 1e-6);
+    REQUIRE(r.fscores[0].fscore == Approx(1.0));
+    REQUIRE(r.normal_consistency == Approx(1.0).margin(1e-6));
+    REQUIRE(r.recon.watertight());
+
+    const Mesh big = sphere_mesh(1.03f, 0.02f);
+    r = evaluate(big, s, o);
+    REQUIRE(r.accuracy == Approx(0.03).margin(0.002));
+    REQUIRE(r.completeness == Approx(0.03).margin(0.002));
+    REQUIRE(r.chamfer_l1 == Approx(0.03).margin(0.002));
+    REQUIRE(r.fscores[0].fscore < 0.01);  // tau 0.01 < offset 0.03
+    REQUIRE(r.fscores[1].fscore == Approx(1.0));
+
+    // A shifted copy in another frame is the same mesh in world space.
+    Mesh moved = s;
+    moved.origin = {100.0, 0.0, 0.0};
+    for (Vec3f& v : moved.vertices) v[0] -= 100.0f;
+    REQUIRE(evaluate(moved, s, o).accuracy < 1e-4);
+
+    // Half the sphere: precision stays 1, recall halves.
+    Mesh half = s;
+    half.faces.clear();
+    for (const Triangle& t : s.faces) {
+        if (s.vertices[t[0]][2] > 0 && s.vertices[t[1]][2] > 0 && s.vertices[t[2]][2] > 0) {
+            half.faces.push_back(t);
+        }
+    }
+    r = evaluate(half, s, o);
+    REQUIRE(r.fscores[0].precision == Approx(1.0));
+    REQUIRE(r.fscores[0].recall == Approx(0.5).margin(0.02));
+}
+
+TEST_CASE("eval JSON has every field", "[eval]") {
+    const Mesh c = cube();
+    EvalOptions o;
+    o.samples = 2000;
+    const std::string j = to_json(evaluate(c, c, o));
+    for (const char* key : {"accuracy", "completeness", "chamfer_l1", "hausdorff",
+                            "normal_consistency", "precision", "recall", "fscore", "tau",
+                            "components", "boundary_edges", "nonmanifold_edges", "watertight"}) {
+        REQUIRE_THAT(j, Catch::Contains(std::string("\"") + key + "\""));
+    }
+    // Default tau: 0.2 % of the reference diagonal.
+    REQUIRE(evaluate(c, c, o).fscores[0].tau == Approx(0.002 * std::sqrt(3.0)));
+}

@@ -1,0 +1,393 @@
+#include <cstring>
+
+#include "support.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/io.h"
+#include "vdbrecon/log.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+PointCloud full_cloud() {
+    PointCloud c = sample_sphere(500, 0.3, {0.1, -0.2, 0.05});
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        // Colours that are exact in 8 bits, scales and confidences exact in float.
+        c.colors.push_back({float(i % 256) / 255.0f, float((i * 7) % 256) / 255.0f,
+                            float((i * 13) % 256) / 255.0f});
+        c.scales.push_back(0.001f * float(1 + i % 5));
+        c.confidences.push_back(0.25f * float(i % 4));
+    }
+    return c;
+}
+
+void require_same(const PointCloud& a, const PointCloud& b) {
+    REQUIRE(a.size() == b.size());
+    REQUIRE(a.positions == b.positions);
+    REQUIRE(a.normals == b.normals);
+    REQUIRE(a.scales == b.scales);
+    REQUIRE(a.confidences == b.confidences);
+    REQUIRE(a.colors.size() == b.colors.size());
+    for (std::size_t i = 0; i < a.colors.size(); ++i) {
+        for (int k = 0; k < 3; ++k) REQUIRE(a.colors[i][k] == Approx(b.colors[i][k]).margin(1e-6));
+    }
+}
+
+/// Captures warnings while alive.
+struct WarningCapture {
+    std::vector<std::string> messages;
+    LogHandler old;
+    WarningCapture() {
+        old = set_log_handler([this](LogLevel l, const std::string& m) {
+            if (l == LogLevel::warning) messages.push_back(m);
+        });
+    }
+    ~WarningCapture() { set_log_handler(old); }
+};
+
+template <typename T>
+void put_le(std::string& s, T v) {
+    char b[sizeof(T)];
+    std::memcpy(b, &v, sizeof(T));
+    s.append(b, sizeof(T));
+}
+template <typename T>
+void put_be(std::string& s, T v) {
+    char b[sizeof(T)];
+    std::memcpy(b, &v, sizeof(T));
+    for (std::size_t i = 0; i < sizeof(T); ++i) s.push_back(b[sizeof(T) - 1 - i]);
+}
+
+std::string error_of(const std::function<void()>& f) {
+    try {
+        f();
+    } catch (const Error& e) {
+        return e.what();
+    }
+    return "(no error)";
+}
+
+}  // namespace
+
+TEST_CASE("PLY point round trip in all three encodings", "[io]") {
+    TempDir dir;
+    const PointCloud c = full_cloud();
+    for (PlyEncoding enc : {PlyEncoding::binary_little_endian, PlyEncoding::binary_big_endian,
+                            PlyEncoding::ascii}) {
+        WriteOptions w;
+        w.encoding = enc;
+        const std::string path = dir.file("cloud.ply");
+        write_points(path, c, w);
+        const ReadResult r = read_points(path);
+        CAPTURE(r.format);
+        require_same(c, r.cloud);
+        REQUIRE(r.dropped_nonfinite == 0);
+    }
+}
+
+TEST_CASE("PLY mesh round trip keeps faces, normals and colours", "[io]") {
+    TempDir dir;
+    Mesh m;
+    m.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    m.normals = {{0, 0, 1}, {1, 0, 0}, {0, 1, 0}, {0.6f, 0.8f, 0}};
+    m.colors = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 1}};
+    m.faces = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+    for (const char* name : {"m.ply", "m.obj"}) {
+        for (PlyEncoding enc : {PlyEncoding::binary_little_endian,
+                                PlyEncoding::binary_big_endian, PlyEncoding::ascii}) {
+            WriteOptions w;
+            w.encoding = enc;
+            write_mesh(dir.file(name), m, w);
+            const Mesh r = read_mesh(dir.file(name));
+            REQUIRE(r.vertices == m.vertices);
+            REQUIRE(r.faces == m.faces);
+            REQUIRE(r.normals == m.normals);
+            REQUIRE(r.colors.size() == m.colors.size());
+        }
+    }
+}
+
+TEST_CASE("PLY reader: any property order, every scalar type and alias", "[io]") {
+    TempDir dir;
+    // Two vertices; properties in a deliberately odd order with mixed types, plus an
+    // unrelated element before and a face element (with lists) after the vertices.
+    const std::string header_props =
+        "element camera 1\n"
+        "property list uchar float params\n"
+        "property int16 id\n"
+        "element vertex 2\n"
+        "property uchar red\n"
+        "property float64 z\n"
+        "property short flags\n"
+        "property list uint8 int32 junk\n"
+        "property double x\n"
+        "property uint8 green\n"
+        "property float32 nz\n"
+        "property int8 tag\n"
+        "property float ny\n"
+        "property ushort quality\n"
+        "property uint blue\n"
+        "property float nx\n"
+        "property float value\n"
+        "property int y\n"
+        "property float confidence\n"
+        "element face 1\n"
+        "property list uchar int vertex_indices\n";
+    struct V {
+        unsigned char r;
+        double z;
+        short flags;
+        double x;
+        unsigned char g;
+        float nz;
+        signed char tag;
+        float ny;
+        unsigned short q;
+        unsigned b;
+        float nx;
+        float value;
+        int y;
+        float conf;
+    };
+    const V vs[2] = {{255, -1.5, -3, 2.25, 0, 1.0f, -7, 0.0f, 65535, 255, 0.0f, 0.5f, -4, 0.75f},
+                     {0, 3.0, 12, -0.5, 51, 0.0f, 100, 1.0f, 0, 102, 0.0f, 0.25f, 9, 1.0f}};
+    for (int mode = 0; mode < 3; ++mode) {
+        std::string body;
+        const bool be = mode == 1;
+        auto put = [&](auto v) { be ? put_be(body, v) : put_le(body, v); };
+        if (mode == 2) {
+            body = "3 0.5 1.5 2.5 -2\n";
+            for (const V& v : vs) {
+                std::ostringstream s;
+                s << int(v.r) << ' ' << v.z << ' ' << v.flags << " 2 7 8 " << v.x << ' '
+                  << int(v.g) << ' ' << v.nz << ' ' << int(v.tag) << ' ' << v.ny << ' ' << v.q
+                  << ' ' << v.b << ' ' << v.nx << ' ' << v.value << ' ' << v.y << ' ' << v.conf
+                  << '\n';
+                body += s.str();
+            }
+            body += "3 0 1 1\n";
+        } else {
+            put(std::uint8_t(3));
+            put(0.5f), put(1.5f), put(2.5f);
+            put(std::int16_t(-2));
+            for (const V& v : vs) {
+                put(v.r), put(v.z), put(v.flags);
+                put(std::uint8_t(2)), put(std::int32_t(7)), put(std::int32_t(8));
+                put(v.x), put(v.g), put(v.nz), put(v.tag), put(v.ny), put(v.q), put(v.b);
+                put(v.nx), put(v.value), put(v.y), put(v.conf);
+            }
+            put(std::uint8_t(3)), put(std::int32_t(0)), put(std::int32_t(1)), put(std::int32_t(1));
+        }
+        const char* fmt[] = {"binary_little_endian", "binary_big_endian", "ascii"};
+        const std::string path = dir.file("odd.ply");
+        write_bytes(path, std::string("ply\nformat ") + fmt[mode] + " 1.0\ncomment odd\n" +
+                              header_props + "end_header\n" + body);
+        const ReadResult r = read_points(path);
+        CAPTURE(fmt[mode]);
+        REQUIRE(r.cloud.size() == 2);
+        for (int i = 0; i < 2; ++i) {
+            REQUIRE(r.cloud.positions[i][0] == float(vs[i].x));
+            REQUIRE(r.cloud.positions[i][1] == float(vs[i].y));
+            REQUIRE(r.cloud.positions[i][2] == float(vs[i].z));
+            REQUIRE(r.cloud.normals[i] == Vec3f{vs[i].nx, vs[i].ny, vs[i].nz});
+            REQUIRE(r.cloud.scales[i] == vs[i].value);
+            REQUIRE(r.cloud.confidences[i] == vs[i].conf);
+            REQUIRE(r.cloud.colors[i][0] == Approx(vs[i].r / 255.0));
+            REQUIRE(r.cloud.colors[i][1] == Approx(vs[i].g / 255.0));
+            REQUIRE(r.cloud.colors[i][2] == Approx(vs[i].b / 255.0));
+        }
+    }
+}
+
+TEST_CASE("PLY reader: float colours and MVE 'value' scale", "[io]") {
+    TempDir dir;
+    const std::string path = dir.file("c.ply");
+    write_bytes(path,
+                "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                "property float z\nproperty float red\nproperty float green\nproperty float blue\n"
+                "property float scale\nend_header\n1 2 3 0.25 0.5 1 0.01\n");
+    const ReadResult r = read_points(path);
+    REQUIRE(r.cloud.colors[0] == Vec3f{0.25f, 0.5f, 1.0f});
+    REQUIRE(r.cloud.scales[0] == 0.01f);
+    REQUIRE_FALSE(r.cloud.has_normals());
+}
+
+TEST_CASE("PLY reader errors name the file and the problem", "[io]") {
+    TempDir dir;
+    const std::string path = dir.file("bad.ply");
+    const std::string head =
+        "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+        "property float y\nproperty float z\nend_header\n";
+
+    SECTION("truncated binary body") {
+        std::string body;
+        for (int i = 0; i < 7; ++i) put_le(body, float(i));  // 2 whole vertices + 1 float
+        body += "ab";
+        // The size check catches it before parsing: the header promises more than the file has.
+        write_bytes(path, head + body);
+        const std::string e = error_of([&] { read_points(path); });
+        REQUIRE(e == path + ": vertex 2: truncated binary data (the header declares 3 rows, the "
+                            "file holds 2)");
+    }
+    SECTION("truncated list data reports the row") {
+        std::string h =
+            "ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\n"
+            "property float y\nproperty float z\nproperty list uchar float extra\nend_header\n";
+        std::string body;
+        for (int i = 0; i < 3; ++i) put_le(body, float(i));
+        put_le(body, std::uint8_t(0));
+        for (int i = 0; i < 3; ++i) put_le(body, float(i));
+        put_le(body, std::uint8_t(1));
+        body += "xy";  // half a float
+        write_bytes(path, h + body);
+        REQUIRE(error_of([&] { read_points(path); }) ==
+                path + ": vertex 1: list 'extra' of length 1 runs past the end of the file");
+    }
+    SECTION("malformed headers and bodies") {
+        const std::string xyz = "property float x\nproperty float y\nproperty float z\n";
+        const struct {
+            std::string content, message;
+        } cases[] = {
+            {"ply\nformat ascii 1.0\nelement vertex 2\n" + xyz + "end_header\n1 2 3\n4 5\n",
+             "vertex 1: unexpected end of file"},
+            {"ply\nformat ascii 1.0\nelement vertex 1\n" + xyz + "end_header\n1 two 3\n",
+             "vertex 0: 'two' is not a number"},
+            {"ply\nformat ascii 1.0\nelement vertex 1\nproperty float y\nproperty float z\n"
+             "end_header\n2 3\n",
+             "element 'vertex' has no 'x' property"},
+            {"ply\nformat binary_middle_endian 1.0\nelement vertex 0\nend_header\n",
+             "header line 2: unknown format 'binary_middle_endian'"},
+            {"ply\nformat ascii 1.0\nelement vertex 10\nproperty float x\n",
+             "header has no end_header line (truncated?)"},
+            {"", "file is empty"},
+            {"ply\nformat ascii 1.0\nelement vertex 0\n" + xyz + "end_header\n",
+             "contains no points"},
+            // An absurd count is refused before anything is allocated.
+            {"ply\nformat binary_little_endian 1.0\nelement vertex 999999999999\n" + xyz +
+                 "end_header\n",
+             "vertex 0: truncated binary data (the header declares 999999999999 rows, the file "
+             "holds 0)"},
+        };
+        for (const auto& c : cases) {
+            write_bytes(path, c.content);
+            REQUIRE(error_of([&] { read_points(path); }) == path + ": " + c.message);
+        }
+    }
+    SECTION("missing file and directory") {
+        REQUIRE_THAT(error_of([&] { read_points(dir.file("nope.ply")); }),
+                     Catch::StartsWith(dir.file("nope.ply") + ": cannot open"));
+        REQUIRE_THROWS_AS(read_points(dir.path()), IoError);
+        REQUIRE(error_of([&] { read_points(dir.path()); }) ==
+                dir.path() + ": is a directory, not a file");
+    }
+}
+
+TEST_CASE("NaN and inf rows are dropped with a counted warning", "[io]") {
+    TempDir dir;
+    const std::string path = dir.file("nan.xyz");
+    write_bytes(path, "0 0 0\nnan 1 2\n1 1 1\n3 inf 4\n-inf 0 0\n2 2 2\n");
+    WarningCapture w;
+    const ReadResult r = read_points(path);
+    REQUIRE(r.rows == 6);
+    REQUIRE(r.dropped_nonfinite == 3);
+    REQUIRE(r.cloud.positions == std::vector<Vec3f>{{0, 0, 0}, {1, 1, 1}, {2, 2, 2}});
+    REQUIRE(w.messages.size() == 1);
+    REQUIRE_THAT(w.messages[0], Catch::Contains("dropped 3 of 6 rows"));
+
+    ReadOptions strict;
+    strict.non_finite = NonFinitePolicy::error;
+    REQUIRE(error_of([&] { read_points(path, strict); }) ==
+            path + ": row 1: NaN or infinite coordinate");
+}
+
+TEST_CASE("zero and NaN normals are flagged, others normalised", "[io]") {
+    TempDir dir;
+    const std::string path = dir.file("n.xyz");
+    write_bytes(path, "0 0 0 0 0 2\n1 0 0 0 0 0\n2 0 0 nan 0 1\n");
+    WarningCapture w;
+    const ReadResult r = read_points(path);
+    REQUIRE(r.invalid_normals == 2);
+    REQUIRE(r.cloud.normals[0] == Vec3f{0, 0, 1});
+    REQUIRE(r.cloud.normals[1] == Vec3f{0, 0, 0});
+    REQUIRE(r.cloud.normals[2] == Vec3f{0, 0, 0});
+}
+
+TEST_CASE("XYZ text: 3 and 6 columns, PTS count line, comments", "[io]") {
+    TempDir dir;
+    write_bytes(dir.file("a.xyz"), "# comment\n1 2 3\n4,5,6\n\n7\t8 9\n");
+    ReadResult r = read_points(dir.file("a.xyz"));
+    REQUIRE(r.cloud.positions == std::vector<Vec3f>{{1, 2, 3}, {4, 5, 6}, {7, 8, 9}});
+    REQUIRE_FALSE(r.cloud.has_normals());
+
+    write_bytes(dir.file("b.xyz"), "1 2 3 0 0 1\n4 5 6 0 -1 0\n");
+    r = read_points(dir.file("b.xyz"));
+    REQUIRE(r.cloud.normals == std::vector<Vec3f>{{0, 0, 1}, {0, -1, 0}});
+
+    write_bytes(dir.file("c.pts"), "2\n1 2 3 10 255 0 0\n4 5 6 10 0 255 0\n");
+    r = read_points(dir.file("c.pts"));
+    REQUIRE(r.cloud.size() == 2);
+    REQUIRE(r.cloud.colors[1] == Vec3f{0, 1, 0});
+
+    write_bytes(dir.file("d.xyz"), "1 2 3\n4 5\n");
+    REQUIRE(error_of([&] { read_points(dir.file("d.xyz")); }) ==
+            dir.file("d.xyz") + ": line 2: expected 3 numbers, found 2");
+
+    // Round trip through the XYZ writer.
+    PointCloud c = sample_sphere(50, 1.0);
+    write_points(dir.file("e.xyz"), c);
+    r = read_points(dir.file("e.xyz"));
+    REQUIRE(r.cloud.positions == c.positions);
+    REQUIRE(r.cloud.normals == c.normals);
+}
+
+TEST_CASE("OBJ: v/vn pairs and f-mapped normals", "[io]") {
+    TempDir dir;
+    write_bytes(dir.file("a.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nvn 0 0 1\nvn 0 0 1\n");
+    ReadResult r = read_points(dir.file("a.obj"));
+    REQUIRE(r.cloud.size() == 3);
+    REQUIRE(r.cloud.normals[2] == Vec3f{0, 0, 1});
+
+    write_bytes(dir.file("b.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 -1\nf 1//1 2//1 3//1\n");
+    r = read_points(dir.file("b.obj"));
+    REQUIRE(r.cloud.normals == std::vector<Vec3f>(3, Vec3f{0, 0, -1}));
+    const Mesh m = read_mesh(dir.file("b.obj"));
+    REQUIRE(m.faces == std::vector<Triangle>{{0, 1, 2}});
+
+    write_bytes(dir.file("c.obj"), "v 0 0 0\nf 1 2 3\n");
+    REQUIRE(error_of([&] { read_points(dir.file("c.obj")); }) ==
+            dir.file("c.obj") + ": line 2: face vertex index out of range");
+}
+
+TEST_CASE("georeferenced coordinates keep their precision in a local frame", "[io]") {
+    TempDir dir;
+    // 1 mm apart at 1e7 m: a float would round these to the same value (spacing 1 m).
+    std::string text;
+    for (int i = 0; i < 10; ++i) {
+        text += "10000000." + std::to_string(100 + i) + " 5000000.5 12.25\n";
+    }
+    write_bytes(dir.file("geo.xyz"), text);
+    const ReadResult r = read_points(dir.file("geo.xyz"));
+    REQUIRE(r.cloud.origin[0] != 0.0);
+    for (int i = 1; i < 10; ++i) {
+        const double dx = double(r.cloud.positions[i][0]) - double(r.cloud.positions[i - 1][0]);
+        REQUIRE(dx == Approx(0.001).margin(1e-6));
+    }
+    // Written back in double precision, world coordinates survive.
+    write_points(dir.file("geo.ply"), r.cloud);
+    const ReadResult back = read_points(dir.file("geo.ply"));
+    REQUIRE(back.cloud.origin == r.cloud.origin);
+    REQUIRE(back.cloud.positions == r.cloud.positions);
+}
+
+TEST_CASE("writes are atomic: failures leave no file behind", "[io]") {
+    TempDir dir;
+    const PointCloud c = sample_sphere(10, 1.0);
+    REQUIRE_THROWS_AS(write_points(dir.file("missing/dir/x.ply"), c), IoError);
+    REQUIRE(count_files(dir.path()) == 0);
+    REQUIRE_THROWS_AS(write_points(dir.file("x.stl"), c), InvalidArgument);
+    REQUIRE(count_files(dir.path()) == 0);
+    // A good write leaves exactly the target (no temp files).
+    write_points(dir.file("x.ply"), c);
+    REQUIRE(count_files(dir.path()) == 1);
+}

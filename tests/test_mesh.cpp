@@ -1,0 +1,137 @@
+#include <openvdb/tools/LevelSetSphere.h>
+
+#include "support.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
+#include "vdbrecon/mesh.h"
+#include "vdbrecon/splat.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+Volume sphere_volume(float radius, const openvdb::Vec3f& centre, float voxel) {
+    initialize_openvdb();
+    Volume v;
+    v.sdf = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(radius, centre, voxel, 3.0f);
+    v.sdf->setName("sdf");
+    v.voxel_size = voxel;
+    return v;
+}
+
+double radial_error(const Mesh& m, const Vec3d& c, double r) {
+    double worst = 0;
+    for (const Vec3f& v : m.vertices) {
+        const double d = std::sqrt(std::pow(v[0] + m.origin[0] - c[0], 2) +
+                                   std::pow(v[1] + m.origin[1] - c[1], 2) +
+                                   std::pow(v[2] + m.origin[2] - c[2], 2));
+        worst = std::max(worst, std::fabs(d - r));
+    }
+    return worst;
+}
+
+}  // namespace
+
+TEST_CASE("level-set sphere: closed, genus 0, outward, right volume", "[mesh]") {
+    const Volume v = sphere_volume(1.0f, {0.2f, -0.3f, 0.1f}, 0.05f);
+    const MeshResult r = extract_mesh(v);
+    const TopologyStats t = mesh_topology(r.mesh);
+    REQUIRE(t.faces > 1000);
+    REQUIRE(t.boundary_edges == 0);
+    REQUIRE(t.nonmanifold_edges == 0);
+    REQUIRE(t.components == 1);
+    REQUIRE(t.euler == 2);
+    REQUIRE(t.signed_volume == Approx(4.0 / 3.0 * M_PI).epsilon(0.01));
+    REQUIRE(radial_error(r.mesh, {0.2, -0.3, 0.1}, 1.0) < 0.1 * 0.05);
+    REQUIRE(r.mesh.normals.size() == r.mesh.vertices.size());
+    for (std::size_t i = 0; i < r.mesh.vertices.size(); ++i) {
+        const Vec3f& p = r.mesh.vertices[i];
+        const Vec3f& n = r.mesh.normals[i];
+        const double d = (p[0] - 0.2) * n[0] + (p[1] + 0.3) * n[1] + (p[2] - 0.1) * n[2];
+        REQUIRE(d > 0.99);  // unit radius: outward unit normal
+    }
+}
+
+TEST_CASE("splatted sphere meshes closed with Euler characteristic 2", "[mesh]") {
+    const double radius = 0.5, voxel = 0.01;
+    PointCloud s = sample_sphere(40000, radius);
+    s.scales.assign(s.size(), 0.009f);  // the sample spacing: sqrt(4 pi r^2 / n)
+    SplatOptions o;
+    o.voxel_size = voxel;
+    const SplatResult sr = splat(s, o);
+    const MeshResult r = extract_mesh(sr.volume);
+    const TopologyStats t = mesh_topology(r.mesh);
+    REQUIRE(t.boundary_edges == 0);
+    REQUIRE(t.nonmanifold_edges == 0);
+    REQUIRE(t.components == 1);
+    REQUIRE(t.euler == 2);
+    REQUIRE(t.signed_volume == Approx(4.0 / 3.0 * M_PI * std::pow(radius, 3)).epsilon(0.01));
+    REQUIRE(radial_error(r.mesh, {0, 0, 0}, radius) < 0.2 * voxel);
+    REQUIRE(r.trimmed_faces == 0);
+}
+
+TEST_CASE("an open patch stays open and nothing is meshed outside the data", "[mesh]") {
+    const PointCloud plane = sample_plane(61, 0.3);  // [-0.3, 0.3]^2, spacing 0.01
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    const SplatResult sr = splat(plane, o);
+    const MeshResult r = extract_mesh(sr.volume);
+    const TopologyStats t = mesh_topology(r.mesh);
+    REQUIRE(t.components == 1);
+    REQUIRE(t.boundary_edges > 100);
+    REQUIRE(t.nonmanifold_edges == 0);
+    REQUIRE(t.euler == 1);  // a disc
+    const double gap = MeshOptions{}.max_gap * o.voxel_size;
+    for (const Vec3f& v : r.mesh.vertices) {
+        REQUIRE(std::fabs(v[2]) < 1e-5);
+        REQUIRE(std::fabs(v[0]) <= 0.3 + gap);
+        REQUIRE(std::fabs(v[1]) <= 0.3 + gap);
+    }
+    // Without the data-distance and weight trims the sheet grows past the data: the trims bite.
+    MeshOptions loose;
+    loose.max_gap = std::numeric_limits<double>::infinity();
+    loose.min_surface_weight = 0.0;
+    const BBox tight = bounding_box(r.mesh.vertices);
+    const BBox wide = bounding_box(extract_mesh(sr.volume, loose).mesh.vertices);
+    REQUIRE(wide.max[0] > tight.max[0] + 0.5 * o.voxel_size);
+}
+
+TEST_CASE("faces never cross invalid voxels", "[mesh]") {
+    Volume v = sphere_volume(1.0f, {0, 0, 0}, 0.05f);
+    // Deactivate the band in the x > 0.5 slab: that part of the sphere is "not observed".
+    for (auto it = v.sdf->beginValueOn(); it; ++it) {
+        if (v.sdf->indexToWorld(it.getCoord()).x() > 0.5) it.setValueOff();
+    }
+    const MeshResult r = extract_mesh(v);
+    REQUIRE(r.dropped_faces > 0);
+    for (const Vec3f& p : r.mesh.vertices) REQUIRE(p[0] < 0.5);
+    const TopologyStats t = mesh_topology(r.mesh);
+    REQUIRE(t.boundary_edges > 0);
+    REQUIRE(t.nonmanifold_edges == 0);
+}
+
+TEST_CASE("meshing far from the origin keeps precision", "[mesh]") {
+    // The same sphere in a grid whose index origin sits at 1e7: the mesh is stored relative
+    // to the volume origin, so it matches the one at the origin exactly.
+    Volume a = sphere_volume(1.0f, {0, 0, 0}, 0.05f);
+    Volume b = sphere_volume(1.0f, {0, 0, 0}, 0.05f);
+    b.sdf = b.sdf->deepCopy();
+    b.sdf->transform().postTranslate(openvdb::Vec3d(1e7, -2e7, 5e6));
+    b.origin = {1e7, -2e7, 5e6};
+    const Mesh ma = extract_mesh(a).mesh, mb = extract_mesh(b).mesh;
+    REQUIRE(ma.vertices == mb.vertices);
+    REQUIRE(ma.faces == mb.faces);
+    REQUIRE(mb.origin == b.origin);
+}
+
+TEST_CASE("mesh options are validated", "[mesh]") {
+    const Volume v = sphere_volume(1.0f, {0, 0, 0}, 0.1f);
+    MeshOptions o;
+    o.adaptivity = 2.0;
+    REQUIRE_THROWS_AS(extract_mesh(v, o), InvalidArgument);
+    o = {};
+    o.max_gap = 0.0;
+    REQUIRE_THROWS_AS(extract_mesh(v, o), InvalidArgument);
+    REQUIRE_THROWS_AS(extract_mesh(Volume{}), InvalidArgument);
+}

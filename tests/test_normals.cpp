@@ -1,0 +1,151 @@
+#include <tbb/global_control.h>
+
+#include "support.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/io.h"
+#include "vdbrecon/knn.h"
+#include "vdbrecon/normals.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+double dot(const Vec3f& a, const Vec3f& b) {
+    return double(a[0]) * b[0] + double(a[1]) * b[1] + double(a[2]) * b[2];
+}
+
+/// Sphere samples with their normals removed, centred at c with radius r.
+PointCloud bare_sphere(std::size_t n, double r, const Vec3d& c) {
+    PointCloud s = sample_sphere(n, r, c);
+    s.normals.clear();
+    return s;
+}
+
+}  // namespace
+
+TEST_CASE("kNN: exact neighbours, self excluded even among duplicates", "[normals]") {
+    std::vector<Vec3f> pts = {{0, 0, 0}, {1, 0, 0}, {0, 2, 0}, {0, 0, 3}, {0, 0, 0}};
+    KnnIndex index(pts);
+    const KnnResult r = index.self_neighbours(2);
+    REQUIRE(r.k == 2);
+    // Point 0's nearest others: its duplicate (4) at 0, then point 1 at 1.
+    REQUIRE(r.neighbours(0)[0] == 4);
+    REQUIRE(r.neighbours(0)[1] == 1);
+    REQUIRE(r.sq_dists(0)[1] == 1.0f);
+    REQUIRE(r.neighbours(4)[0] == 0);
+    REQUIRE(r.neighbours(3)[0] != 3);
+    const KnnResult q = index.query({{0.9f, 0, 0}}, 1);
+    REQUIRE(q.neighbours(0)[0] == 1);
+}
+
+TEST_CASE("PCA normals on a sphere are radial and MST orients them all outwards", "[normals]") {
+    const Vec3d c{0.3, -0.1, 2.0};
+    const double r = 0.5;
+    const PointCloud s = bare_sphere(20000, r, c);
+    NormalOptions o;
+    const NormalResult n = estimate_normals(s, o);
+    REQUIRE(n.estimated == s.size());
+    REQUIRE(n.components == 1);
+    std::size_t radial = 0, outward = 0;
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        const Vec3f d = {float((s.positions[i][0] - c[0]) / r), float((s.positions[i][1] - c[1]) / r),
+                         float((s.positions[i][2] - c[2]) / r)};
+        radial += std::fabs(dot(n.normals[i], d)) > 0.99;
+        outward += dot(n.normals[i], d) > 0.0;
+    }
+    REQUIRE(radial == s.size());
+    REQUIRE(outward == s.size());
+}
+
+TEST_CASE("orientation towards a viewpoint", "[normals]") {
+    // A viewpoint at the centre of the sphere turns every normal inwards.
+    const Vec3d c{1.0, 2.0, 3.0};
+    const PointCloud s = bare_sphere(5000, 1.0, c);
+    NormalOptions o;
+    o.viewpoint = c;
+    const NormalResult n = estimate_normals(s, o);
+    REQUIRE(n.oriented_to_viewpoint);
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        const Vec3f out = {float(s.positions[i][0] - c[0]), float(s.positions[i][1] - c[1]),
+                           float(s.positions[i][2] - c[2])};
+        REQUIRE(dot(n.normals[i], out) < 0.0);
+    }
+}
+
+TEST_CASE("per-point scale is the mean kNN spacing", "[normals]") {
+    // A regular grid of spacing h: the 4 nearest neighbours are all at distance h.
+    PointCloud g;
+    const float h = 0.01f;
+    for (int i = 0; i < 30; ++i) {
+        for (int j = 0; j < 30; ++j) g.positions.push_back({h * i, h * j, 0.0f});
+    }
+    g.normals.assign(g.size(), Vec3f{0, 0, 1});
+    NormalOptions o;
+    o.k = 4;
+    const NormalResult n = estimate_normals(g, o);
+    REQUIRE(n.estimated == 0);  // the normals were kept
+    REQUIRE(n.scales.size() == g.size());
+    REQUIRE(n.scales[15 * 30 + 15] == Approx(h).epsilon(1e-5));
+    REQUIRE(n.median_scale == Approx(h).epsilon(1e-5));
+
+    // A file scale is kept as it is in automatic mode; ScaleMode::none drops it.
+    g.scales.assign(g.size(), 0.5f);
+    REQUIRE(estimate_normals(g, o).scales[0] == 0.5f);
+    o.scale = ScaleMode::knn;
+    REQUIRE(estimate_normals(g, o).scales[15 * 30 + 15] == Approx(h).epsilon(1e-5));
+    o.scale = ScaleMode::none;
+    REQUIRE(estimate_normals(g, o).scales.empty());
+}
+
+TEST_CASE("zero normals from the file are re-estimated and follow their neighbours",
+          "[normals]") {
+    PointCloud s = sample_sphere(4000, 1.0);
+    for (std::size_t i = 0; i < s.size(); i += 10) s.normals[i] = {0, 0, 0};
+    const NormalResult n = estimate_normals(s, {});
+    REQUIRE(n.repaired == 400);
+    for (std::size_t i = 0; i < s.size(); i += 10) {
+        REQUIRE(dot(n.normals[i], s.positions[i]) > 0.99);  // unit sphere: position = normal
+    }
+}
+
+TEST_CASE("degenerate inputs fail clearly", "[normals]") {
+    PointCloud same;
+    same.positions.assign(100, Vec3f{1, 2, 3});
+    REQUIRE_THROWS_AS(estimate_normals(same, {}), NumericalError);
+    PointCloud one;
+    one.positions = {{0, 0, 0}};
+    REQUIRE_THROWS_AS(estimate_normals(one, {}), NumericalError);
+    NormalOptions keep;
+    keep.mode = NormalMode::keep;
+    REQUIRE_THROWS_AS(estimate_normals(bare_sphere(100, 1, {0, 0, 0}), keep), InvalidArgument);
+    NormalOptions badk;
+    badk.k = 1;
+    REQUIRE_THROWS_AS(estimate_normals(sample_sphere(100, 1), badk), InvalidArgument);
+}
+
+TEST_CASE("normals do not depend on the thread count", "[normals]") {
+    const PointCloud s = bare_sphere(20000, 1.0, {0, 0, 0});
+    NormalResult a, b;
+    {
+        tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+        a = estimate_normals(s, {});
+    }
+    b = estimate_normals(s, {});
+    REQUIRE(a.normals == b.normals);
+    REQUIRE(a.scales == b.scales);
+}
+
+TEST_CASE("bunny scans: estimated normals agree with the scanner's", "[normals][data]") {
+    const std::string path = shared_data("stanford_bunny/bun_scans_aligned.ply");
+    if (path.empty()) return;
+    PointCloud c = read_points(path).cloud;
+    const std::vector<Vec3f> truth = c.normals;
+    c.normals.clear();
+    const NormalResult n = estimate_normals(c, {});
+    std::size_t agree = 0;
+    for (std::size_t i = 0; i < truth.size(); ++i) agree += dot(truth[i], n.normals[i]) > 0.0;
+    const double fraction = double(agree) / double(truth.size());
+    INFO("agreeing normals: " << fraction);
+    REQUIRE(fraction >= 0.99);
+}

@@ -1,0 +1,136 @@
+#include <random>
+
+#include "support.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
+#include "vdbrecon/io.h"
+#include "vdbrecon/knn.h"
+#include "vdbrecon/pipeline.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+TEST_CASE("file-to-file run is byte-identical for 1 and 2 threads", "[pipeline]") {
+    TempDir dir;
+    PointCloud c = sample_sphere(30000, 1.0);
+    std::mt19937 rng(5);
+    std::normal_distribution<float> noise(0.0f, 0.003f);
+    for (Vec3f& p : c.positions) {
+        for (float& v : p) v += noise(rng);
+    }
+    c.normals.clear();  // exercise normal estimation and MST orientation too
+    write_points(dir.file("in.ply"), c);
+
+    PipelineOptions o;
+    o.threads = 1;
+    const RunResult a = run(dir.file("in.ply"), dir.file("a.ply"), o);
+    o.threads = 2;
+    const RunResult b = run(dir.file("in.ply"), dir.file("b.ply"), o);
+    REQUIRE(a.vdb_path == dir.file("a.splat.vdb"));
+    REQUIRE(a.result.mesh.faces.size() > 10000);
+    REQUIRE(read_bytes(dir.file("a.ply")) == read_bytes(dir.file("b.ply")));
+    REQUIRE(read_bytes(dir.file("a.splat.vdb")) == read_bytes(dir.file("b.splat.vdb")));
+    REQUIRE(mesh_topology(a.result.mesh).watertight());
+
+    // The written volume reads back with the same grids.
+    const Volume v = read_volume(a.vdb_path);
+    REQUIRE(v.sdf->getGridClass() == openvdb::GRID_LEVEL_SET);
+    REQUIRE(v.weight);
+    REQUIRE(v.nearest);
+    REQUIRE(v.voxel_size == Approx(a.result.voxel_size));
+    REQUIRE(v.sdf->activeVoxelCount() == a.result.volume.sdf->activeVoxelCount());
+}
+
+TEST_CASE("automatic voxel follows the spacing; --no-vdb writes only the mesh", "[pipeline]") {
+    TempDir dir;
+    write_points(dir.file("s.ply"), sample_sphere(20000, 1.0));
+    PipelineOptions o;
+    o.write_vdb = false;
+    const RunResult r = run(dir.file("s.ply"), dir.file("m.obj"), o);
+    REQUIRE(r.result.voxel_chosen);
+    REQUIRE(r.result.voxel_size == Approx(r.result.normals.median_scale));
+    REQUIRE(r.vdb_path.empty());
+    REQUIRE(count_files(dir.path()) == 2);  // input + mesh, nothing else
+    REQUIRE(read_mesh(dir.file("m.obj")).faces.size() == r.result.mesh.faces.size());
+}
+
+TEST_CASE("run refuses to overwrite its input and reports bad paths", "[pipeline]") {
+    TempDir dir;
+    write_points(dir.file("s.ply"), sample_sphere(2000, 1.0));
+    const std::string before = read_bytes(dir.file("s.ply"));
+    REQUIRE_THROWS_AS(run(dir.file("s.ply"), dir.file("s.ply"), {}), InvalidArgument);
+    REQUIRE(read_bytes(dir.file("s.ply")) == before);
+    REQUIRE_THROWS_AS(run(dir.file("s.ply"), dir.file("out.stl"), {}), InvalidArgument);
+    REQUIRE_THROWS_AS(run(dir.file("s.ply"), dir.file("no/such/dir/out.ply"), {}), IoError);
+    REQUIRE(count_files(dir.path()) == 1);
+}
+
+TEST_CASE("stage volume paths", "[pipeline]") {
+    REQUIRE(stage_volume_path("out/scan.ply", "splat") == "out/scan.splat.vdb");
+    REQUIRE(stage_volume_path("a.b/scan", "closed") == "a.b/scan.closed.vdb");
+}
+
+namespace {
+
+struct BunnyScore {
+    EvalResult eval;
+    PipelineResult result;
+};
+
+BunnyScore reconstruct_bunny(const std::string& scans, const std::string& gt, double voxel,
+                             NormalMode normals) {
+    PointCloud c = read_points(scans).cloud;
+    PipelineOptions o;
+    o.splat.voxel_size = voxel;
+    o.normals.mode = normals;
+    BunnyScore s;
+    s.result = reconstruct(c, o);
+    EvalOptions e;
+    e.taus = {0.0005};
+    e.samples = 500000;
+    s.eval = evaluate(s.result.mesh, read_mesh(gt), e);
+    return s;
+}
+
+}  // namespace
+
+TEST_CASE("end to end: Stanford bunny scans against the zippered mesh", "[pipeline][data]") {
+    const std::string scans = shared_data("stanford_bunny/bun_scans_aligned.ply");
+    const std::string gt = shared_data("stanford_bunny/bun_zipper_gt.ply");
+    if (scans.empty() || gt.empty()) return;
+
+    SECTION("voxel 0.5 mm") {
+        const BunnyScore s = reconstruct_bunny(scans, gt, 0.0005, NormalMode::automatic);
+        INFO(to_json(s.eval));
+        REQUIRE(s.eval.fscores[0].fscore >= 0.997);
+        REQUIRE(s.eval.chamfer_l1 <= 0.00006);
+        REQUIRE(s.eval.recon.nonmanifold_edges == 0);
+    }
+    SECTION("voxel 0.25 mm, finer than the sample spacing: the per-point scale closes it") {
+        const BunnyScore s = reconstruct_bunny(scans, gt, 0.00025, NormalMode::automatic);
+        INFO(to_json(s.eval));
+        REQUIRE(s.eval.fscores[0].fscore >= 0.99);
+    }
+    SECTION("normals estimated from the points") {
+        const BunnyScore s = reconstruct_bunny(scans, gt, 0.0005, NormalMode::estimate);
+        INFO(to_json(s.eval));
+        REQUIRE(s.eval.fscores[0].fscore >= 0.99);
+    }
+}
+
+TEST_CASE("Kinect frame: every vertex lies within 2 voxels of an input point", "[pipeline][data]") {
+    const std::string path = shared_data("pcl_kinect/capture0001.ply");
+    if (path.empty()) return;
+    PointCloud c = read_points(path).cloud;
+    const std::vector<Vec3f> points = c.positions;
+    PipelineOptions o;
+    o.normals.viewpoint = Vec3d{0, 0, 0};
+    const PipelineResult r = reconstruct(c, o);
+    REQUIRE(r.mesh.faces.size() > 100000);
+    const KnnIndex index(points);
+    const KnnResult nn = index.query(r.mesh.vertices, 1);
+    float worst = 0.0f;
+    for (float d2 : nn.sq_distances) worst = std::max(worst, d2);
+    INFO("voxel " << r.voxel_size << ", farthest vertex " << std::sqrt(worst));
+    REQUIRE(std::sqrt(double(worst)) <= 2.0 * r.voxel_size * (1 + 1e-5));
+}

@@ -1,0 +1,162 @@
+#include <tbb/global_control.h>
+
+#include <random>
+
+#include "support.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/splat.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+/// A noisy sphere with per-point scales and colours: exercises every accumulator.
+PointCloud noisy_sphere(std::size_t n, double r, unsigned seed) {
+    PointCloud c = sample_sphere(n, r);
+    std::mt19937 rng(seed);
+    std::normal_distribution<float> noise(0.0f, float(0.002 * r));
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        for (float& v : c.positions[i]) v += noise(rng);
+        c.scales.push_back(float(r) * 0.02f * (0.8f + 0.4f * u(rng)));
+        c.colors.push_back({u(rng), u(rng), u(rng)});
+    }
+    return c;
+}
+
+template <typename GridT>
+bool same_grids(const GridT& a, const GridT& b) {
+    if (a.activeVoxelCount() != b.activeVoxelCount() || a.tree().leafCount() != b.tree().leafCount()) {
+        return false;
+    }
+    for (auto it = a.tree().cbeginLeaf(); it; ++it) {
+        const auto* other = b.tree().probeConstLeaf(it->origin());
+        if (!other || other->getValueMask() != it->getValueMask()) return false;
+        if (std::memcmp(it->buffer().data(), other->buffer().data(),
+                        sizeof(typename GridT::ValueType) * it->SIZE) != 0) {
+            return false;
+        }
+    }
+    return true;
+}
+
+}  // namespace
+
+TEST_CASE("splatting a plane gives its exact signed distance", "[splat]") {
+    const PointCloud plane = sample_plane(101, 0.5);  // spacing 0.01 on z = 0, normal +z
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    const SplatResult r = splat(plane, o);
+    const auto& sdf = *r.volume.sdf;
+    REQUIRE(sdf.getGridClass() == openvdb::GRID_LEVEL_SET);
+    REQUIRE(sdf.getName() == "sdf");
+    REQUIRE(sdf.background() == Approx(3 * 0.01f));  // half width: 3 sigma of 1 voxel
+    std::size_t checked = 0;
+    for (auto it = sdf.cbeginValueOn(); it; ++it) {
+        const openvdb::Vec3d x = sdf.indexToWorld(it.getCoord());
+        // phi = n.(x - p) = z for every point: the average is z wherever it is defined.
+        REQUIRE(*it == Approx(x.z()).margin(1e-6));
+        REQUIRE(std::fabs(x.z()) <= 3 * 0.01 + 1e-9);  // nothing beyond the support
+        ++checked;
+    }
+    REQUIRE(checked > 101 * 101 * 3);
+    // Away from the borders every voxel within one sigma of the plane is valid.
+    openvdb::FloatGrid::ConstAccessor acc = sdf.getConstAccessor();
+    for (int i = -40; i <= 40; i += 5) {
+        for (int k = -1; k <= 1; ++k) REQUIRE(acc.isValueOn(openvdb::Coord(i, -i / 2, k)));
+    }
+    // The weight grid has the same topology and counts the samples: about pi (sigma/h)^2.
+    REQUIRE(r.volume.weight->tree().hasSameTopology(sdf.tree()));
+    const float w0 = r.volume.weight->getConstAccessor().getValue(openvdb::Coord(0, 0, 0));
+    REQUIRE(w0 == Approx(M_PI).epsilon(0.15));
+}
+
+TEST_CASE("splatting a sphere: sign and magnitude near the surface", "[splat]") {
+    const double radius = 0.5, voxel = 0.01;
+    const PointCloud s = sample_sphere(40000, radius);  // spacing ~ 0.0044
+    SplatOptions o;
+    o.voxel_size = voxel;
+    const SplatResult r = splat(s, o);
+    const auto& sdf = *r.volume.sdf;
+    std::size_t near = 0;
+    for (auto it = sdf.cbeginValueOn(); it; ++it) {
+        const double d = sdf.indexToWorld(it.getCoord()).length() - radius;
+        if (std::fabs(d) > 0.5 * voxel) REQUIRE((*it > 0) == (d > 0));
+        if (std::fabs(d) < 2 * voxel) {
+            REQUIRE(*it == Approx(d).margin(0.1 * voxel));
+            ++near;
+        }
+    }
+    REQUIRE(near > 10000);
+}
+
+TEST_CASE("splatting is bit-identical for any thread count", "[splat]") {
+    const PointCloud c = noisy_sphere(30000, 1.0, 3);
+    SplatOptions o;
+    o.voxel_size = 0.02;
+    SplatResult one;
+    {
+        tbb::global_control g(tbb::global_control::max_allowed_parallelism, 1);
+        one = splat(c, o);
+    }
+    const SplatResult many = splat(c, o);
+    REQUIRE(one.updates == many.updates);
+    REQUIRE(same_grids(*one.volume.sdf, *many.volume.sdf));
+    REQUIRE(same_grids(*one.volume.weight, *many.volume.weight));
+    REQUIRE(same_grids(*one.volume.nearest, *many.volume.nearest));
+    REQUIRE(same_grids(*one.volume.color, *many.volume.color));
+}
+
+TEST_CASE("colour is the weighted mean of the point colours", "[splat]") {
+    PointCloud plane = sample_plane(41, 0.2);
+    plane.colors.assign(plane.size(), Vec3f{0.25f, 0.5f, 1.0f});
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    const SplatResult r = splat(plane, o);
+    REQUIRE(r.volume.color);
+    for (auto it = r.volume.color->cbeginValueOn(); it; ++it) {
+        REQUIRE((*it)[0] == Approx(0.25f).epsilon(1e-5));
+        REQUIRE((*it)[2] == Approx(1.0f).epsilon(1e-5));
+    }
+}
+
+TEST_CASE("the nearest-sample grid points at a real sample", "[splat]") {
+    const PointCloud s = sample_sphere(2000, 1.0);
+    SplatOptions o;
+    o.voxel_size = 0.05;
+    const SplatResult r = splat(s, o);
+    const auto& g = *r.volume.nearest;
+    std::size_t n = 0;
+    for (auto it = g.cbeginValueOn(); it && n < 2000; ++it, ++n) {
+        const openvdb::Vec3d p = g.indexToWorld(it.getCoord()) + openvdb::Vec3d(*it);
+        double best = 1e9;
+        for (const Vec3f& q : s.positions) {
+            best = std::min(best, (p - openvdb::Vec3d(q[0], q[1], q[2])).length());
+        }
+        REQUIRE(best < 1e-5);
+    }
+}
+
+TEST_CASE("splat rejects bad input clearly", "[splat]") {
+    PointCloud s = sample_sphere(100, 1.0);
+    SplatOptions o;
+    REQUIRE_THROWS_AS(splat(s, o), InvalidArgument);  // voxel 0
+    o.voxel_size = -1;
+    REQUIRE_THROWS_AS(splat(s, o), InvalidArgument);
+    o.voxel_size = std::nan("");
+    REQUIRE_THROWS_AS(splat(s, o), InvalidArgument);
+    o.voxel_size = 1e-9;  // 1e9 voxels across
+    REQUIRE_THROWS_WITH(splat(s, o), Catch::Contains("too small for this scan"));
+    o.voxel_size = 0.1;
+    PointCloud bare = s;
+    bare.normals.clear();
+    REQUIRE_THROWS_WITH(splat(bare, o), Catch::Contains("no normals"));
+    PointCloud zero = s;
+    zero.normals.assign(zero.size(), Vec3f{0, 0, 0});
+    REQUIRE_THROWS_WITH(splat(zero, o), Catch::Contains("usable"));
+    // Half the normals zero: those points are skipped, not splatted as garbage.
+    PointCloud half = s;
+    for (std::size_t i = 0; i < half.size(); i += 2) half.normals[i] = {0, 0, 0};
+    REQUIRE(splat(half, o).skipped_points == 50);
+}

@@ -15,6 +15,8 @@
 #include <tbb/parallel_sort.h>
 
 #include <algorithm>
+#include <array>
+#include <memory>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -111,6 +113,126 @@ inline std::size_t leaves_touched(const Box& b) {
         n *= std::size_t(floor_div_leaf(b.hi[a]) - floor_div_leaf(b.lo[a]) + 1);
     }
     return n;
+}
+
+
+using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+using Vec3Leaf = openvdb::Vec3fTree::LeafNodeType;
+
+/// What one leaf contributes: its grids' leaf nodes (null when no voxel is valid) and counts.
+struct LeafOut {
+    std::unique_ptr<FloatLeaf> sdf, weight;
+    std::unique_ptr<Vec3Leaf> nearest, color;
+    std::size_t updates = 0, touched = 0, active = 0;
+};
+
+/// Per-voxel sums: w, the averaging weight u = amp * w, u * phi, and the nearest sample (squared
+/// distance and vector from the voxel, index units; the first sample in point order wins ties).
+struct VoxelSums {
+    double w, u, uphi, d2, ex, ey, ez;
+};
+struct ColorSums {
+    double r, g, b;
+};
+
+/// Sums every (point, voxel) contribution of one 8^3 leaf, in increasing point order.
+template <bool kColors>
+void splat_leaf(const openvdb::Coord& o, const Pair* begin, const Pair* end,
+                const std::vector<Kernel>& kernels, const PointCloud& cloud, double voxel,
+                double min_weight, float background, LeafOut& out) {
+    std::array<VoxelSums, kLeafVoxels> sums;
+    std::array<ColorSums, kColors ? kLeafVoxels : 1> csums;
+    for (VoxelSums& v : sums) v = {0, 0, 0, std::numeric_limits<double>::infinity(), 0, 0, 0};
+    if (kColors) csums.fill({0, 0, 0});
+    double gx[kLeafDim], gy[kLeafDim], gz[kLeafDim];
+    double dx2[kLeafDim], dy2[kLeafDim], dz2[kLeafDim];
+    double px[kLeafDim], py[kLeafDim], pz[kLeafDim];
+    std::size_t updates = 0;
+    for (const Pair* q = begin; q != end; ++q) {
+        const Kernel& k = kernels[q->point];
+        const Box b = support_box(k);
+        int lo[3], hi[3];
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = std::max(b.lo[a], o[a]) - o[a];
+            hi[a] = std::min(b.hi[a], o[a] + kLeafDim - 1) - o[a];
+        }
+        if (hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]) continue;
+        const double inv_s2 = 1.0 / (double(k.s) * double(k.s));
+        const double r2 = double(k.r) * double(k.r);
+        const double amp = double(k.amp);
+        auto axis = [&](int a, double c, float nc, double* g, double* d2, double* ph) {
+            for (int t = lo[a]; t <= hi[a]; ++t) {
+                const double d = double(o[a] + t) - c;  // index units
+                d2[t] = d * d;
+                g[t] = std::exp(-d * d * inv_s2);
+                ph[t] = double(nc) * d * voxel;  // world units
+            }
+        };
+        axis(0, k.cx, k.nx, gx, dx2, px);
+        axis(1, k.cy, k.ny, gy, dy2, py);
+        axis(2, k.cz, k.nz, gz, dz2, pz);
+        const float* col = kColors ? cloud.colors[q->point].data() : nullptr;
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+            for (int y = lo[1]; y <= hi[1]; ++y) {
+                const double dxy2 = dx2[x] + dy2[y];
+                if (dxy2 > r2) continue;
+                const double wxy = gx[x] * gy[y];
+                const double pxy = px[x] + py[y];
+                const int row = (x << (2 * kLeafLog2)) | (y << kLeafLog2);
+                for (int z = lo[2]; z <= hi[2]; ++z) {
+                    const double d2 = dxy2 + dz2[z];
+                    if (d2 > r2) continue;  // spherical support
+                    const double w = wxy * gz[z];
+                    const double u = amp * w;
+                    VoxelSums& s = sums[std::size_t(row | z)];
+                    s.w += w;
+                    s.u += u;
+                    s.uphi += u * (pxy + pz[z]);
+                    if (d2 < s.d2) {
+                        s.d2 = d2;
+                        s.ex = double(o[0] + x) - k.cx;
+                        s.ey = double(o[1] + y) - k.cy;
+                        s.ez = double(o[2] + z) - k.cz;
+                    }
+                    if (kColors) {
+                        ColorSums& c = csums[std::size_t(row | z)];
+                        c.r += u * col[0];
+                        c.g += u * col[1];
+                        c.b += u * col[2];
+                    }
+                    ++updates;
+                }
+            }
+        }
+    }
+    out.updates = updates;
+    auto valid = [&](const VoxelSums& v) { return v.w > 0.0 && v.w >= min_weight; };
+    for (const VoxelSums& v : sums) {
+        out.touched += v.w > 0.0;
+        out.active += valid(v);
+    }
+    if (out.active == 0) return;
+    out.sdf = std::make_unique<FloatLeaf>(o, background, false);
+    out.weight = std::make_unique<FloatLeaf>(o, 0.0f, false);
+    out.nearest = std::make_unique<Vec3Leaf>(o, openvdb::Vec3f(0.0f), false);
+    if (kColors) out.color = std::make_unique<Vec3Leaf>(o, openvdb::Vec3f(0.0f), false);
+    for (int i = 0; i < kLeafVoxels; ++i) {
+        const VoxelSums& v = sums[std::size_t(i)];
+        if (!valid(v)) continue;
+        const double inv_u = 1.0 / v.u;
+        const auto idx = openvdb::Index(i);
+        out.sdf->setValueOn(idx, float(std::clamp(v.uphi * inv_u, -double(background),
+                                                  double(background))));
+        out.weight->setValueOn(idx, float(v.w));
+        // Stored as the vector from the voxel to the sample, world units.
+        out.nearest->setValueOn(idx, openvdb::Vec3f(float(-v.ex * voxel), float(-v.ey * voxel),
+                                                    float(-v.ez * voxel)));
+        if (kColors) {
+            const ColorSums& c = csums[std::size_t(i)];
+            out.color->setValueOn(
+                idx, openvdb::Vec3f(float(c.r * inv_u), float(c.g * inv_u), float(c.b * inv_u)));
+        }
+    }
 }
 
 }  // namespace
@@ -242,129 +364,22 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     const double half_width = std::max(3.0, std::ceil(double(max_r)));
     const float background = float(half_width * voxel);
 
-    using FloatLeaf = openvdb::FloatTree::LeafNodeType;
-    using Vec3Leaf = openvdb::Vec3fTree::LeafNodeType;
-    std::vector<FloatLeaf*> sdf_leaves(num_leaves, nullptr), weight_leaves(num_leaves, nullptr);
-    std::vector<Vec3Leaf*> nearest_leaves(num_leaves, nullptr);
-    std::vector<Vec3Leaf*> color_leaves(colors ? num_leaves : 0, nullptr);
-    std::vector<std::size_t> leaf_updates(num_leaves, 0), leaf_touched(num_leaves, 0),
-        leaf_active(num_leaves, 0);
+    std::vector<LeafOut> leaves(num_leaves);
     const double min_weight = options.min_weight;
 
-    // Per-voxel sums, voxel-major: w, then with the averaging weight u = amp * w: u, u*phi,
-    // the smallest squared distance to a sample and the vector to that sample (index units; the
-    // first sample in point order wins ties), and u*rgb (3) with colours.
-    const int fields = colors ? 10 : 7;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_leaves, 4),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
-        std::vector<double> acc(std::size_t(kLeafVoxels) * std::size_t(fields));
-        double gx[kLeafDim], gy[kLeafDim], gz[kLeafDim];
-        double dx2[kLeafDim], dy2[kLeafDim], dz2[kLeafDim];
-        double px[kLeafDim], py[kLeafDim], pz[kLeafDim];
-        double ex[kLeafDim], ey[kLeafDim], ez[kLeafDim];
         for (std::size_t L = rg.begin(); L < rg.end(); ++L) {
-            const openvdb::Coord o = leaf_origin(pairs[leaf_begin[L]].key);
-            for (std::size_t v = 0; v < std::size_t(kLeafVoxels); ++v) {
-                double* a = &acc[v * std::size_t(fields)];
-                std::fill(a, a + fields, 0.0);
-                a[3] = std::numeric_limits<double>::infinity();
+            const Pair* b = pairs.data() + leaf_begin[L];
+            const Pair* e = pairs.data() + leaf_begin[L + 1];
+            LeafOut& out = leaves[L];
+            if (colors) {
+                splat_leaf<true>(leaf_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
+                                 background, out);
+            } else {
+                splat_leaf<false>(leaf_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
+                                  background, out);
             }
-            std::size_t updates = 0;
-            for (std::size_t q = leaf_begin[L]; q < leaf_begin[L + 1]; ++q) {
-                const std::uint32_t i = pairs[q].point;
-                const Kernel& k = kernels[i];
-                const Box b = support_box(k);
-                int lo[3], hi[3];
-                for (int a = 0; a < 3; ++a) {
-                    lo[a] = std::max(b.lo[a], o[a]) - o[a];
-                    hi[a] = std::min(b.hi[a], o[a] + kLeafDim - 1) - o[a];
-                }
-                if (hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]) continue;
-                const double inv_s = 1.0 / double(k.s);
-                const double amp = double(k.amp);
-                const double r2 = double(k.r) * double(k.r);
-                auto axis = [&](int a, double c, float nc, double* g, double* d2, double* ph,
-                                double* e) {
-                    for (int t = lo[a]; t <= hi[a]; ++t) {
-                        const double d = double(o[a] + t) - c;  // index units
-                        d2[t] = d * d;
-                        g[t] = std::exp(-d * d * inv_s * inv_s);
-                        ph[t] = double(nc) * d * voxel;  // world units
-                        e[t] = -d;                       // voxel -> sample, index units
-                    }
-                };
-                axis(0, k.cx, k.nx, gx, dx2, px, ex);
-                axis(1, k.cy, k.ny, gy, dy2, py, ey);
-                axis(2, k.cz, k.nz, gz, dz2, pz, ez);
-                const float* col = colors ? cloud.colors[i].data() : nullptr;
-                for (int x = lo[0]; x <= hi[0]; ++x) {
-                    for (int y = lo[1]; y <= hi[1]; ++y) {
-                        const double dxy2 = dx2[x] + dy2[y];
-                        if (dxy2 > r2) continue;
-                        const double wxy = gx[x] * gy[y];
-                        const double pxy = px[x] + py[y];
-                        const int row = (x << (2 * kLeafLog2)) | (y << kLeafLog2);
-                        for (int z = lo[2]; z <= hi[2]; ++z) {
-                            const double d2 = dxy2 + dz2[z];
-                            if (d2 > r2) continue;
-                            const double w = wxy * gz[z];
-                            const double u = amp * w;
-                            double* a = &acc[std::size_t(row | z) * std::size_t(fields)];
-                            a[0] += w;
-                            a[1] += u;
-                            a[2] += u * (pxy + pz[z]);
-                            if (d2 < a[3]) {
-                                a[3] = d2;
-                                a[4] = ex[x];
-                                a[5] = ey[y];
-                                a[6] = ez[z];
-                            }
-                            if (col) {
-                                a[7] += u * col[0];
-                                a[8] += u * col[1];
-                                a[9] += u * col[2];
-                            }
-                            ++updates;
-                        }
-                    }
-                }
-            }
-            leaf_updates[L] = updates;
-            std::size_t touched = 0, active = 0;
-            auto valid = [&](int v) {
-                const double w = acc[std::size_t(v) * std::size_t(fields)];
-                return w > 0.0 && w >= min_weight;
-            };
-            for (int v = 0; v < kLeafVoxels; ++v) {
-                touched += acc[std::size_t(v) * std::size_t(fields)] > 0.0;
-                active += valid(v);
-            }
-            leaf_touched[L] = touched;
-            leaf_active[L] = active;
-            if (active == 0) continue;
-            auto* sl = new FloatLeaf(o, background, false);
-            auto* wl = new FloatLeaf(o, 0.0f, false);
-            auto* nl = new Vec3Leaf(o, openvdb::Vec3f(0.0f), false);
-            Vec3Leaf* cl = colors ? new Vec3Leaf(o, openvdb::Vec3f(0.0f), false) : nullptr;
-            for (int v = 0; v < kLeafVoxels; ++v) {
-                if (!valid(v)) continue;
-                const double* a = &acc[std::size_t(v) * std::size_t(fields)];
-                const double inv_u = 1.0 / a[1];
-                const auto idx = openvdb::Index(v);
-                sl->setValueOn(idx, float(std::clamp(a[2] * inv_u, -double(background),
-                                                     double(background))));
-                wl->setValueOn(idx, float(a[0]));
-                nl->setValueOn(idx, openvdb::Vec3f(float(a[4] * voxel), float(a[5] * voxel),
-                                                   float(a[6] * voxel)));
-                if (cl) {
-                    cl->setValueOn(idx, openvdb::Vec3f(float(a[7] * inv_u), float(a[8] * inv_u),
-                                                       float(a[9] * inv_u)));
-                }
-            }
-            sdf_leaves[L] = sl;
-            weight_leaves[L] = wl;
-            nearest_leaves[L] = nl;
-            if (cl) color_leaves[L] = cl;
         }
     });
     pairs = {};
@@ -376,16 +391,16 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     auto nearest = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
     openvdb::Vec3fGrid::Ptr color = colors ? openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f))
                                            : nullptr;
-    for (std::size_t L = 0; L < num_leaves; ++L) {
-        result.updates += leaf_updates[L];
-        result.touched_voxels += leaf_touched[L];
-        result.active_voxels += leaf_active[L];
-        if (!sdf_leaves[L]) continue;
+    for (LeafOut& l : leaves) {
+        result.updates += l.updates;
+        result.touched_voxels += l.touched;
+        result.active_voxels += l.active;
+        if (!l.sdf) continue;
         ++result.leaves;
-        sdf->tree().addLeaf(sdf_leaves[L]);
-        weight->tree().addLeaf(weight_leaves[L]);
-        nearest->tree().addLeaf(nearest_leaves[L]);
-        if (colors) color->tree().addLeaf(color_leaves[L]);
+        sdf->tree().addLeaf(l.sdf.release());
+        weight->tree().addLeaf(l.weight.release());
+        nearest->tree().addLeaf(l.nearest.release());
+        if (colors) color->tree().addLeaf(l.color.release());
     }
     if (result.active_voxels == 0) {
         std::ostringstream s;

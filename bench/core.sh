@@ -17,8 +17,8 @@ echo "commit: $(git rev-parse --short HEAD 2>/dev/null || echo unknown)  date: $
 echo
 echo "Wall time and stages: best of $REPEAT runs (seconds); the run writes the mesh and the .vdb."
 echo
-echo "| run | threads | wall s | peak RSS MB | read | normals | splat | mesh | write | faces | comps | F@0.5mm | F@1mm | Chamfer-L1 um | acc um | comp um |"
-echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+echo "| run | threads | wall s | peak RSS MB | read | normals | splat | mesh | write | vdb (during mesh) | faces | comps | F@0.5mm | F@1mm | Chamfer-L1 um | acc um | comp um |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 REPEAT=${REPEAT:-3}
 run() {  # label threads args...   (best wall time of $REPEAT runs: this VM's timings are noisy)
   local label=$1 threads=$2; shift 2
@@ -29,7 +29,7 @@ run() {  # label threads args...   (best wall time of $REPEAT runs: this VM's ti
     if [ -z "$best" ] || awk "BEGIN {exit !($w < $best)}"; then best=$w; wall=$w; rss=$r; cp "$OUT/try.log" "$log"; fi
   done
   local stages
-  stages=$(grep "time:" "$log" | sed -E 's/.*time: //; s/, total.*//' | tr ',' '\n' | awk '{print $2}' | paste -sd'|')
+  stages=$(/usr/bin/python3 -c 'import re,sys; t=dict((m[0].strip(), m[1]) for m in re.findall(r"([a-z ()]+) ([0-9.]+) s,", sys.stdin.read())); print("|".join(t.get(k, "-") for k in ["read", "normals", "splat", "mesh", "write", "vdb (during mesh)"]))' < "$log")
   "$BIN" eval "$OUT/$label.ply" "$GT" --tau 0.0005,0.001 > "$OUT/$label.json"
   /usr/bin/python3 - "$OUT/$label.json" "$label" "$threads" "$wall" "$((rss / 1024))" "$stages" <<'PY'
 import json, sys

@@ -3,6 +3,7 @@
 
 #include <sys/stat.h>
 #include <tbb/task_arena.h>
+#include <tbb/task_group.h>
 
 #include <algorithm>
 #include <chrono>
@@ -102,7 +103,7 @@ bool same_file(const std::string& a, const std::string& b) {
 }  // namespace
 
 PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
-                           const StageCallback& on_stage) {
+                           const StageCallback& on_stage, const VolumeCallback& on_volume) {
     options.validate();
     if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
     PipelineResult r;
@@ -127,12 +128,22 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
             r.volume = std::move(r.splat.volume);
             r.splat.volume = Volume{};
         }
-        {
+        tbb::task_group side;
+        if (on_volume) side.run([&] { on_volume(r.volume); });
+        try {
             StageClock clock(r.timings, on_stage, "mesh");
             r.mesh_stats = extract_mesh(r.volume, options.mesh);
             r.mesh = std::move(r.mesh_stats.mesh);
             r.mesh_stats.mesh = Mesh{};
+        } catch (...) {
+            side.cancel();
+            try {
+                side.wait();
+            } catch (...) {
+            }
+            throw;
         }
+        side.wait();  // rethrows what on_volume threw
     });
     if (r.mesh.faces.empty()) {
         log_warning("reconstruct: the surface is empty (no valid cell crosses zero)");
@@ -162,7 +173,18 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         cloud = std::move(out.read.cloud);
         out.read.cloud = PointCloud{};
     }
-    out.result = reconstruct(cloud, options, on_stage);
+    // The volume is written while the mesh is extracted (I/O and compression are serial).
+    double vdb_seconds = 0.0;
+    VolumeCallback write_vdb;
+    if (options.write_vdb) {
+        write_vdb = [&](const Volume& v) {
+            const auto start = std::chrono::steady_clock::now();
+            write_volume(out.vdb_path, v);
+            vdb_seconds =
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        };
+    }
+    out.result = reconstruct(cloud, options, on_stage, write_vdb);
     cloud = PointCloud{};
     timings.insert(timings.end(), out.result.timings.begin(), out.result.timings.end());
     {
@@ -171,11 +193,9 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         std::ostringstream c;
         c << "vdbrecon " << version() << " from " << input << ", voxel " << out.result.voxel_size;
         w.comments.insert(w.comments.begin(), c.str());
-        in_arena(options.threads, [&] {
-            write_mesh(out.mesh_path, out.result.mesh, w);
-            if (options.write_vdb) write_volume(out.vdb_path, out.result.volume);
-        });
+        in_arena(options.threads, [&] { write_mesh(out.mesh_path, out.result.mesh, w); });
     }
+    if (options.write_vdb) timings.push_back({"vdb (during mesh)", vdb_seconds});
     out.result.timings = std::move(timings);
     return out;
 }

@@ -60,9 +60,15 @@ struct PipelineResult {
 /// Progress callback: stage name, called when a stage starts.
 using StageCallback = std::function<void(const std::string& stage)>;
 
+/// Called with the splatted volume; runs concurrently with mesh extraction (on the same worker
+/// threads), e.g. to write the volume to disk while the mesh is being built.
+using VolumeCallback = std::function<void(const Volume& volume)>;
+
 /// Runs normals > splat > mesh on an in-memory cloud (normals and scales are filled in).
+/// Exceptions from `on_volume` propagate once meshing has finished.
 PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
-                           const StageCallback& on_stage = {});
+                           const StageCallback& on_stage = {},
+                           const VolumeCallback& on_volume = {});
 
 /// Output paths of a file-to-file run.
 struct RunResult {

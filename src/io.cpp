@@ -241,6 +241,30 @@ AtomicFile::~AtomicFile() {
     unregister_temp_file(temp_);
 }
 
+void AtomicFile::create() {
+    stream();
+    std::fclose(file_);
+    file_ = nullptr;
+}
+
+void check_writable(const std::string& path) {
+    const std::size_t slash = path.find_last_of('/');
+    const std::string dir = slash == std::string::npos ? "." : path.substr(0, slash + 1);
+    struct stat st {};
+    if (::stat(dir.c_str(), &st) != 0) {
+        throw IoError(where(path, "cannot write: directory '" + dir + "' does not exist"));
+    }
+    if (!S_ISDIR(st.st_mode)) {
+        throw IoError(where(path, "cannot write: '" + dir + "' is not a directory"));
+    }
+    if (::access(dir.c_str(), W_OK) != 0) {
+        throw IoError(where(path, "cannot write: directory '" + dir + "' is not writable"));
+    }
+    if (::stat(path.c_str(), &st) == 0 && S_ISDIR(st.st_mode)) {
+        throw IoError(where(path, "cannot write: is a directory"));
+    }
+}
+
 std::FILE* AtomicFile::stream() {
     if (!file_) {
         struct stat st {};

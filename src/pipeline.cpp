@@ -10,6 +10,7 @@
 #include <cmath>
 #include <sstream>
 
+#include "detail/io_common.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/log.h"
 
@@ -164,6 +165,9 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         throw InvalidArgument("output '" + out.mesh_path + "' is the input file; refusing to overwrite it");
     }
     if (options.write_vdb) out.vdb_path = stage_volume_path(out.mesh_path, "splat");
+    // Fail before the work, not after it.
+    detail::check_writable(out.mesh_path);
+    if (options.write_vdb) detail::check_writable(out.vdb_path);
 
     std::vector<StageTiming> timings;
     PointCloud cloud;

@@ -124,6 +124,7 @@ void write_volume(const std::string& path, const Volume& volume) {
     }
 
     detail::AtomicFile file(path);
+    file.create();  // permission and space problems are reported in our words
     try {
         openvdb::io::File out(file.temp_path());
         // Active-mask compression only: Blosc saved ~6 % of the size of the bunny's grids (float

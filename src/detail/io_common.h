@@ -42,6 +42,10 @@ Vec3d choose_origin(const double* xyz, std::size_t rows);
 /// "file: message" — the prefix every reader error carries.
 std::string where(const std::string& path, const std::string& message);
 
+/// Throws IoError naming `path` unless a file can be created there: its directory must exist,
+/// be a directory and be writable, and `path` itself must not be a directory.
+void check_writable(const std::string& path);
+
 /// Writes to a temporary file in the target directory; commit() renames it onto the final
 /// path. If never committed, the destructor removes the temporary file.
 class AtomicFile {
@@ -55,6 +59,9 @@ public:
     const std::string& final_path() const { return final_; }
     /// An open stdio stream on the temp file (for writers that stream bytes).
     std::FILE* stream();
+    /// Creates the (empty) temp file and closes it again, for writers that open the path
+    /// themselves: failures are reported here, in our words, naming the final path.
+    void create();
     /// Closes the stream (if any), checks for write errors and renames. Throws IoError.
     void commit();
 

@@ -328,14 +328,20 @@ int run_reconstruct(Args& args) {
           << " triangles (" << p.mesh_stats.dropped_faces << " dropped outside valid cells, "
           << p.mesh_stats.trimmed_faces << " trimmed for low weight)\n";
         s << "vdbrecon: time:";
+        std::ostringstream mem;
+        mem << "vdbrecon: peak memory after:";
         for (const StageTiming& t : p.timings) {
             s << " " << t.stage << " " << std::fixed;
             s.precision(3);
             s << t.seconds << " s,";
+            mem << " " << t.stage << " " << long(t.peak_rss_mb) << " MB,";
         }
         const double wall =
             std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
         s << " wall " << wall << " s; peak memory " << peak_rss_mb() << " MB\n";
+        std::string m = mem.str();
+        m.back() = '\n';
+        s << m;
         std::cerr << s.str();
         std::cout << "mesh: " << r.mesh_path << "\n";
         if (!r.vdb_path.empty()) std::cout << "volume: " << r.vdb_path << "\n";

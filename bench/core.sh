@@ -46,6 +46,13 @@ run bunny-0.25mm 2 --voxel 0.00025
 run bunny-0.5mm-estimate 2 --voxel 0.0005 --normals estimate
 
 echo
+echo "Peak memory (process peak so far) at the end of each stage:"
+for f in "$OUT"/*.log; do
+  case "$f" in *try.log|*kinect.log) continue ;; esac
+  echo "    $(basename "$f" .log): $(grep -h "peak memory after" "$f" | sed 's/.*after: //')"
+done
+echo
+echo "Kinect frame (auto voxel, --viewpoint 0,0,0):"
 KIN=$DATA/pcl_kinect/capture0001.ply
 "$BIN" "$KIN" --viewpoint 0,0,0 -o "$OUT/kinect.ply" --no-vdb 2>"$OUT/kinect.log" >/dev/null
 grep -E "voxel|time:" "$OUT/kinect.log" | sed 's/^/    /'

@@ -1,6 +1,7 @@
 // The reconstruction pipeline (see pipeline.h).
 #include "vdbrecon/pipeline.h"
 
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <tbb/task_arena.h>
 #include <tbb/task_group.h>
@@ -64,6 +65,8 @@ std::string stage_volume_path(const std::string& mesh_path, const std::string& s
 
 namespace {
 
+double peak_rss_mb();
+
 class StageClock {
 public:
     StageClock(std::vector<StageTiming>& timings, const StageCallback& cb, const char* name)
@@ -72,7 +75,8 @@ public:
     }
     ~StageClock() {
         const auto end = std::chrono::steady_clock::now();
-        timings_.push_back({name_, std::chrono::duration<double>(end - start_).count()});
+        timings_.push_back(
+            {name_, std::chrono::duration<double>(end - start_).count(), peak_rss_mb()});
     }
 
 private:
@@ -80,6 +84,12 @@ private:
     std::string name_;
     std::chrono::steady_clock::time_point start_;
 };
+
+double peak_rss_mb() {
+    struct rusage ru {};
+    ::getrusage(RUSAGE_SELF, &ru);
+    return double(ru.ru_maxrss) / 1024.0;  // Linux reports kilobytes
+}
 
 template <typename F>
 auto in_arena(int threads, F&& f) {
@@ -199,7 +209,7 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         w.comments.insert(w.comments.begin(), c.str());
         in_arena(options.threads, [&] { write_mesh(out.mesh_path, out.result.mesh, w); });
     }
-    if (options.write_vdb) timings.push_back({"vdb (during mesh)", vdb_seconds});
+    if (options.write_vdb) timings.push_back({"vdb (during mesh)", vdb_seconds, peak_rss_mb()});
     out.result.timings = std::move(timings);
     return out;
 }

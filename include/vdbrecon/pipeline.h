@@ -40,10 +40,11 @@ struct PipelineOptions {
     void validate() const;
 };
 
-/// Wall time of one stage.
+/// Wall time of one stage, and the process's peak resident memory when it ended.
 struct StageTiming {
     std::string stage;
     double seconds = 0.0;
+    double peak_rss_mb = 0.0;  ///< peak so far (monotonic): the stage that raises it used it
 };
 
 struct PipelineResult {

@@ -171,14 +171,6 @@ std::size_t orient_mst(const std::vector<Vec3f>& pts, std::vector<Vec3f>& normal
 
 }  // namespace
 
-bool pca_normal(const Vec3f* points, std::size_t count, Vec3f& normal) {
-    if (count < 3) return false;
-    std::vector<Vec3f> pts(points, points + count);
-    std::vector<int> nb(count - 1);
-    for (std::size_t j = 1; j < count; ++j) nb[j - 1] = int(j);
-    return neighbourhood_normal(pts, 0, nb.data(), int(count - 1), normal);
-}
-
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options) {
     options.validate();
     const std::size_t n = cloud.size();

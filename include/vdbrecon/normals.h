@@ -58,8 +58,4 @@ struct NormalResult {
 /// Estimates (or checks) normals and per-point scale. Deterministic for any thread count.
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options = {});
 
-/// PCA normal (unit, unoriented) of a neighbourhood; returns false when it is degenerate
-/// (fewer than 3 distinct points, or collinear).
-bool pca_normal(const Vec3f* points, std::size_t count, Vec3f& normal);
-
 }  // namespace vdbrecon

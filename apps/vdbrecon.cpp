@@ -49,7 +49,7 @@ const Choices<NormalMode> kNormalModes = {
     {"auto", NormalMode::automatic}, {"estimate", NormalMode::estimate}, {"keep", NormalMode::keep}};
 const Choices<ScaleMode> kScaleModes = {
     {"auto", ScaleMode::automatic}, {"knn", ScaleMode::knn}, {"none", ScaleMode::none}};
-const Choices<Mesher> kMeshers = {{"vdb", Mesher::vdb}};
+const Choices<Mesher> kMeshers = {{"vdb", Mesher::vdb}, {"mc", Mesher::mc}, {"dc", Mesher::dc}};
 
 template <typename E>
 std::string choice_list(const Choices<E>& choices, const char* sep) {

@@ -1,11 +1,21 @@
-// Surface extraction from a Volume.
+// Surface extraction from a Volume, with three meshers behind one interface.
 //
-// `vdb`: OpenVDB's tools::volumeToMesh (dual marching cubes) on the "sdf" grid; quads are split
-// into counter-clockwise (outward-facing) triangles along the shorter diagonal. Faces are kept
-// only inside valid cells (cells whose eight corner voxels are all active), so an open scan
-// stays open and nothing appears where the data is silent; faces whose vertices carry little
-// summed weight (MeshOptions::min_surface_weight) are trimmed too. Vertex normals are the normalised
-// SDF gradient (central differences, trilinearly interpolated).
+// `vdb`: OpenVDB's tools::volumeToMesh (dual marching cubes); quads are split into triangles
+// along the shorter diagonal.
+// `mc`:  marching cubes (W. Lorensen and H. Cline, "Marching cubes", SIGGRAPH 1987) over the
+// valid cells: vertices on grid edges shared between cells, ambiguous faces resolved by the
+// asymptotic decider, so the mesh has no cracks.
+// `dc`:  dual contouring (T. Ju, F. Losasso, S. Schaefer and J. Warren, "Dual contouring of
+// Hermite data", SIGGRAPH 2002): one vertex per connected surface patch of a cell (one per cell
+// except in ambiguous cells, which keeps the mesh manifold as in S. Schaefer, T. Ju and J. Warren,
+// "Manifold dual contouring", 2007), placed by minimising the quadric error of the edge crossings
+// and their SDF-gradient normals; one quad per crossed edge. Keeps sharp edges and corners.
+//
+// Every mesher keeps faces only in valid cells (all eight corners active), so an open scan stays
+// open and nothing appears where the data is silent; faces whose vertices carry little summed
+// weight (min_surface_weight) or lie far from every sample (max_gap) are trimmed. Triangles are
+// counter-clockwise seen from outside; vertex normals are the normalised SDF gradient; vertex
+// colours are sampled from the "color" grid when the volume has one.
 #pragma once
 
 #include <cstddef>
@@ -17,6 +27,8 @@ namespace vdbrecon {
 
 enum class Mesher {
     vdb,  ///< OpenVDB volumeToMesh
+    mc,   ///< our marching cubes
+    dc,   ///< our dual contouring
 };
 
 struct MeshOptions {
@@ -35,6 +47,12 @@ struct MeshOptions {
     /// dropped: no surface is invented across gaps or past borders wider than this. In voxels;
     /// infinity disables the test.
     double max_gap = 2.0;
+    /// Dual contouring: singular values of the quadric below this fraction of the largest are
+    /// dropped (a flat or edge-like patch gets a vertex near the mass point, not a spike).
+    double dc_truncation = 0.1;
+    /// Dual contouring: weight of the pull towards the mass point of the crossings, relative to
+    /// one crossing's plane (0 = none).
+    double dc_bias = 0.01;
     /// Compute per-vertex normals from the SDF gradient.
     bool normals = true;
 

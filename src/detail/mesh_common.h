@@ -1,0 +1,193 @@
+// Internals shared by the meshers (vdb, mc, dc): grid sampling helpers and the raw surface each
+// mesher hands to finish_mesh().
+#pragma once
+
+#include <openvdb/openvdb.h>
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "vdbrecon/mesh.h"
+#include "vdbrecon/volume.h"
+
+namespace vdbrecon::detail {
+
+using FloatAccessor = openvdb::tree::ValueAccessor<const openvdb::FloatTree>;
+using Vec3Accessor = openvdb::tree::ValueAccessor<const openvdb::Vec3fTree>;
+
+/// What a mesher produces: points in index space and triangles, counter-clockwise seen from the
+/// positive (outside) side.
+struct RawSurface {
+    std::vector<openvdb::Vec3f> points;
+    std::vector<Triangle> triangles;
+    /// True when points may lie in cells with invalid corners (volumeToMesh does not know the
+    /// validity mask); finish_mesh() then drops the faces there.
+    bool check_cells = false;
+};
+
+/// A leaf's voxels and a margin around them (origin - 1 .. origin + 9 on each axis) copied into
+/// dense arrays, so stencils around the leaf's voxels and cells read arrays instead of walking the
+/// tree; reads outside the block go to the accessor. It offers the accessor's probeValue(),
+/// getValue() and isValueOn(), so stencil code is written once (as a template) for both.
+class LeafBlock {
+public:
+    static constexpr int kN = 11;  ///< block width: one voxel before the leaf, two after
+
+    explicit LeafBlock(FloatAccessor& acc) : acc_(acc) {}
+
+    /// Copies the leaf at `origin` and the margin from its neighbours (or their tiles).
+    void load(const openvdb::Coord& origin) {
+        base_ = origin.offsetBy(-1);
+        // Per axis and neighbour offset d (-1, 0, 1): block range and the neighbour's first voxel.
+        static constexpr int kBegin[3] = {0, 1, 9}, kEnd[3] = {1, 9, 11}, kLocal[3] = {7, 0, 0};
+        for (int dx = 0; dx < 3; ++dx) {
+            for (int dy = 0; dy < 3; ++dy) {
+                for (int dz = 0; dz < 3; ++dz) {
+                    const openvdb::Coord o = origin.offsetBy(8 * (dx - 1), 8 * (dy - 1), 8 * (dz - 1));
+                    const auto* leaf = acc_.probeConstLeaf(o);
+                    float tile = 0.0f;
+                    const bool tile_on = leaf ? false : acc_.probeValue(o, tile);
+                    const float* data = leaf ? leaf->buffer().data() : nullptr;
+                    for (int x = kBegin[dx]; x < kEnd[dx]; ++x) {
+                        const int lx = kLocal[dx] + x - kBegin[dx];
+                        for (int y = kBegin[dy]; y < kEnd[dy]; ++y) {
+                            const int ly = kLocal[dy] + y - kBegin[dy];
+                            const int row = (x * kN + y) * kN;
+                            // A z-row of a leaf: 8 consecutive values, one byte of its mask word.
+                            const unsigned bits =
+                                leaf ? leaf->getValueMask().template getWord<std::uint8_t>(
+                                           openvdb::Index(lx * 8 + ly))
+                                     : 0u;
+                            for (int z = kBegin[dz]; z < kEnd[dz]; ++z) {
+                                const int lz = kLocal[dz] + z - kBegin[dz];
+                                value_[row + z] = leaf ? data[(lx << 6) | (ly << 3) | lz] : tile;
+                                on_[row + z] = leaf ? std::uint8_t((bits >> lz) & 1u) : tile_on;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The block index of voxel c, when c is in the block.
+    bool index(const openvdb::Coord& c, int& i) const {
+        const unsigned x = unsigned(c[0] - base_[0]), y = unsigned(c[1] - base_[1]),
+                       z = unsigned(c[2] - base_[2]);
+        if (x >= unsigned(kN) || y >= unsigned(kN) || z >= unsigned(kN)) return false;
+        i = int((x * kN + y) * kN + z);
+        return true;
+    }
+
+    float value(int i) const { return value_[i]; }
+    bool on(int i) const { return on_[i] != 0; }
+    /// Whether block index i has all 26 neighbours in the block.
+    static bool interior(int i) {
+        const int x = i / (kN * kN), y = (i / kN) % kN, z = i % kN;
+        return x > 0 && x < kN - 1 && y > 0 && y < kN - 1 && z > 0 && z < kN - 1;
+    }
+
+    bool probeValue(const openvdb::Coord& c, float& f) {
+        int i;
+        if (!index(c, i)) return acc_.probeValue(c, f);
+        f = value_[i];
+        return on_[i];
+    }
+    float getValue(const openvdb::Coord& c) {
+        int i;
+        return index(c, i) ? value_[i] : acc_.getValue(c);
+    }
+    bool isValueOn(const openvdb::Coord& c) {
+        int i;
+        return index(c, i) ? bool(on_[i]) : acc_.isValueOn(c);
+    }
+
+private:
+    FloatAccessor& acc_;
+    openvdb::Coord base_;
+    float value_[kN * kN * kN];
+    std::uint8_t on_[kN * kN * kN];
+};
+
+/// A cell (the cube between voxel c and c + 1) is valid when its eight corners are active.
+inline bool cell_valid(FloatAccessor& acc, const openvdb::Coord& c) {
+    for (int dx = 0; dx <= 1; ++dx) {
+        for (int dy = 0; dy <= 1; ++dy) {
+            for (int dz = 0; dz <= 1; ++dz) {
+                if (!acc.isValueOn(c.offsetBy(dx, dy, dz))) return false;
+            }
+        }
+    }
+    return true;
+}
+
+/// Central-difference gradient at a voxel (one-sided next to invalid voxels), index units.
+inline openvdb::Vec3d voxel_gradient(FloatAccessor& acc, const openvdb::Coord& c) {
+    openvdb::Vec3d g(0.0);
+    float f0;
+    if (!acc.probeValue(c, f0)) return g;
+    for (int a = 0; a < 3; ++a) {
+        openvdb::Coord lo = c, hi = c;
+        lo[a] -= 1;
+        hi[a] += 1;
+        float fl, fh;
+        const bool l = acc.probeValue(lo, fl), h = acc.probeValue(hi, fh);
+        if (l && h) {
+            g[a] = 0.5 * (double(fh) - double(fl));
+        } else if (h) {
+            g[a] = double(fh) - double(f0);
+        } else if (l) {
+            g[a] = double(f0) - double(fl);
+        }
+    }
+    return g;
+}
+
+/// SDF gradient at an index-space point: trilinear blend of the corner gradients.
+inline openvdb::Vec3d gradient_at(FloatAccessor& acc, const openvdb::Vec3d& p) {
+    const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
+    const openvdb::Vec3d t = p - c.asVec3d();
+    openvdb::Vec3d g(0.0);
+    for (int dx = 0; dx <= 1; ++dx) {
+        for (int dy = 0; dy <= 1; ++dy) {
+            for (int dz = 0; dz <= 1; ++dz) {
+                const double w = (dx ? t[0] : 1.0 - t[0]) * (dy ? t[1] : 1.0 - t[1]) *
+                                 (dz ? t[2] : 1.0 - t[2]);
+                g += w * voxel_gradient(acc, c.offsetBy(dx, dy, dz));
+            }
+        }
+    }
+    return g;
+}
+
+/// Trilinear interpolation of the SDF at an index-space point (inactive voxels read as their
+/// stored value).
+template <typename Field>
+inline double sdf_at(Field& acc, const openvdb::Vec3d& p) {
+    const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
+    const openvdb::Vec3d t = p - c.asVec3d();
+    double v = 0.0;
+    for (int dx = 0; dx <= 1; ++dx) {
+        for (int dy = 0; dy <= 1; ++dy) {
+            for (int dz = 0; dz <= 1; ++dz) {
+                const double w = (dx ? t[0] : 1.0 - t[0]) * (dy ? t[1] : 1.0 - t[1]) *
+                                 (dz ? t[2] : 1.0 - t[2]);
+                v += w * double(acc.getValue(c.offsetBy(dx, dy, dz)));
+            }
+        }
+    }
+    return v;
+}
+
+/// Turns a mesher's raw surface into the result: drops faces in invalid cells (when asked),
+/// with too little weight or too far from the data, compacts the vertices, and adds normals and
+/// colours.
+MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurface&& raw);
+
+RawSurface mesh_vdb(const Volume& volume, const MeshOptions& options);
+RawSurface mesh_mc(const Volume& volume, const MeshOptions& options);
+RawSurface mesh_dc(const Volume& volume, const MeshOptions& options);
+
+}  // namespace vdbrecon::detail

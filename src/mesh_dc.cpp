@@ -1,0 +1,608 @@
+// The `dc` mesher: dual contouring (see mesh.h).
+//
+// Each oriented loop of a cell (detail/cube.h) is one connected patch of the surface in that
+// cell and gets one vertex, at the minimiser of the quadric error of its crossings:
+//
+//     E(x) = sum_i (n_i . (x - p_i))^2 + bias |x - m|^2,    m = mean of the p_i,
+//
+// with p_i the crossing points and n_i the normalised SDF gradients there (Hermite data). The
+// 3x3 normal matrix is decomposed (it is A^T A, so its eigenvectors are A's right singular
+// vectors); directions whose singular value is below dc_truncation times the largest are left at
+// the mass point, as in Ju et al. 2002 and P. Lindstrom, "Out-of-core simplification of large
+// polygonal models", SIGGRAPH 2000. At features the planes are reweighted (IRLS) so a smeared
+// normal cannot tilt the vertex; on smooth curved patches the vertex is placed by a second-order
+// estimate from the Hermite data instead (see solve_qef). The vertex stays within half a voxel of
+// its cell.
+//
+// Each crossed edge becomes a quad joining the vertices of its four cells (the patch of each cell
+// that contains the edge's crossing), ordered counter-clockwise around the outward direction and
+// split along the diagonal that follows a sharp edge (between vertices whose patch normals agree)
+// or, on smooth parts, whose triangles stay closer to the zero level of the SDF.
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <array>
+#include <limits>
+#include <memory>
+
+#include "detail/crossings.h"
+#include "detail/mesh_common.h"
+
+namespace vdbrecon::detail {
+namespace {
+
+/// Gradient at a voxel that does not smear across a kink of the field (the medial planes inside a
+/// box, the rounded region outside its edges), in the spirit of essentially non-oscillatory
+/// differencing (A. Harten et al., J. Comput. Phys. 1987) but choosing whole stencils, which also
+/// works for kinks oblique to the grid. Candidates: the central difference, and the eight
+/// one-sided "octant" differences (forward or backward along each axis). Each is scored by how
+/// well its plane predicts the neighbours it did not use (central: the mismatch of forward and
+/// backward differences; octant: the octant's three face-diagonal corners and its far corner),
+/// and the best one wins; the central difference is preferred unless an octant is clearly better,
+/// so smooth curved fields keep second-order gradients. Index units; false when inactive.
+/// `misfit` is the winner's score relative to the slope (0 for a locally linear field; large at
+/// a corner, where no stencil stays in one linear region).
+/// The 3x3x3 neighbourhood of a voxel: values and active states, index (dx+1)*9 + (dy+1)*3 + dz+1.
+struct Stencil27 {
+    float f[27];
+    bool on[27];
+
+    static constexpr int at(int dx, int dy, int dz) { return (dx + 1) * 9 + (dy + 1) * 3 + dz + 1; }
+
+    template <typename Field>
+    void gather(Field& field, const openvdb::Coord& v) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            for (int dy = -1; dy <= 1; ++dy) {
+                for (int dz = -1; dz <= 1; ++dz) {
+                    const int i = at(dx, dy, dz);
+                    on[i] = field.probeValue(v.offsetBy(dx, dy, dz), f[i]);
+                }
+            }
+        }
+    }
+    void gather(const LeafBlock& block, int centre) {
+        constexpr int n = LeafBlock::kN;
+        for (int dx = -1; dx <= 1; ++dx) {
+            for (int dy = -1; dy <= 1; ++dy) {
+                for (int dz = -1; dz <= 1; ++dz) {
+                    const int i = at(dx, dy, dz), j = centre + (dx * n + dy) * n + dz;
+                    f[i] = block.value(j);
+                    on[i] = block.on(j);
+                }
+            }
+        }
+    }
+};
+
+/// Gradient at a voxel that does not smear across a kink of the field (the medial planes inside a
+/// box, the rounded region outside its edges), in the spirit of essentially non-oscillatory
+/// differencing (A. Harten et al., J. Comput. Phys. 1987) but choosing whole stencils, which also
+/// works for kinks oblique to the grid. Candidates: the central difference, and the eight
+/// one-sided "octant" differences (forward or backward along each axis). Each is scored by how
+/// well its plane predicts the neighbours it did not use (central: the mismatch of forward and
+/// backward differences; octant: the octant's three face-diagonal corners and its far corner),
+/// and the best one wins; the central difference is preferred unless an octant is clearly better,
+/// so smooth curved fields keep second-order gradients. Index units; false when the voxel is
+/// inactive. `misfit` is the winner's score relative to the slope (0 for a locally linear field;
+/// large at a corner, where no stencil stays in one linear region).
+bool robust_gradient(const Stencil27& s, openvdb::Vec3d& g, double& misfit) {
+    constexpr int c0 = Stencil27::at(0, 0, 0);
+    if (!s.on[c0]) return false;
+    const double f0 = s.f[c0];
+    static constexpr int kStep[3] = {9, 3, 1};
+    double fm[3], fp[3];
+    bool om[3], op[3];
+    for (int a = 0; a < 3; ++a) {
+        om[a] = s.on[c0 - kStep[a]];
+        fm[a] = s.f[c0 - kStep[a]];
+        op[a] = s.on[c0 + kStep[a]];
+        fp[a] = s.f[c0 + kStep[a]];
+    }
+    // Central candidate (one-sided where a neighbour is missing) and its kink score.
+    openvdb::Vec3d central(0.0);
+    double central_score = 0.0, slope = 0.0;
+    for (int a = 0; a < 3; ++a) {
+        if (om[a] && op[a]) {
+            central[a] = 0.5 * (fp[a] - fm[a]);
+            central_score += 0.5 * std::fabs((fp[a] - f0) - (f0 - fm[a]));
+        } else if (op[a]) {
+            central[a] = fp[a] - f0;
+        } else if (om[a]) {
+            central[a] = f0 - fm[a];
+        }
+        slope = std::max(slope, std::fabs(central[a]));
+    }
+    g = central;
+    misfit = slope > 0.0 ? central_score / slope : 0.0;
+    if (central_score <= 0.02 * slope) return true;  // locally linear: done
+    double best = central_score;
+    // The octant's corners with two or three offsets (bit a set: step along axis a).
+    static constexpr int kCorners[4] = {3, 5, 6, 7};
+    for (int octant = 0; octant < 8; ++octant) {
+        int sign[3];
+        openvdb::Vec3d og;
+        bool ok = true;
+        for (int a = 0; a < 3 && ok; ++a) {
+            sign[a] = (octant >> a) & 1 ? 1 : -1;
+            ok = sign[a] > 0 ? op[a] : om[a];
+            og[a] = sign[a] > 0 ? fp[a] - f0 : f0 - fm[a];
+        }
+        if (!ok) continue;
+        double score = 0.0;
+        int used = 0;
+        for (int corner : kCorners) {
+            int i = c0;
+            double predicted = 0.0;
+            for (int a = 0; a < 3; ++a) {
+                if ((corner >> a) & 1) {
+                    i += sign[a] * kStep[a];
+                    predicted += sign[a] * og[a];
+                }
+            }
+            if (!s.on[i]) continue;
+            score += std::fabs(double(s.f[i]) - f0 - predicted);
+            ++used;
+        }
+        if (used < 3) continue;
+        score *= 3.0 / double(used);
+        // An octant must beat the central difference clearly to be chosen.
+        if (score < 0.5 * best) {
+            best = score;
+            g = og;
+        }
+    }
+    misfit = slope > 0.0 ? best / slope : 0.0;
+    return true;
+}
+
+/// Hermite data (point and unit normal) of the crossing on the edge v0 -> v0 + e_axis.
+///
+/// Where the field is smooth along the edge -- each end's tangent-plane model predicts the other
+/// end's value within kKinkTolerance voxels -- this is the linear interpolation of the values
+/// and of the ends' robust gradients. Otherwise a kink of the distance
+/// field lies between the ends (near a sharp edge the inside end measures the distance to the
+/// other face): the crossing is where the edge meets the tangent plane of the end whose linear
+/// region contains it, with that end's robust gradient as normal. For a distance field sampled
+/// from a box this recovers exact face points and normals next to its edges. `weight` (0..1)
+/// says how well the gradient fitted the data; at corners, where no stencil does, the planes of
+/// the other crossings then carry the quadric.
+template <typename Field, typename Gradient>
+void hermite(Field& acc, Gradient&& gradient, const openvdb::Coord& v0, int axis, float iso,
+             openvdb::Vec3d& point, openvdb::Vec3f& normal, float& weight) {
+    constexpr double kKinkTolerance = 0.1;  // voxels (the field's values are world units)
+    openvdb::Coord v1 = v0;
+    v1[axis] += 1;
+    const double f0 = double(acc.getValue(v0)) - iso, f1 = double(acc.getValue(v1)) - iso;
+    const double t_lin = f0 / (f0 - f1);
+    point = v0.asVec3d();
+    point[axis] += t_lin;
+    openvdb::Vec3d g0, g1;
+    double m0 = 0.0, m1 = 0.0;
+    const bool have0 = gradient(v0, g0, m0), have1 = gradient(v1, g1, m1);
+    // In index units the gradient of a distance field has length 1 / voxel; compare in voxels.
+    const double unit0 = have0 ? g0.length() : 0.0, unit1 = have1 ? g1.length() : 0.0;
+    const bool smooth = unit0 > 0.0 && unit1 > 0.0 &&
+                        std::fabs(f1 - (f0 + g0[axis])) <= kKinkTolerance * unit0 &&
+                        std::fabs(f0 - (f1 - g1[axis])) <= kKinkTolerance * unit1;
+    if (!smooth && unit0 > 0.0 && unit1 > 0.0 && g0[axis] != g1[axis]) {
+        // Along the edge the field is two linear pieces, one from each end, meeting at the
+        // kink t_k where the models agree; a root is real only on its own end's side of t_k.
+        const double tk = (f1 - g1[axis] - f0) / (g0[axis] - g1[axis]);
+        const double t0 = g0[axis] != 0.0 ? -f0 / g0[axis] : -1.0;
+        const double t1 = g1[axis] != 0.0 ? 1.0 - f1 / g1[axis] : -1.0;
+        const bool in0 = t0 >= 0.0 && t0 <= std::min(1.0, tk);
+        const bool in1 = t1 <= 1.0 && t1 >= std::max(0.0, tk);
+        if (in0 || in1) {
+            const bool use0 = in0 && (!in1 || m0 <= m1);
+            point = v0.asVec3d();
+            point[axis] += use0 ? t0 : t1;
+            const openvdb::Vec3d& g = use0 ? g0 : g1;
+            normal = openvdb::Vec3f(g / g.length());
+            weight = float(1.0 / (1.0 + std::pow((use0 ? m0 : m1) / 0.05, 2)));
+            return;
+        }
+    }
+    openvdb::Vec3d g = (have0 ? (1.0 - t_lin) * g0 : openvdb::Vec3d(0.0)) +
+                       (have1 ? t_lin * g1 : openvdb::Vec3d(0.0));
+    const double len = g.length();
+    normal = len > 0.0 ? openvdb::Vec3f(g / len) : openvdb::Vec3f(0.0f);
+    const double m = (1.0 - t_lin) * m0 + t_lin * m1;
+    weight = float(1.0 / (1.0 + std::pow(m / 0.05, 2)));
+}
+
+/// One patch vertex before global numbering: its position and, for each crossing of its loop,
+/// the crossing id and which of the edge's four cells this is.
+struct PatchVertex {
+    openvdb::Vec3f position;
+    openvdb::Vec3f normal;  ///< mean normal of the patch's crossings
+    std::uint8_t size = 0;
+    std::int64_t crossing[12];
+    std::uint8_t slot[12];
+};
+
+/// The face (kFaceCorner index) on which two cube edges meet, or -1.
+int common_face(int a, int b) {
+    static const auto faces = [] {
+        std::array<std::uint8_t, 12> f{};
+        for (int e = 0; e < 12; ++e) f[std::size_t(e)] = edge_faces(e);
+        return f;
+    }();
+    const unsigned m = faces[std::size_t(a)] & faces[std::size_t(b)];
+    return m ? __builtin_ctz(m) : -1;
+}
+
+/// How often loop l walks across face f (segments on that face).
+int face_visits(const CellLoops& loops, int l, int f) {
+    const int n = loops.size[l];
+    int visits = 0;
+    for (int k = 0; k < n; ++k) {
+        visits += common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]) == f;
+    }
+    return visits;
+}
+
+/// Splits a loop into the chains that get one vertex each. A loop that crosses a face twice, while
+/// the loop on the other side of that face crosses it twice too, would give the two cells' vertices
+/// an edge shared by four quads; cutting both loops at that face's two segments gives each
+/// (chain, chain) pair exactly two quads -- the vertex split of manifold dual contouring. Returns
+/// the number of chains; chain c holds loop positions [start[c], start[c] + size[c]) (mod n).
+template <typename Field>
+int loop_chains(const SurfaceCell& cell, int l, Field& acc, float iso, int start[12],
+                int size[12]) {
+    const CellLoops& loops = cell.loops;
+    const int n = loops.size[l];
+    bool cut[12] = {};  // cut after position k (between edge k and k + 1)
+    int cuts = 0;
+    for (int f = 0; f < 6; ++f) {
+        if (face_visits(loops, l, f) != 2) continue;
+        // The neighbour across face f, and the loop there that holds one of this face's crossings.
+        const int axis = f / 2, dir = f % 2 ? 1 : -1;
+        openvdb::Coord nb = cell.origin;
+        nb[axis] += dir;
+        float values[8];
+        bool valid = true;
+        for (int k = 0; k < 8 && valid; ++k) {
+            valid = acc.probeValue(
+                nb.offsetBy(kCubeCorner[k][0], kCubeCorner[k][1], kCubeCorner[k][2]), values[k]);
+        }
+        if (!valid) continue;
+        CellLoops other;
+        if (!cell_loops(values, iso, other)) continue;
+        int mine = -1;  // one of our edges on face f
+        for (int k = 0; k < n && mine < 0; ++k) {
+            if (common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]) == f)
+                mine = loops.edge[l][k];
+        }
+        // The same grid edge in the neighbour's numbering: start corner shifted by -dir.
+        int s[3] = {kCubeCorner[kEdgeCorner[mine][0]][0], kCubeCorner[kEdgeCorner[mine][0]][1],
+                    kCubeCorner[kEdgeCorner[mine][0]][2]};
+        s[axis] -= dir;
+        int theirs = -1;
+        for (int e = 0; e < 12; ++e) {
+            const int* t = kCubeCorner[kEdgeCorner[e][0]];
+            if (kEdgeAxis[e] == kEdgeAxis[mine] && t[0] == s[0] && t[1] == s[1] && t[2] == s[2]) {
+                theirs = e;
+            }
+        }
+        bool twice = false;
+        for (int m = 0; m < other.count && !twice; ++m) {
+            for (int k = 0; k < other.size[m]; ++k) {
+                if (other.edge[m][k] == theirs) twice = face_visits(other, m, f ^ 1) == 2;
+            }
+        }
+        if (!twice) continue;
+        for (int k = 0; k < n; ++k) {
+            if (common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]) == f && !cut[k]) {
+                cut[k] = true;
+                ++cuts;
+            }
+        }
+    }
+    if (cuts == 0) {
+        start[0] = 0;
+        size[0] = n;
+        return 1;
+    }
+    int chains = 0;
+    for (int k = 0; k < n; ++k) {
+        if (!cut[k]) continue;
+        // A chain starts after a cut and runs to the next cut.
+        int len = 1;
+        while (!cut[(k + len) % n]) ++len;
+        start[chains] = (k + 1) % n;
+        size[chains] = len;
+        ++chains;
+    }
+    return chains;
+}
+
+/// How far a vertex may leave its cell, in voxels. Where a corner or edge of the shape is thinner
+/// than the grid (a rotated box's corner), no cell around it changes sign and its vertex has to
+/// come from a neighbouring cell; half a voxel is enough for that and keeps vertices ordered.
+constexpr double kCellMargin = 0.5;
+
+/// What the vertex placement needs: Hermite data of every crossing.
+struct QefData {
+    const std::vector<openvdb::Vec3f>& points;
+    const std::vector<openvdb::Vec3f>& normals;
+    const std::vector<float>& weights;
+    double truncation, bias;
+};
+
+/// The vertex of one patch (the crossings `edges[0..n)` of `cell`), and the patch's mean normal.
+openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int n,
+                         const QefData& q, openvdb::Vec3f& normal) {
+    Eigen::Vector3d mass = Eigen::Vector3d::Zero();
+    for (int i = 0; i < n; ++i) {
+        const openvdb::Vec3f& p = q.points[std::size_t(cell.edge_id[edges[i]])];
+        mass += Eigen::Vector3d(p[0], p[1], p[2]);
+    }
+    mass /= double(n);
+    // Spread of the normals: decides between the feature path (planes meet at an edge or corner)
+    // and the smooth path (project onto the level set, below).
+    double min_cos = 1.0;
+    Eigen::Vector3d mean_n = Eigen::Vector3d::Zero();
+    for (int i = 0; i < n; ++i) {
+        const openvdb::Vec3f& nv = q.normals[std::size_t(cell.edge_id[edges[i]])];
+        mean_n += Eigen::Vector3d(nv[0], nv[1], nv[2]);
+    }
+    mean_n.normalize();
+    normal = openvdb::Vec3f(float(mean_n[0]), float(mean_n[1]), float(mean_n[2]));
+    for (int i = 0; i < n; ++i) {
+        const openvdb::Vec3f& nv = q.normals[std::size_t(cell.edge_id[edges[i]])];
+        min_cos = std::min(min_cos, mean_n.dot(Eigen::Vector3d(nv[0], nv[1], nv[2])));
+    }
+    // At a feature, one crossing whose normal was smeared across the kink tilts the solution off
+    // both faces. Iteratively reweighted least squares with a Cauchy weight on each plane's
+    // residual (in voxels) lets the consistent planes win; smooth patches solve once.
+    double robust[12];
+    std::fill(robust, robust + n, 1.0);
+    const int rounds = min_cos < 0.9 ? 4 : 1;
+    Eigen::Matrix3d ata;
+    Eigen::Vector3d atb, x;
+    for (int round = 0; round < rounds; ++round) {
+        ata = q.bias * Eigen::Matrix3d::Identity();
+        atb = Eigen::Vector3d::Zero();
+        for (int i = 0; i < n; ++i) {
+            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
+            const openvdb::Vec3f& p = q.points[id];
+            const openvdb::Vec3f& nv = q.normals[id];
+            const Eigen::Vector3d nn(nv[0], nv[1], nv[2]);
+            const double b = nn.dot(Eigen::Vector3d(p[0], p[1], p[2]) - mass);
+            const double w = q.weights[id] * robust[i];
+            ata += w * nn * nn.transpose();
+            atb += w * b * nn;
+        }
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+        es.computeDirect(ata);
+        const Eigen::Vector3d lambda = es.eigenvalues();  // ascending, = singular values squared
+        const double cutoff = q.truncation * q.truncation * lambda[2];
+        x = Eigen::Vector3d::Zero();
+        for (int k = 0; k < 3; ++k) {
+            if (lambda[k] > cutoff && lambda[k] > 0.0) {
+                const Eigen::Vector3d v = es.eigenvectors().col(k);
+                x += (v.dot(atb) / lambda[k]) * v;
+            }
+        }
+        if (round + 1 == rounds) break;
+        for (int i = 0; i < n; ++i) {
+            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
+            const openvdb::Vec3f& p = q.points[id];
+            const openvdb::Vec3f& nv = q.normals[id];
+            const Eigen::Vector3d nn(nv[0], nv[1], nv[2]);
+            const double r = nn.dot(x + mass - Eigen::Vector3d(p[0], p[1], p[2])) / 0.02;
+            robust[i] = 1.0 / (1.0 + r * r);
+        }
+    }
+    x += mass;
+    Eigen::Vector3d lo, hi;
+    for (int a = 0; a < 3; ++a) {
+        lo[a] = double(cell.origin[a]) - kCellMargin;
+        hi[a] = double(cell.origin[a]) + 1.0 + kCellMargin;
+    }
+    // A curved but smooth patch (normals spread by more than ~0.8 and less than ~25 degrees) has
+    // no feature to keep, and the intersection of its tangent planes lies off the curved surface
+    // (outside a convex one by about t^2 / 2R for crossings at tangential distance t). The vertex
+    // goes on the line through the mass point m along the mean normal, at the mean of each
+    // crossing's second-order estimate of the surface there: its tangent plane's height a_i,
+    // corrected by the bend its normal shows, -(p_i - m).(n_i - mean_n) / 2 -- exact to second
+    // order for any radius of curvature, and it needs only the Hermite data (the trilinear field,
+    // which would serve too, is rounded next to sharp edges and pulled vertices off flat faces
+    // there).
+    if (min_cos > 0.9 && min_cos < 0.9999) {
+        double sum = 0.0, wsum = 0.0;
+        for (int i = 0; i < n; ++i) {
+            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
+            const openvdb::Vec3f& pv = q.points[id];
+            const openvdb::Vec3f& nv = q.normals[id];
+            const Eigen::Vector3d p(pv[0], pv[1], pv[2]), nn(nv[0], nv[1], nv[2]);
+            const double cosine = nn.dot(mean_n);
+            if (!(cosine > 0.5)) continue;
+            const double a = nn.dot(p - mass) / cosine - 0.5 * (p - mass).dot(nn - mean_n);
+            sum += q.weights[id] * a;
+            wsum += q.weights[id];
+        }
+        if (wsum > 0.0) x = mass + (sum / wsum) * mean_n;
+    }
+    if ((x.array() >= lo.array()).all() && (x.array() <= hi.array()).all()) {
+        return openvdb::Vec3d(x[0], x[1], x[2]);
+    }
+    // Outside the (grown) cell: minimise the quadric over it instead. It is convex, so coordinate
+    // descent from the clamped point converges to the box-constrained minimum (a clamp alone
+    // would slide the vertex off the surface). E(y) = y^T Q y - 2 c^T y, y = x - mass.
+    Eigen::Vector3d y = (x.cwiseMax(lo).cwiseMin(hi)) - mass;
+    const Eigen::Vector3d ylo = lo - mass, yhi = hi - mass;
+    for (int sweep = 0; sweep < 32; ++sweep) {
+        for (int a = 0; a < 3; ++a) {
+            if (!(ata(a, a) > 0.0)) continue;
+            const double rest = ata.row(a).dot(y) - ata(a, a) * y[a];
+            y[a] = std::clamp((atb[a] - rest) / ata(a, a), ylo[a], yhi[a]);
+        }
+    }
+    x = y + mass;
+    return openvdb::Vec3d(x[0], x[1], x[2]);
+}
+
+}  // namespace
+
+RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
+    const openvdb::FloatTree& tree = volume.sdf->tree();
+    const float iso = float(options.isovalue);
+    const Crossings crossings = find_crossings(tree, iso);
+
+    // Hermite data at the crossings, leaf by leaf (a crossing's stencils stay in its leaf's block).
+    std::vector<openvdb::Vec3f> points(crossings.size()), normals(crossings.size());
+    std::vector<float> weights(crossings.size());
+    std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
+    tree.getNodes(leaves);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          FloatAccessor acc(tree);
+                          auto block = std::make_unique<LeafBlock>(acc);
+                          // Robust gradients of the block's voxels, computed once per leaf
+                          // (a voxel ends up to six crossing edges).
+                          struct Cached {
+                              openvdb::Vec3d g;
+                              double misfit;
+                              std::uint32_t stamp;
+                              bool have;
+                          };
+                          std::vector<Cached> cache(LeafBlock::kN * LeafBlock::kN * LeafBlock::kN,
+                                                    Cached{{0.0, 0.0, 0.0}, 0.0, 0u, false});
+                          std::uint32_t stamp = 0;
+                          auto gradient = [&](const openvdb::Coord& v, openvdb::Vec3d& g,
+                                              double& misfit) {
+                              Stencil27 s;
+                              int i;
+                              if (!block->index(v, i) || !block->interior(i)) {
+                                  s.gather(acc, v);
+                                  return robust_gradient(s, g, misfit);
+                              }
+                              Cached& c = cache[std::size_t(i)];
+                              if (c.stamp != stamp) {
+                                  s.gather(*block, i);
+                                  c.have = robust_gradient(s, c.g, c.misfit);
+                                  c.stamp = stamp;
+                              }
+                              g = c.g;
+                              misfit = c.misfit;
+                              return c.have;
+                          };
+                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                              const std::size_t begin = crossings.leaf_begin[L],
+                                                end = crossings.leaf_begin[L + 1];
+                              if (begin == end) continue;
+                              block->load(leaves[L]->origin());
+                              ++stamp;
+                              for (std::size_t i = begin; i < end; ++i) {
+                                  openvdb::Vec3d p;
+                                  hermite(*block, gradient, crossings.start[i], crossings.axis[i],
+                                          iso, p, normals[i], weights[i]);
+                                  points[i] = openvdb::Vec3f(p);
+                              }
+                          }
+                      });
+    // One vertex per loop, collected per leaf.
+    const QefData qef{points, normals, weights, options.dc_truncation, options.dc_bias};
+    std::vector<std::vector<PatchVertex>> per_leaf(tree.leafCount());
+    for_each_surface_cell(tree, crossings, iso,
+                          [&](std::size_t L, const SurfaceCell& cell, LeafBlock& acc) {
+        for (int l = 0; l < cell.loops.count; ++l) {
+            int start[12], size[12];
+            const int chains = loop_chains(cell, l, acc, iso, start, size);
+            for (int c = 0; c < chains; ++c) {
+                std::uint8_t chain[12];
+                const int n = cell.loops.size[l];
+                for (int i = 0; i < size[c]; ++i) chain[i] = cell.loops.edge[l][(start[c] + i) % n];
+                PatchVertex v;
+                v.position = openvdb::Vec3f(solve_qef(cell, chain, size[c], qef, v.normal));
+                v.size = std::uint8_t(size[c]);
+                for (int i = 0; i < v.size; ++i) {
+                    const int e = chain[i];
+                    const int a = kEdgeAxis[e];
+                    const int* s = kCubeCorner[kEdgeCorner[e][0]];
+                    // Which of the four cells around the edge this one is: its offset from the
+                    // edge's start voxel along the two other axes (b, c) = (a + 1, a + 2).
+                    v.crossing[i] = cell.edge_id[e];
+                    v.slot[i] = std::uint8_t(s[(a + 1) % 3] + 2 * s[(a + 2) % 3]);
+                }
+                per_leaf[L].push_back(v);
+            }
+        }
+    });
+
+    // Global vertex numbers in leaf order; each crossing learns its four cells' vertices.
+    std::vector<std::size_t> base(per_leaf.size() + 1, 0);
+    for (std::size_t L = 0; L < per_leaf.size(); ++L) base[L + 1] = base[L] + per_leaf[L].size();
+    RawSurface raw;
+    raw.points.resize(base.back());
+    std::vector<openvdb::Vec3f> patch_normal(base.back());
+    std::vector<std::array<std::int32_t, 4>> around(crossings.size(), {-1, -1, -1, -1});
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, per_leaf.size(), 16),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                              for (std::size_t k = 0; k < per_leaf[L].size(); ++k) {
+                                  const PatchVertex& v = per_leaf[L][k];
+                                  const std::int32_t id = std::int32_t(base[L] + k);
+                                  raw.points[std::size_t(id)] = v.position;
+                                  patch_normal[std::size_t(id)] = v.normal;
+                                  // Each (crossing, slot) belongs to exactly one cell: no two
+                                  // writers.
+                                  for (int i = 0; i < v.size; ++i)
+                                      around[std::size_t(v.crossing[i])][v.slot[i]] = id;
+                              }
+                          }
+                      });
+    per_leaf = {};
+
+    // One quad per crossing whose four cells all have a vertex.
+    std::vector<std::vector<Triangle>> quads((crossings.size() + 65535) / 65536);
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, quads.size(), 1),
+        [&](const tbb::blocked_range<std::size_t>& r) {
+            FloatAccessor acc(tree);
+            for (std::size_t chunk = r.begin(); chunk < r.end(); ++chunk) {
+                const std::size_t end = std::min(crossings.size(), (chunk + 1) * 65536);
+                for (std::size_t c = chunk * 65536; c < end; ++c) {
+                    const auto& q = around[c];
+                    if (q[0] < 0 || q[1] < 0 || q[2] < 0 || q[3] < 0) continue;
+                    // Counter-clockwise around +axis: slots 0, 1, 3, 2. Outward is +axis when the
+                    // edge starts inside.
+                    std::array<std::int32_t, 4> v = {q[0], q[1], q[3], q[2]};
+                    if (!crossings.start_inside[c]) std::reverse(v.begin(), v.end());
+                    auto off_surface = [&](std::int32_t a, std::int32_t b, std::int32_t d) {
+                        const openvdb::Vec3d centre = (openvdb::Vec3d(raw.points[std::size_t(a)]) +
+                                                       openvdb::Vec3d(raw.points[std::size_t(b)]) +
+                                                       openvdb::Vec3d(raw.points[std::size_t(d)])) /
+                                                      3.0;
+                        return std::fabs(sdf_at(acc, centre) - double(iso));
+                    };
+                    const double along02 =
+                        off_surface(v[0], v[1], v[2]) + off_surface(v[0], v[2], v[3]);
+                    const double along13 =
+                        off_surface(v[0], v[1], v[3]) + off_surface(v[1], v[2], v[3]);
+                    // Next to a sharp edge the diagonal must run along it, between the two
+                    // vertices whose patch normals agree, not across it (which cuts the edge
+                    // off). The trilinear field cannot tell: it is rounded at the edge. Where the
+                    // normals do not discriminate, the field decides.
+                    const auto nd = [&](int a, int b) {
+                        return double(patch_normal[std::size_t(v[a])].dot(
+                            patch_normal[std::size_t(v[b])]));
+                    };
+                    const double agree02 = nd(0, 2), agree13 = nd(1, 3);
+                    const bool use02 = std::fabs(agree02 - agree13) > 0.05 ? agree02 > agree13
+                                                                           : along02 <= along13;
+                    if (use02) {
+                        quads[chunk].push_back({v[0], v[1], v[2]});
+                        quads[chunk].push_back({v[0], v[2], v[3]});
+                    } else {
+                        quads[chunk].push_back({v[0], v[1], v[3]});
+                        quads[chunk].push_back({v[1], v[2], v[3]});
+                    }
+                }
+            }
+        });
+    for (auto& t : quads) raw.triangles.insert(raw.triangles.end(), t.begin(), t.end());
+    return raw;
+}
+
+}  // namespace vdbrecon::detail

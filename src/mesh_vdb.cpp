@@ -1,0 +1,52 @@
+// The `vdb` mesher: OpenVDB's tools::volumeToMesh (dual marching cubes).
+#include <openvdb/tools/VolumeToMesh.h>
+
+#include "detail/mesh_common.h"
+#include "vdbrecon/error.h"
+
+namespace vdbrecon::detail {
+
+RawSurface mesh_vdb(const Volume& volume, const MeshOptions& options) {
+    const openvdb::FloatGrid& sdf = *volume.sdf;
+    // volumeToMesh decides inside/outside from the grid class: the sdf must be a level set.
+    if (sdf.getGridClass() != openvdb::GRID_LEVEL_SET) {
+        throw InvalidArgument("extract_mesh: the sdf grid must have class GRID_LEVEL_SET");
+    }
+    // Mesh in index space (unit transform), so far-away origins and voxel sizes do not matter.
+    openvdb::FloatGrid::ConstPtr index_grid = sdf.copyReplacingMetadataAndTransform(
+        sdf, openvdb::math::Transform::createLinearTransform(1.0));
+    openvdb::tools::VolumeToMesh mesher(options.isovalue, options.adaptivity);
+    mesher(*index_grid);
+
+    RawSurface raw;
+    raw.check_cells = true;  // volumeToMesh knows nothing of the validity mask
+    const openvdb::tools::PointList& points = mesher.pointList();
+    raw.points.assign(points.get(), points.get() + mesher.pointListSize());
+    // For a level set volumeToMesh's polygons are clockwise seen from outside: reverse them.
+    // Quads are split along their shorter diagonal.
+    auto len2 = [&](openvdb::Index32 a, openvdb::Index32 b) {
+        return (raw.points[a] - raw.points[b]).lengthSqr();
+    };
+    const openvdb::tools::PolygonPoolList& pools = mesher.polygonPoolList();
+    for (std::size_t p = 0; p < mesher.polygonPoolListSize(); ++p) {
+        const openvdb::tools::PolygonPool& pool = pools[p];
+        for (std::size_t q = 0; q < pool.numQuads(); ++q) {
+            const openvdb::Vec4I& v = pool.quad(q);
+            const auto i = [&](int k) { return std::int32_t(v[k]); };
+            if (len2(v[0], v[2]) <= len2(v[1], v[3])) {
+                raw.triangles.push_back({i(3), i(2), i(0)});
+                raw.triangles.push_back({i(2), i(1), i(0)});
+            } else {
+                raw.triangles.push_back({i(3), i(2), i(1)});
+                raw.triangles.push_back({i(3), i(1), i(0)});
+            }
+        }
+        for (std::size_t t = 0; t < pool.numTriangles(); ++t) {
+            const openvdb::Vec3I& v = pool.triangle(t);
+            raw.triangles.push_back({std::int32_t(v[2]), std::int32_t(v[1]), std::int32_t(v[0])});
+        }
+    }
+    return raw;
+}
+
+}  // namespace vdbrecon::detail

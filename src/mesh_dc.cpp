@@ -240,6 +240,19 @@ int face_visits(const CellLoops& loops, int l, int f) {
     return visits;
 }
 
+/// Bit mask of the faces loop l walks across twice (a loop of a cell with no ambiguous face
+/// crosses every face at most once, the common case).
+unsigned twice_visited_faces(const CellLoops& loops, int l) {
+    const int n = loops.size[l];
+    unsigned once = 0, twice = 0;
+    for (int k = 0; k < n; ++k) {
+        const unsigned bit = 1u << common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]);
+        twice |= once & bit;
+        once |= bit;
+    }
+    return twice;
+}
+
 /// Splits a loop into the chains that get one vertex each. A loop that crosses a face twice, while
 /// the loop on the other side of that face crosses it twice too, would give the two cells' vertices
 /// an edge shared by four quads; cutting both loops at that face's two segments gives each
@@ -252,8 +265,9 @@ int loop_chains(const SurfaceCell& cell, int l, Field& acc, float iso, int start
     const int n = loops.size[l];
     bool cut[12] = {};  // cut after position k (between edge k and k + 1)
     int cuts = 0;
+    const unsigned twice_faces = twice_visited_faces(loops, l);
     for (int f = 0; f < 6; ++f) {
-        if (face_visits(loops, l, f) != 2) continue;
+        if (!((twice_faces >> f) & 1u) || face_visits(loops, l, f) != 2) continue;
         // The neighbour across face f, and the loop there that holds one of this face's crossings.
         const int axis = f / 2, dir = f % 2 ? 1 : -1;
         openvdb::Coord nb = cell.origin;

@@ -116,6 +116,10 @@ void print_help() {
         << choice_name(kMeshers, d.mesh.method) << "]\n"
         << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
         << "]\n"
+        << "  --min-component R      drop pieces with fewer faces than R x the largest's ["
+        << fmt(d.clean.min_component_ratio) << "]\n"
+        << "  --smooth N             Taubin lambda|mu smoothing iterations ["
+        << d.clean.smooth_iterations << "]\n"
         << "  --ascii                write ascii PLY [binary little endian]\n"
         << "  --threads N            worker threads, 0 = all cores [" << d.threads << "]\n"
         << "  --no-vdb               do not write the .vdb volume\n"
@@ -266,6 +270,10 @@ int run_reconstruct(Args& args) {
             o.mesh.method = parse_choice(a, args.value(a), kMeshers);
         } else if (a == "--adaptivity") {
             o.mesh.adaptivity = parse_number(a, args.value(a));
+        } else if (a == "--min-component") {
+            o.clean.min_component_ratio = parse_number(a, args.value(a));
+        } else if (a == "--smooth") {
+            o.clean.smooth_iterations = parse_int(a, args.value(a));
         } else if (a == "--ascii") {
             o.write.encoding = PlyEncoding::ascii;
         } else if (a == "--threads") {
@@ -327,6 +335,13 @@ int run_reconstruct(Args& args) {
         s << "vdbrecon: mesh: " << p.mesh.vertices.size() << " vertices, " << p.mesh.faces.size()
           << " triangles (" << p.mesh_stats.dropped_faces << " dropped outside valid cells, "
           << p.mesh_stats.trimmed_faces << " trimmed for low weight)\n";
+        s << "vdbrecon: clean: removed " << p.clean_stats.removed_components << " of "
+          << p.clean_stats.components_before << " components (" << p.clean_stats.removed_faces
+          << " faces)";
+        if (p.clean_stats.smoothed_iterations) {
+            s << ", " << p.clean_stats.smoothed_iterations << " Taubin iterations";
+        }
+        s << "\n";
         s << "vdbrecon: time:";
         std::ostringstream mem;
         mem << "vdbrecon: peak memory after:";

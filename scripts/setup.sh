@@ -10,6 +10,10 @@ PACKAGES=(
   libtbb-dev libeigen3-dev
   libflann-dev liblz4-dev                 # FLANN's header API emits LZ4 calls
   catch2                                  # Catch2 v2 tests
+  pybind11-dev python3-dev python3-numpy  # the Python module (built for /usr/bin/python3)
+  python3-pytest                          # its tests
+  python3-openvdb libopenvdb-tools        # interop tests: pyopenvdb, vdb_print
+  blender                                 # interop test: Blender imports and renders the .vdb
 )
 
 missing=()
@@ -26,5 +30,6 @@ fi
 
 JOBS=${JOBS:-$(nproc)}
 if ((JOBS > 2)); then JOBS=2; fi   # OpenVDB translation units take ~2 GB each to compile
-cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DVDBRECON_BUILD_PYTHON=ON \
+  -DPython3_EXECUTABLE=/usr/bin/python3 >/dev/null
 cmake --build build -j"$JOBS"

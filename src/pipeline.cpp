@@ -30,6 +30,7 @@ void PipelineOptions::validate() const {
     if (s.voxel_size == 0.0) s.voxel_size = 1.0;
     s.validate();
     mesh.validate();
+    clean.validate();
     if (threads < 0 || threads > 1024) {
         throw InvalidArgument("threads = " + std::to_string(threads) + ": must be in 0..1024");
     }
@@ -155,6 +156,12 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
             throw;
         }
         side.wait();  // rethrows what on_volume threw
+        {
+            StageClock clock(r.timings, on_stage, "clean");
+            r.clean_stats = clean_mesh(r.mesh, options.clean);
+            r.mesh = std::move(r.clean_stats.mesh);
+            r.clean_stats.mesh = Mesh{};
+        }
     });
     if (r.mesh.faces.empty()) {
         log_warning("reconstruct: the surface is empty (no valid cell crosses zero)");

@@ -1,4 +1,4 @@
-// The whole reconstruction: read > normals/scale > splat > mesh > write.
+// The whole reconstruction: read > normals/scale > splat > mesh > clean > write.
 //
 // PipelineOptions nests one options struct per stage; the CLI and the Python module fill the
 // same struct, so both offer the same knobs with the same names and defaults.
@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "vdbrecon/clean.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/normals.h"
@@ -26,6 +27,7 @@ struct PipelineOptions {
     NormalOptions normals;
     SplatOptions splat;  ///< splat.voxel_size == 0: chosen from the point spacing
     MeshOptions mesh;
+    CleanOptions clean;
     WriteOptions write;
     /// Worker threads; 0 = all cores. The output does not depend on it.
     int threads = 0;
@@ -52,7 +54,8 @@ struct PipelineResult {
     Volume volume;
     NormalResult normals;       ///< normals/scales moved into the cloud; counts kept
     SplatResult splat;          ///< volume moved into `volume`; statistics kept
-    MeshResult mesh_stats;      ///< mesh moved into `mesh`; statistics kept
+    MeshResult mesh_stats;      ///< mesh moved out; statistics kept
+    CleanResult clean_stats;    ///< mesh moved into `mesh`; statistics kept
     double voxel_size = 0.0;    ///< the voxel used, world units
     bool voxel_chosen = false;  ///< true when it was picked automatically
     std::vector<StageTiming> timings;
@@ -65,7 +68,7 @@ using StageCallback = std::function<void(const std::string& stage)>;
 /// threads), e.g. to write the volume to disk while the mesh is being built.
 using VolumeCallback = std::function<void(const Volume& volume)>;
 
-/// Runs normals > splat > mesh on an in-memory cloud (normals and scales are filled in).
+/// Runs normals > splat > mesh > clean on an in-memory cloud (normals and scales are filled in).
 /// Exceptions from `on_volume` propagate once meshing has finished.
 PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
                            const StageCallback& on_stage = {},

@@ -1,0 +1,142 @@
+// numpy conversions and log forwarding (see bind.h).
+#include <cstring>
+#include <mutex>
+
+#include "bind.h"
+#include "vdbrecon/log.h"
+
+namespace vdbrecon::python {
+
+namespace {
+
+std::string describe(const py::handle& obj) {
+    if (py::isinstance<py::array>(obj)) {
+        const py::array a = py::reinterpret_borrow<py::array>(obj);
+        std::string shape = "(";
+        for (py::ssize_t i = 0; i < a.ndim(); ++i) {
+            shape += (i ? ", " : "") + std::to_string(a.shape(i));
+        }
+        shape += a.ndim() == 1 ? ",)" : ")";
+        const bool c = (a.flags() & py::array::c_style) != 0;
+        return "a " + std::string(py::str(a.dtype())) + " array of shape " + shape +
+               (c ? "" : " (not C-contiguous)");
+    }
+    return "a " + std::string(py::str(py::type::of(obj).attr("__name__")));
+}
+
+/// Checks dtype, layout and shape; returns the array.
+template <typename Scalar>
+py::array_t<Scalar, py::array::c_style> checked(const py::handle& obj, const char* name,
+                                                py::ssize_t cols, py::ssize_t rows,
+                                                const char* expected) {
+    using Array = py::array_t<Scalar, py::array::c_style>;
+    if (!py::isinstance<Array>(obj)) {
+        throw py::type_error(std::string(name) + ": expected " + expected + ", got " +
+                             describe(obj));
+    }
+    Array a = py::reinterpret_borrow<Array>(obj);
+    const bool shape_ok = cols > 0 ? (a.ndim() == 2 && a.shape(1) == cols) : (a.ndim() == 1);
+    if (!shape_ok) {
+        throw py::value_error(std::string(name) + ": expected " + expected + ", got " +
+                              describe(obj));
+    }
+    if (rows >= 0 && a.shape(0) != rows) {
+        throw py::value_error(std::string(name) + ": expected " + std::to_string(rows) +
+                              " rows (one per point/vertex), got " + std::to_string(a.shape(0)));
+    }
+    return a;
+}
+
+}  // namespace
+
+std::vector<Vec3f> to_rows(const py::handle& array, const char* name, py::ssize_t rows) {
+    auto a = checked<float>(array, name, 3, rows, "a C-contiguous float32 array of shape (N, 3)");
+    std::vector<Vec3f> v(std::size_t(a.shape(0)));
+    if (!v.empty()) std::memcpy(v.data(), a.data(), v.size() * sizeof(Vec3f));
+    return v;
+}
+
+std::vector<float> to_column(const py::handle& array, const char* name, py::ssize_t rows) {
+    auto a = checked<float>(array, name, 0, rows, "a C-contiguous float32 array of shape (N,)");
+    std::vector<float> v(std::size_t(a.shape(0)));
+    if (!v.empty()) std::memcpy(v.data(), a.data(), v.size() * sizeof(float));
+    return v;
+}
+
+std::vector<Triangle> to_faces(const py::handle& array, const char* name, std::size_t vertices) {
+    auto a =
+        checked<std::int32_t>(array, name, 3, -1, "a C-contiguous int32 array of shape (F, 3)");
+    std::vector<Triangle> v(std::size_t(a.shape(0)));
+    if (!v.empty()) std::memcpy(v.data(), a.data(), v.size() * sizeof(Triangle));
+    for (std::size_t f = 0; f < v.size(); ++f) {
+        for (const std::int32_t i : v[f]) {
+            if (i < 0 || std::size_t(i) >= vertices) {
+                throw py::value_error(std::string(name) + ": face " + std::to_string(f) +
+                                      " has vertex index " + std::to_string(i) + ", outside 0.." +
+                                      std::to_string(vertices) + "-1");
+            }
+        }
+    }
+    return v;
+}
+
+namespace {
+
+template <typename Scalar>
+py::array view(const Scalar* data, py::ssize_t rows, py::ssize_t cols, py::handle owner) {
+    if (rows == 0) {  // no storage to point at
+        if (cols) return py::array_t<Scalar>(std::vector<py::ssize_t>{0, cols});
+        return py::array_t<Scalar>(std::vector<py::ssize_t>{0});
+    }
+    if (cols == 0) {
+        return py::array_t<Scalar>({rows}, {py::ssize_t(sizeof(Scalar))}, data, owner);
+    }
+    return py::array_t<Scalar>({rows, cols},
+                               {py::ssize_t(sizeof(Scalar)) * cols, py::ssize_t(sizeof(Scalar))},
+                               data, owner);
+}
+
+}  // namespace
+
+py::array view_rows(const std::vector<Vec3f>& v, py::handle owner) {
+    return view(reinterpret_cast<const float*>(v.data()), py::ssize_t(v.size()), 3, owner);
+}
+
+py::array view_faces(const std::vector<Triangle>& v, py::handle owner) {
+    return view(reinterpret_cast<const std::int32_t*>(v.data()), py::ssize_t(v.size()), 3, owner);
+}
+
+py::array view_column(const std::vector<float>& v, py::handle owner) {
+    return view(v.data(), py::ssize_t(v.size()), 0, owner);
+}
+
+py::tuple to_tuple(const Vec3d& v) { return py::make_tuple(v[0], v[1], v[2]); }
+
+// ---- log forwarding --------------------------------------------------------------------------
+
+namespace {
+
+// The library calls the handler from the calling thread only, so each thread buffers its own.
+thread_local std::vector<std::pair<LogLevel, std::string>> t_messages;
+
+}  // namespace
+
+void flush_log() {
+    if (t_messages.empty()) return;
+    std::vector<std::pair<LogLevel, std::string>> messages;
+    messages.swap(t_messages);
+    py::object logger = py::module_::import("logging").attr("getLogger")("vdbrecon");
+    for (const auto& [level, text] : messages) {
+        const int py_level = level == LogLevel::warning ? 30 : level == LogLevel::info ? 20 : 10;
+        logger.attr("log")(py_level, "%s", text);
+    }
+}
+
+void bind_common(py::module_& m) {
+    set_log_handler([](LogLevel level, const std::string& message) {
+        t_messages.emplace_back(level, message);
+    });
+    m.def("_flush_log", &flush_log, "Forwards buffered library messages to logging (internal).");
+}
+
+}  // namespace vdbrecon::python

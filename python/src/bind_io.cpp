@@ -1,0 +1,69 @@
+// Point and mesh files (vdbrecon/io.h).
+#include "bind.h"
+#include "vdbrecon/io.h"
+
+namespace vdbrecon::python {
+
+void bind_io(py::module_& m) {
+    OptionsClass<ReadOptions> read(m, "ReadOptions", "How point files are read.");
+    read.choice("non_finite", &ReadOptions::non_finite,
+                {{"drop", NonFinitePolicy::drop}, {"error", NonFinitePolicy::error}},
+                "Rows with NaN/inf coordinates: 'drop' them (a counted warning) or raise "
+                "FormatError ('error').")
+        .field("local_frame", &ReadOptions::local_frame,
+               "Re-centre far-away (georeferenced) coordinates into a local float frame; the "
+               "offset is kept in PointCloud.origin.");
+    read.finish(false);
+
+    OptionsClass<WriteOptions> write(m, "WriteOptions", "How meshes and points are written.");
+    write
+        .choice("encoding", &WriteOptions::encoding,
+                {{"binary_little_endian", PlyEncoding::binary_little_endian},
+                 {"binary_big_endian", PlyEncoding::binary_big_endian},
+                 {"ascii", PlyEncoding::ascii}},
+                "PLY encoding (ignored for OBJ); the CLI's --ascii selects 'ascii'.")
+        .field("comments", &WriteOptions::comments,
+               "Extra header comments (PLY) or # lines (OBJ), a list of strings.");
+    write.finish(false);
+
+    py::class_<ReadResult>(m, "ReadResult", "What read_points found.")
+        .def_readonly("cloud", &ReadResult::cloud, "The PointCloud.")
+        .def_readonly("format", &ReadResult::format, "e.g. 'ply binary_little_endian', 'xyz'.")
+        .def_readonly("rows", &ReadResult::rows, "Rows in the file, before dropping.")
+        .def_readonly("dropped_nonfinite", &ReadResult::dropped_nonfinite,
+                      "Rows dropped for NaN/inf coordinates.")
+        .def_readonly("invalid_normals", &ReadResult::invalid_normals,
+                      "Normals that were zero or NaN (set to 0, 0, 0).")
+        .def("__repr__", [](const ReadResult& r) {
+            return "ReadResult(" + std::to_string(r.cloud.size()) + " points, format='" + r.format +
+                   "', rows=" + std::to_string(r.rows) + ")";
+        });
+
+    m.def(
+        "read_points",
+        [](const std::string& path, const ReadOptions& o) {
+            return without_gil([&] { return read_points(path, o); });
+        },
+        py::arg("path"), py::arg("options") = ReadOptions{},
+        "Reads a point cloud (.ply .xyz .pts .txt .obj).");
+    m.def(
+        "read_mesh",
+        [](const std::string& path) { return without_gil([&] { return read_mesh(path); }); },
+        py::arg("path"), "Reads a triangle mesh (.ply with faces, .obj).");
+    m.def(
+        "write_mesh",
+        [](const std::string& path, const Mesh& mesh, const WriteOptions& o) {
+            without_gil([&] { write_mesh(path, mesh, o); });
+        },
+        py::arg("path"), py::arg("mesh"), py::arg("options") = WriteOptions{},
+        "Writes a mesh as .ply or .obj, atomically.");
+    m.def(
+        "write_points",
+        [](const std::string& path, const PointCloud& cloud, const WriteOptions& o) {
+            without_gil([&] { write_points(path, cloud, o); });
+        },
+        py::arg("path"), py::arg("cloud"), py::arg("options") = WriteOptions{},
+        "Writes a point cloud as .ply or .xyz, atomically.");
+}
+
+}  // namespace vdbrecon::python

@@ -1,0 +1,57 @@
+// Surface extraction (vdbrecon/mesh.h).
+#include "bind.h"
+#include "vdbrecon/mesh.h"
+
+namespace vdbrecon::python {
+
+void bind_mesh(py::module_& m) {
+    OptionsClass<MeshOptions> o(m, "MeshOptions",
+                                "Surface extraction from the volume's sdf grid: 'vdb' OpenVDB "
+                                "volumeToMesh, 'mc' marching cubes (Lorensen 87), 'dc' dual "
+                                "contouring (Ju 02).");
+    o.choice("method", &MeshOptions::method,
+             {{"vdb", Mesher::vdb}, {"mc", Mesher::mc}, {"dc", Mesher::dc}},
+             "Which mesher extracts the surface (CLI --mesher).")
+        .field("isovalue", &MeshOptions::isovalue,
+               "Iso-value of the surface, world units (0 = the zero crossing of the SDF).")
+        .field("adaptivity", &MeshOptions::adaptivity,
+               "volumeToMesh adaptivity, 0 (uniform) .. 1 (coarsest); keep 0 for open scans "
+               "(CLI --adaptivity).")
+        .field("min_surface_weight", &MeshOptions::min_surface_weight,
+               "Faces with a vertex whose interpolated summed weight is below this are dropped, "
+               "dimensionless; 0 keeps everything (CLI --surface-weight).")
+        .field("max_gap", &MeshOptions::max_gap,
+               "Faces with a vertex farther than this from every sample are dropped, voxels; "
+               "inf disables the test (CLI --max-gap).")
+        .field("dc_truncation", &MeshOptions::dc_truncation,
+               "Dual contouring: singular values of the quadric below this fraction of the "
+               "largest are dropped.")
+        .field("dc_bias", &MeshOptions::dc_bias,
+               "Dual contouring: pull towards the mass point of the crossings, relative to one "
+               "crossing's plane (0 = none).")
+        .field("normals", &MeshOptions::normals,
+               "Compute per-vertex normals from the SDF gradient (bool).");
+    o.finish();
+
+    py::class_<MeshResult>(m, "MeshResult", "The mesh and what was removed from it.")
+        .def_readonly("mesh", &MeshResult::mesh, "The Mesh.")
+        .def_readonly("dropped_faces", &MeshResult::dropped_faces,
+                      "Faces removed because they touched an invalid cell.")
+        .def_readonly("trimmed_faces", &MeshResult::trimmed_faces,
+                      "Faces removed for low surface weight or a gap.")
+        .def("__repr__", [](const MeshResult& r) {
+            return "MeshResult(" + std::to_string(r.mesh.faces.size()) +
+                   " faces, dropped_faces=" + std::to_string(r.dropped_faces) +
+                   ", trimmed_faces=" + std::to_string(r.trimmed_faces) + ")";
+        });
+
+    m.def(
+        "extract_mesh",
+        [](const Volume& volume, const MeshOptions& o) {
+            return without_gil([&] { return extract_mesh(volume, o); });
+        },
+        py::arg("volume"), py::arg("options") = MeshOptions{},
+        "Extracts the iso-surface of volume.sdf.");
+}
+
+}  // namespace vdbrecon::python

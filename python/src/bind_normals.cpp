@@ -1,0 +1,64 @@
+// Normal and scale estimation (vdbrecon/normals.h).
+#include "bind.h"
+#include "vdbrecon/normals.h"
+
+namespace vdbrecon::python {
+
+void bind_normals(py::module_& m) {
+    OptionsClass<NormalOptions> o(m, "NormalOptions",
+                                  "Normal and per-point scale estimation (PCA over k nearest "
+                                  "neighbours, Hoppe 1992 MST orientation).");
+    o.choice("mode", &NormalOptions::mode,
+             {{"auto", NormalMode::automatic},
+              {"estimate", NormalMode::estimate},
+              {"keep", NormalMode::keep}},
+             "Where normals come from: 'auto' keeps the file's normals when every point has one "
+             "and estimates otherwise, 'estimate' always estimates, 'keep' requires them (CLI "
+             "--normals).")
+        .field("k", &NormalOptions::k,
+               "Neighbours used for PCA normals, orientation and the kNN scale (count; CLI --k).")
+        .field("viewpoint", &NormalOptions::viewpoint,
+               "Sensor position (x, y, z), world units; estimated normals are turned towards it. "
+               "None: minimum-spanning-tree orientation (CLI --viewpoint).")
+        .choice(
+            "scale", &NormalOptions::scale,
+            {{"auto", ScaleMode::automatic}, {"knn", ScaleMode::knn}, {"none", ScaleMode::none}},
+            "Per-point scale: 'auto' the file's when present else the mean kNN distance, "
+            "'knn' always the kNN distance, 'none' no scale (CLI --scale).");
+    o.finish();
+
+    py::class_<NormalResult>(m, "NormalResult", "What estimate_normals produced.")
+        .def_property_readonly(
+            "normals",
+            [](py::object self) { return view_rows(self.cast<NormalResult&>().normals, self); },
+            "(N, 3) float32 unit normals (the kept ones, or estimated).")
+        .def_property_readonly(
+            "scales",
+            [](py::object self) { return view_or_none(self.cast<NormalResult&>().scales, self); },
+            "(N,) float32 per-point scale in world units, or None (scale='none').")
+        .def_readonly("estimated", &NormalResult::estimated, "Points whose normal was estimated.")
+        .def_readonly("repaired", &NormalResult::repaired,
+                      "Kept normals that were zero/NaN and were re-estimated.")
+        .def_readonly("flipped", &NormalResult::flipped,
+                      "Estimated normals flipped by the orientation step.")
+        .def_readonly("components", &NormalResult::components,
+                      "kNN-graph components oriented separately (MST mode).")
+        .def_readonly("oriented_to_viewpoint", &NormalResult::oriented_to_viewpoint)
+        .def_readonly("median_scale", &NormalResult::median_scale,
+                      "Median of `scales`, world units (0 when none).")
+        .def("__repr__", [](const NormalResult& r) {
+            return "NormalResult(" + std::to_string(r.normals.size()) +
+                   " normals, estimated=" + std::to_string(r.estimated) +
+                   ", median_scale=" + std::to_string(r.median_scale) + ")";
+        });
+
+    m.def(
+        "estimate_normals",
+        [](const PointCloud& cloud, const NormalOptions& o) {
+            return without_gil([&] { return estimate_normals(cloud, o); });
+        },
+        py::arg("cloud"), py::arg("options") = NormalOptions{},
+        "Estimates (or checks) normals and per-point scales.");
+}
+
+}  // namespace vdbrecon::python

@@ -1,0 +1,109 @@
+// The whole reconstruction (vdbrecon/pipeline.h).
+#include "bind.h"
+#include "vdbrecon/pipeline.h"
+
+namespace vdbrecon::python {
+
+namespace {
+
+/// reconstruct() fills normals and scales into the cloud it is given. The Python PointCloud
+/// must not change under its numpy views, so the call works on a cloud that borrows the
+/// untouched arrays (vector swaps keep the buffers, hence the views, valid) and copies the two
+/// it replaces.
+PipelineResult reconstruct_borrowed(PointCloud& cloud, const PipelineOptions& options) {
+    PointCloud work;
+    work.positions.swap(cloud.positions);
+    work.colors.swap(cloud.colors);
+    work.confidences.swap(cloud.confidences);
+    work.normals = cloud.normals;
+    work.scales = cloud.scales;
+    work.origin = cloud.origin;
+    struct Restore {
+        PointCloud& cloud;
+        PointCloud& work;
+        ~Restore() {
+            cloud.positions.swap(work.positions);
+            cloud.colors.swap(work.colors);
+            cloud.confidences.swap(work.confidences);
+        }
+    } restore{cloud, work};
+    return reconstruct(work, options);
+}
+
+}  // namespace
+
+void bind_pipeline(py::module_& m) {
+    OptionsClass<PipelineOptions> o(m, "PipelineOptions",
+                                    "Every knob of the reconstruction: one nested options struct "
+                                    "per stage plus the pipeline's own fields.");
+    o.nested("read", &PipelineOptions::read, "ReadOptions (run() only).")
+        .nested("normals", &PipelineOptions::normals, "NormalOptions.")
+        .nested("splat", &PipelineOptions::splat,
+                "SplatOptions; splat.voxel_size == 0 chooses the voxel from the point spacing.")
+        .nested("mesh", &PipelineOptions::mesh, "MeshOptions.")
+        .nested("clean", &PipelineOptions::clean, "CleanOptions.")
+        .nested("write", &PipelineOptions::write, "WriteOptions (run() only).")
+        .field("threads", &PipelineOptions::threads,
+               "Worker threads, 0 = all cores; the output does not depend on it (CLI --threads).")
+        .field("write_vdb", &PipelineOptions::write_vdb,
+               "Write <out>.splat.vdb next to the mesh (run() only; CLI --no-vdb sets False).")
+        .field("auto_voxel_factor", &PipelineOptions::auto_voxel_factor,
+               "Automatic voxel = auto_voxel_factor * median per-point scale, dimensionless.")
+        .field("auto_voxel_max_cells", &PipelineOptions::auto_voxel_max_cells,
+               "The automatic voxel is never finer than the bounding-box diagonal / this, count.");
+    o.finish();
+
+    py::class_<StageTiming>(m, "StageTiming", "Wall time of one stage.")
+        .def_readonly("stage", &StageTiming::stage)
+        .def_readonly("seconds", &StageTiming::seconds)
+        .def_readonly("peak_rss_mb", &StageTiming::peak_rss_mb,
+                      "Peak resident memory of the process when the stage ended, MB.")
+        .def("__repr__", [](const StageTiming& t) {
+            return "StageTiming('" + t.stage + "', seconds=" + std::to_string(t.seconds) + ")";
+        });
+
+    py::class_<PipelineResult>(m, "PipelineResult", "Everything reconstruct() produced.")
+        .def_readonly("mesh", &PipelineResult::mesh, "The Mesh.")
+        .def_readonly("volume", &PipelineResult::volume, "The splatted Volume.")
+        .def_readonly("normals", &PipelineResult::normals,
+                      "NormalResult (counts; its arrays are empty here).")
+        .def_readonly("splat", &PipelineResult::splat, "SplatResult (statistics; no volume).")
+        .def_readonly("mesh_stats", &PipelineResult::mesh_stats,
+                      "MeshResult (statistics; no mesh).")
+        .def_readonly("clean_stats", &PipelineResult::clean_stats,
+                      "CleanResult (statistics; no mesh).")
+        .def_readonly("voxel_size", &PipelineResult::voxel_size, "The voxel used, world units.")
+        .def_readonly("voxel_chosen", &PipelineResult::voxel_chosen,
+                      "True when the voxel was picked automatically.")
+        .def_readonly("timings", &PipelineResult::timings, "StageTiming per stage.")
+        .def("__repr__", [](const PipelineResult& r) {
+            return "PipelineResult(" + std::to_string(r.mesh.faces.size()) +
+                   " faces, voxel_size=" + std::to_string(r.voxel_size) + ")";
+        });
+
+    py::class_<RunResult>(m, "RunResult", "What run() did.")
+        .def_readonly("result", &RunResult::result, "The PipelineResult.")
+        .def_readonly("read", &RunResult::read, "The ReadResult (counts; no cloud).")
+        .def_readonly("mesh_path", &RunResult::mesh_path)
+        .def_readonly("vdb_path", &RunResult::vdb_path, "Empty when no .vdb was written.");
+
+    m.def("version", &version, "Library version, 'major.minor.patch'.");
+    m.def(
+        "reconstruct",
+        [](PointCloud& cloud, const PipelineOptions& options) {
+            return without_gil([&] { return reconstruct_borrowed(cloud, options); });
+        },
+        py::arg("cloud"), py::arg("options"),
+        "Runs normals > splat > mesh on a PointCloud (left unchanged).");
+    m.def(
+        "run",
+        [](const std::string& input, const std::string& output, const PipelineOptions& options) {
+            return without_gil([&] { return run(input, output, options); });
+        },
+        py::arg("input"), py::arg("output"), py::arg("options"),
+        "Reads `input`, reconstructs, writes `output` and <output stem>.splat.vdb (the CLI).");
+    m.def("stage_volume_path", &stage_volume_path, py::arg("mesh_path"), py::arg("stage"),
+          "'out/scan.ply', 'splat' -> 'out/scan.splat.vdb'.");
+}
+
+}  // namespace vdbrecon::python

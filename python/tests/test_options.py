@@ -1,0 +1,138 @@
+"""Options: same names and defaults as the C++ structs and the CLI; unknown or ill-typed ones
+are refused with a message that lists what is valid."""
+import inspect
+import pydoc
+import re
+import subprocess
+
+import pytest
+
+import vdbrecon
+from conftest import sphere
+
+# CLI flag -> (options struct class, field)
+CLI_FLAGS = {
+    "--sigma": (vdbrecon.SplatOptions, "scale_factor"),
+    "--sigma-voxels": (vdbrecon.SplatOptions, "sigma_voxels"),
+    "--min-sigma": (vdbrecon.SplatOptions, "min_sigma_voxels"),
+    "--max-sigma": (vdbrecon.SplatOptions, "max_sigma_voxels"),
+    "--support": (vdbrecon.SplatOptions, "support"),
+    "--min-weight": (vdbrecon.SplatOptions, "min_weight"),
+    "--surface-weight": (vdbrecon.MeshOptions, "min_surface_weight"),
+    "--max-gap": (vdbrecon.MeshOptions, "max_gap"),
+    "--normals": (vdbrecon.NormalOptions, "mode"),
+    "--k": (vdbrecon.NormalOptions, "k"),
+    "--scale": (vdbrecon.NormalOptions, "scale"),
+    "--mesher": (vdbrecon.MeshOptions, "method"),
+    "--adaptivity": (vdbrecon.MeshOptions, "adaptivity"),
+    "--threads": (vdbrecon.PipelineOptions, "threads"),
+    "--samples": (vdbrecon.EvalOptions, "samples"),
+}
+
+
+def test_defaults_and_choices_agree_with_the_cli_help(cli):
+    out = subprocess.run([cli, "--help"], capture_output=True, text=True, check=True).stdout
+    found = {}
+    for line in out.splitlines():
+        m = re.match(r"^\s+(--[\w-]+)(?: \S+)?\s+(.*)\[([^\]]*)\]\s*$", line)
+        if m:
+            found[m.group(1)] = (m.group(2), m.group(3))
+    assert set(CLI_FLAGS) <= set(found), set(CLI_FLAGS) - set(found)
+    for flag, (cls, field) in CLI_FLAGS.items():
+        text, default = found[flag]
+        value = getattr(cls(), field)
+        if field in cls._choices:
+            assert value == default, flag
+            assert "|".join(cls._choices[field]) in text, flag
+        else:
+            assert float(default) == pytest.approx(float(value)), flag
+
+
+def test_every_field_has_a_documented_unit_or_meaning():
+    for cls in (vdbrecon.ReadOptions, vdbrecon.WriteOptions, vdbrecon.NormalOptions,
+                vdbrecon.SplatOptions, vdbrecon.MeshOptions, vdbrecon.EvalOptions,
+                vdbrecon.PipelineOptions):
+        assert cls._fields, cls
+        for name, doc in cls._fields:
+            assert hasattr(cls(), name) and len(doc) > 10, (cls, name)
+
+
+def test_help_shows_options_with_units_and_defaults():
+    text = pydoc.render_doc(vdbrecon.reconstruct, renderer=pydoc.plaintext)
+    d = vdbrecon.PipelineOptions()
+    assert f"min_weight = {d.splat.min_weight!r}" in text
+    assert f"k = {d.normals.k!r}" in text
+    assert "method = 'vdb'  ('vdb' | 'mc' | 'dc')" in text
+    assert "voxels" in text and "world units" in text
+    sig = inspect.signature(vdbrecon.reconstruct)
+    assert list(sig.parameters)[:3] == ["points", "normals", "colors"]
+    assert sig.parameters["voxel"].kind is inspect.Parameter.KEYWORD_ONLY
+    assert sig.parameters["support"].default == d.splat.support
+    assert sig.parameters["mesh_normals"].default is True
+    for f in (vdbrecon.read_points, vdbrecon.estimate_normals, vdbrecon.splat,
+              vdbrecon.extract_mesh, vdbrecon.evaluate, vdbrecon.write_mesh, vdbrecon.run):
+        assert "Options" in f.__doc__, f.__name__
+    assert vdbrecon.Volume.to_arrays.__doc__ and vdbrecon.Mesh.vertices.__doc__
+
+
+def test_defaults_follow_the_structs_not_copies():
+    d = vdbrecon.MeshOptions()
+    sig = inspect.signature(vdbrecon.extract_mesh)
+    for name, _ in vdbrecon.MeshOptions._fields:
+        assert sig.parameters[name].default == getattr(d, name)
+
+
+def test_unknown_option_lists_the_valid_ones():
+    points, normals = sphere(100)
+    with pytest.raises(TypeError) as e:
+        vdbrecon.reconstruct(points, normals, voxel=0.1, sigmaa=2)
+    assert "'sigmaa'" in str(e.value) and "scale_factor" in str(e.value)
+    assert "mesh_normals" in str(e.value)
+    with pytest.raises(TypeError, match="valid options: .*k.*mode"):
+        vdbrecon.estimate_normals(points, voxel=0.1)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'encoding'"):
+        vdbrecon.reconstruct(points, normals, encoding="ascii")  # run()/write_mesh only
+
+
+def test_bad_values():
+    points, normals = sphere(100)
+    with pytest.raises(ValueError, match="'xx' is not one of 'vdb', 'mc', 'dc'"):
+        vdbrecon.reconstruct(points, normals, voxel=0.1, method="xx")
+    with pytest.raises(TypeError, match="'k' expects int"):
+        vdbrecon.reconstruct(points, normals, voxel=0.1, k="ten")
+    with pytest.raises(TypeError, match="expected a string"):
+        vdbrecon.reconstruct(points, normals, voxel=0.1, mode=1)
+    with pytest.raises(TypeError, match="voxel or voxel_size"):
+        vdbrecon.reconstruct(points, normals, voxel=0.1, voxel_size=0.1)
+    with pytest.raises(TypeError, match="set the same option"):
+        vdbrecon.reconstruct(points, normals, min_weight=0.1, splat_min_weight=0.1)
+
+
+def test_nested_names_map_to_their_struct():
+    names = vdbrecon._RECONSTRUCT_NAMES
+    assert names["min_weight"] == ("splat", "min_weight")
+    assert names["method"] == ("mesh", "method")
+    assert names["mode"] == ("normals", "mode")
+    assert names["threads"] == (None, "threads")
+    assert "normals" not in names and names["mesh_normals"] == ("mesh", "normals")
+    o = vdbrecon._fill_pipeline(names, {"min_weight": 0.5, "method": "mc", "viewpoint": (0, 0, 5),
+                                        "k": 12, "mesh_normals": False}, "t")
+    assert o.splat.min_weight == 0.5 and o.mesh.method == "mc" and o.normals.k == 12
+    assert tuple(o.normals.viewpoint) == (0.0, 0.0, 5.0) and o.mesh.normals is False
+    assert o.mesh.max_gap == vdbrecon.MeshOptions().max_gap  # the rest stays at the defaults
+    run_names = vdbrecon._RUN_NAMES
+    assert run_names["encoding"] == ("write", "encoding")
+    assert run_names["non_finite"] == ("read", "non_finite")
+
+
+def test_options_structs_are_plain_values():
+    o = vdbrecon.SplatOptions()
+    o.voxel_size = 0.1
+    o.min_weight = 0.2
+    assert o != vdbrecon.SplatOptions() and "min_weight=0.2" in repr(o)
+    o.min_weight = -1.0
+    with pytest.raises(vdbrecon.InvalidArgument, match="min_weight"):
+        o.validate()
+    p = vdbrecon.PipelineOptions()
+    p.splat.support = 2.0  # nested structs are references, not copies
+    assert p.splat.support == 2.0

@@ -1,0 +1,551 @@
+"""vdbrecon: surface reconstruction from point clouds on sparse OpenVDB grids.
+
+    import numpy as np, vdbrecon
+    mesh = vdbrecon.reconstruct(points, normals, voxel=0.002)      # (N, 3) arrays in
+    mesh.vertices, mesh.faces                                      # (V, 3) float32, (F, 3) int32
+
+Stage by stage, with the same option names and defaults as the C++ structs and the CLI:
+
+    cloud = vdbrecon.read_points("scan.ply").cloud
+    n = vdbrecon.estimate_normals(cloud, k=12)
+    volume = vdbrecon.splat(cloud.positions, n.normals, scales=n.scales, voxel=0.002).volume
+    mesh = vdbrecon.extract_mesh(volume, method="mc").mesh
+    vdbrecon.write_mesh("scan.mesh.ply", mesh)
+    vdbrecon.write_volume("scan.splat.vdb", volume)
+
+Arrays: (N, 3) C-contiguous float32 inputs are used as they are (copied once into the library's
+point cloud); other real dtypes and layouts are converted once; anything else raises TypeError
+(wrong kind) or ValueError (wrong shape, non-finite positions). Outputs are numpy views of the
+library's arrays (no copy) that keep their owner alive.
+
+Volumes cross as .vdb paths (read_volume / write_volume), as numpy arrays of active voxels
+(Volume.to_arrays / Volume.from_arrays), or, when pyopenvdb is importable, as pyopenvdb grids
+(to_pyopenvdb / from_pyopenvdb).
+
+Errors: vdbrecon.Error and its subclasses IoError and FormatError (OSError), InvalidArgument
+(ValueError) and NumericalError (RuntimeError). Library messages go to the logger "vdbrecon".
+The GIL is released while the library works.
+"""
+
+import inspect as _inspect
+import os as _os
+import shutil as _shutil
+import tempfile as _tempfile
+import textwrap as _textwrap
+
+import numpy as _np
+
+try:
+    from . import _vdbrecon as _v
+except ImportError as _e:  # e.g. the source tree's python/vdbrecon shadowing the built package
+    raise ImportError(f"vdbrecon: the compiled module _vdbrecon is not next to {__file__} "
+                      f"({_e}). Build with -DVDBRECON_BUILD_PYTHON=ON and put <build>/python on "
+                      "PYTHONPATH, or `cmake --install` it.") from None
+from ._vdbrecon import (  # noqa: F401  (re-exported)
+    CleanOptions,
+    CleanResult,
+    Error,
+    EvalOptions,
+    EvalResult,
+    FormatError,
+    FScore,
+    InvalidArgument,
+    IoError,
+    Mesh,
+    MeshOptions,
+    MeshResult,
+    NormalOptions,
+    NormalResult,
+    NumericalError,
+    PipelineOptions,
+    PipelineResult,
+    PointCloud,
+    ReadOptions,
+    ReadResult,
+    RunResult,
+    SplatOptions,
+    SplatResult,
+    StageTiming,
+    TopologyStats,
+    Volume,
+    WriteOptions,
+    stage_volume_path,
+    version,
+)
+
+__version__ = _v.__version__
+
+__all__ = [
+    "reconstruct", "run", "read_points", "read_mesh", "write_mesh", "write_points",
+    "estimate_normals", "splat", "extract_mesh", "clean_mesh", "evaluate", "mesh_topology", "read_volume",
+    "write_volume", "to_pyopenvdb", "from_pyopenvdb", "version", "stage_volume_path",
+    "PointCloud", "Mesh", "Volume", "PipelineOptions", "ReadOptions", "WriteOptions",
+    "NormalOptions", "SplatOptions", "MeshOptions", "CleanOptions", "EvalOptions", "ReadResult", "NormalResult",
+    "SplatResult", "MeshResult", "CleanResult", "EvalResult", "PipelineResult", "RunResult", "TopologyStats",
+    "FScore", "StageTiming", "Error", "IoError", "FormatError", "InvalidArgument",
+    "NumericalError",
+]
+
+# ---- arrays ----------------------------------------------------------------------------------
+
+
+def _as_array(a, name, cols):
+    """`a` as a C-contiguous float32 array of shape (N, cols) (or (N,) when cols is None):
+    returned as is when it already is one, converted once otherwise."""
+    expected = f"(N, {cols})" if cols else "(N,)"
+    if isinstance(a, _np.ndarray) and a.dtype == _np.float32 and a.flags.c_contiguous \
+            and a.dtype.isnative:
+        arr = a
+    else:
+        try:
+            arr = _np.asarray(a)
+        except Exception as e:  # ragged lists and the like
+            raise TypeError(f"{name}: expected an array-like of shape {expected} of real "
+                            f"numbers, got {type(a).__name__} ({e})") from None
+        if arr.dtype.kind not in "fiu":
+            raise TypeError(f"{name}: expected real numbers (float32 preferred) of shape "
+                            f"{expected}, got dtype {arr.dtype}")
+    shape_ok = arr.ndim == 2 and arr.shape[1] == cols if cols else arr.ndim == 1
+    if not shape_ok:
+        raise ValueError(f"{name}: expected shape {expected}, got {arr.shape}")
+    return _np.ascontiguousarray(arr, dtype=_np.float32)  # no copy when it already fits
+
+
+def _as_points(a, name="points"):
+    arr = _as_array(a, name, 3)
+    finite = _np.isfinite(arr).all(axis=1)
+    if not finite.all():
+        bad = _np.flatnonzero(~finite)
+        raise ValueError(f"{name}: {bad.size} rows are not finite (first: row {bad[0]}); "
+                         f"drop them first, e.g. {name}[np.isfinite({name}).all(axis=1)]")
+    return arr
+
+
+def _cloud(points, normals=None, colors=None, scales=None):
+    """A PointCloud from arrays, or the given PointCloud (with attributes added: a new one)."""
+    if isinstance(points, PointCloud):
+        if normals is None and colors is None and scales is None:
+            return points
+        c = points
+        return PointCloud(
+            c.positions,
+            normals=_as_array(normals, "normals", 3) if normals is not None else c.normals,
+            colors=_as_array(colors, "colors", 3) if colors is not None else c.colors,
+            scales=_as_array(scales, "scales", None) if scales is not None else c.scales,
+            confidences=c.confidences, origin=c.origin)
+    return PointCloud(
+        _as_points(points),
+        normals=None if normals is None else _as_array(normals, "normals", 3),
+        colors=None if colors is None else _as_array(colors, "colors", 3),
+        scales=None if scales is None else _as_array(scales, "scales", None))
+
+
+def _path(p, name="path"):
+    try:
+        return _os.fspath(p)
+    except TypeError:
+        raise TypeError(f"{name}: expected a path (str or os.PathLike), got "
+                        f"{type(p).__name__}") from None
+
+
+def _mesh(m, name):
+    if isinstance(m, Mesh):
+        return m
+    if isinstance(m, (str, bytes, _os.PathLike)):
+        return read_mesh(m)
+    raise TypeError(f"{name}: expected a vdbrecon.Mesh or a mesh file path, got "
+                    f"{type(m).__name__}")
+
+
+# ---- options ---------------------------------------------------------------------------------
+
+
+def _set_field(struct, field, value, func, name):
+    try:
+        setattr(struct, field, value)
+    except TypeError as e:
+        if field in type(struct)._choices:  # the binding's message lists the choices
+            raise TypeError(f"{func}(): option '{name}': {e}") from None
+        default = getattr(type(struct)(), field)
+        kind = "a sequence of 3 numbers or None" if field == "viewpoint" else \
+            type(default).__name__
+        raise TypeError(f"{func}(): option '{name}' expects {kind} (default {default!r}), got "
+                        f"{type(value).__name__} {value!r}") from None
+
+
+def _unknown(func, name, valid):
+    return TypeError(f"{func}() got an unexpected keyword argument '{name}'; valid options: "
+                     + ", ".join(sorted(valid)))
+
+
+def _fill(cls, kwargs, func):
+    """A `cls` options struct with `kwargs` set (its field names)."""
+    struct = cls()
+    fields = [f for f, _ in cls._fields]
+    for name, value in kwargs.items():
+        if name not in fields:
+            raise _unknown(func, name, fields)
+        _set_field(struct, name, value, func, name)
+    return struct
+
+
+def _pipeline_names(stages, top_fields, reserved):
+    """Keyword name -> (stage or None, field) for PipelineOptions: every field by its own name
+    when that is unambiguous (one struct has it and it is not a parameter name), and always as
+    <stage>_<field>. Read from the bound structs, so new stages and fields appear by themselves."""
+    places = {}
+    default = PipelineOptions()
+    for f, _ in PipelineOptions._fields:
+        if f in top_fields:
+            places.setdefault(f, []).append((None, f))
+    for stage in stages:
+        for f, _ in type(getattr(default, stage))._fields:
+            places.setdefault(f, []).append((stage, f))
+    names = {n: p[0] for n, p in places.items() if len(p) == 1 and n not in reserved}
+    for stage in stages:
+        for f, _ in type(getattr(default, stage))._fields:
+            names.setdefault(f"{stage}_{f}", (stage, f))
+    return names
+
+
+def _fill_pipeline(names, kwargs, func):
+    o = PipelineOptions()
+    seen = {}
+    for name, value in kwargs.items():
+        if name not in names:
+            raise _unknown(func, name, names)
+        stage, field = names[name]
+        if (stage, field) in seen:
+            raise TypeError(f"{func}(): '{name}' and '{seen[stage, field]}' set the same option")
+        seen[stage, field] = name
+        _set_field(getattr(o, stage) if stage else o, field, value, func, name)
+    return o
+
+
+def _options_doc(entries):
+    """Docstring lines for (keyword, struct class, field) entries, grouped by struct, with the
+    defaults read from default-constructed structs."""
+    lines = []
+    group = None
+    for keyword, cls, field in entries:
+        if cls is not group and len({c for _, c, _ in entries}) > 1:
+            group = cls
+            lines.append(f"  {cls.__name__}:")
+        doc = dict(cls._fields)[field]
+        default = getattr(cls(), field)
+        choices = cls._choices.get(field)
+        head = f"    {keyword} = {default!r}"
+        if choices:
+            head += "  (" + " | ".join(repr(c) for c in choices) + ")"
+        lines.append(head)
+        lines.extend(_textwrap.wrap(doc, 92, initial_indent=" " * 8, subsequent_indent=" " * 8))
+    return "\n".join(lines)
+
+
+def _struct_entries(cls, exclude=()):
+    return [(f, cls, f) for f, _ in cls._fields if f not in exclude]
+
+
+def _pipeline_entries(names):
+    default = PipelineOptions()
+    primary = {}
+    for name, (stage, field) in names.items():  # the flat name when there is one
+        key = (stage, field)
+        if key not in primary or len(name) < len(primary[key]):
+            primary[key] = name
+    order = list(PipelineOptions._stages) + [None]
+    entries = []
+    for (stage, field), name in sorted(primary.items(), key=lambda kv: order.index(kv[0][0])):
+        cls = type(getattr(default, stage)) if stage else PipelineOptions
+        entries.append((name, cls, field))
+    return entries
+
+
+def _document(func, summary, entries, params_before, extra_params=(), returns=""):
+    """Sets func.__doc__ (options with units and defaults) and func.__signature__."""
+    params = list(params_before)
+    for keyword, cls, field in entries:
+        params.append(_inspect.Parameter(keyword, _inspect.Parameter.KEYWORD_ONLY,
+                                         default=getattr(cls(), field)))
+    params.extend(extra_params)
+    func.__signature__ = _inspect.Signature(params)
+    func.__doc__ = summary.rstrip() + "\n\nOptions (keyword only; defaults read from the C++ " \
+        "options structs):\n" + _options_doc(entries) + ("\n\n" + returns if returns else "")
+    return func
+
+
+_P = _inspect.Parameter
+
+
+def _pos(name, default=_P.empty):
+    return _P(name, _P.POSITIONAL_OR_KEYWORD, default=default)
+
+
+def _kw(name, default):
+    return _P(name, _P.KEYWORD_ONLY, default=default)
+
+
+# ---- files -----------------------------------------------------------------------------------
+
+
+def read_points(path, **options):
+    return _v.read_points(_path(path), _fill(ReadOptions, options, "read_points"))
+
+
+_document(read_points, """Reads a point cloud: PLY (ascii/binary), XYZ/PTS text, OBJ (v/vn).
+
+Returns a ReadResult: .cloud (PointCloud with positions, normals, colors, scales,
+confidences as numpy views), .format, .rows, .dropped_nonfinite, .invalid_normals.
+Raises IoError / FormatError (OSError) naming the file.""",
+          _struct_entries(ReadOptions), [_pos("path")])
+
+
+def read_mesh(path):
+    """Reads a triangle mesh (.ply with faces, .obj); returns a Mesh."""
+    return _v.read_mesh(_path(path))
+
+
+def write_mesh(path, mesh, **options):
+    if not isinstance(mesh, Mesh):
+        raise TypeError(f"mesh: expected a vdbrecon.Mesh, got {type(mesh).__name__} "
+                        "(build one with vdbrecon.Mesh(vertices, faces))")
+    _v.write_mesh(_path(path), mesh, _fill(WriteOptions, options, "write_mesh"))
+
+
+_document(write_mesh, """Writes a Mesh as .ply or .obj (by extension), atomically.""",
+          _struct_entries(WriteOptions), [_pos("path"), _pos("mesh")])
+
+
+def write_points(path, cloud, **options):
+    _v.write_points(_path(path), _cloud(cloud), _fill(WriteOptions, options, "write_points"))
+
+
+_document(write_points, """Writes a point cloud (PointCloud or (N, 3) array) as .ply or .xyz.""",
+          _struct_entries(WriteOptions), [_pos("path"), _pos("cloud")])
+
+
+def read_volume(path):
+    """Reads a .vdb file with a level-set 'sdf' grid (as written by write_volume or the CLI)."""
+    return _v.read_volume(_path(path))
+
+
+def write_volume(path, volume):
+    """Writes a Volume's grids (sdf, weight, nearest, density, color) to a .vdb file."""
+    _v.write_volume(_path(path), _volume(volume))
+
+
+# ---- pyopenvdb -------------------------------------------------------------------------------
+
+
+def _pyopenvdb():
+    try:
+        import pyopenvdb
+    except ImportError as e:
+        raise ImportError("pyopenvdb is not importable (Debian: apt-get install python3-openvdb, "
+                          f"and use /usr/bin/python3): {e}") from None
+    return pyopenvdb
+
+
+def _is_pyopenvdb_grid(obj):
+    return type(obj).__module__ == "pyopenvdb"
+
+
+def to_pyopenvdb(volume):
+    """The volume's grids as pyopenvdb objects: {'sdf': FloatGrid, 'weight': FloatGrid,
+    'nearest': Vec3SGrid, 'density': FloatGrid, 'color': Vec3SGrid (when present)}.
+
+    Copied through a temporary .vdb file (Debian's pyopenvdb is Boost.Python and shares no
+    objects with this module); needs pyopenvdb."""
+    pyopenvdb = _pyopenvdb()
+    tmp = _tempfile.mkdtemp(prefix="vdbrecon_")
+    try:
+        path = _os.path.join(tmp, "volume.vdb")
+        write_volume(path, volume)
+        grids, _ = pyopenvdb.readAll(path)
+        return {g.name: g for g in grids}
+    finally:
+        _shutil.rmtree(tmp, ignore_errors=True)
+
+
+def from_pyopenvdb(grids):
+    """A Volume from pyopenvdb grids: a level-set FloatGrid (used as 'sdf' whatever its name), or
+    a list/dict of grids among which one is named 'sdf' ('weight', 'nearest', 'color' are
+    used when present). Copied through a temporary .vdb file; needs pyopenvdb."""
+    pyopenvdb = _pyopenvdb()
+    if isinstance(grids, dict):
+        grids = list(grids.values())
+    elif _is_pyopenvdb_grid(grids):
+        if grids.name != "sdf":
+            grids = grids.deepCopy()
+            grids.name = "sdf"
+        grids = [grids]
+    grids = list(grids)
+    if not all(_is_pyopenvdb_grid(g) for g in grids):
+        raise TypeError("from_pyopenvdb: expected pyopenvdb grids")
+    if "sdf" not in [g.name for g in grids]:
+        raise ValueError("from_pyopenvdb: no grid named 'sdf' among "
+                         f"{[g.name for g in grids]}")
+    tmp = _tempfile.mkdtemp(prefix="vdbrecon_")
+    try:
+        path = _os.path.join(tmp, "volume.vdb")
+        pyopenvdb.write(path, grids=grids)
+        return read_volume(path)
+    finally:
+        _shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _volume(v):
+    if isinstance(v, Volume):
+        return v
+    if isinstance(v, (str, bytes, _os.PathLike)):
+        return read_volume(v)
+    if _is_pyopenvdb_grid(v) or (isinstance(v, (list, tuple, dict)) and v and all(
+            _is_pyopenvdb_grid(g) for g in (v.values() if isinstance(v, dict) else v))):
+        return from_pyopenvdb(v)
+    raise TypeError("volume: expected a vdbrecon.Volume, a .vdb path or pyopenvdb grids, got "
+                    f"{type(v).__name__}")
+
+
+# ---- stages ----------------------------------------------------------------------------------
+
+
+def estimate_normals(points, normals=None, **options):
+    return _v.estimate_normals(_cloud(points, normals),
+                               _fill(NormalOptions, options, "estimate_normals"))
+
+
+_document(estimate_normals, """Estimates normals (PCA over the k nearest neighbours, oriented
+towards `viewpoint` or by minimum-spanning-tree propagation, Hoppe 1992) and per-point scales.
+
+points: PointCloud or (N, 3) array, world units; normals: optional (N, 3) array (kept, or
+repaired where zero/NaN, per `mode`).
+Returns a NormalResult: .normals (N, 3), .scales (N,) or None, and counts.""",
+          _struct_entries(NormalOptions), [_pos("points"), _pos("normals", None)])
+
+
+def splat(points, normals=None, colors=None, scales=None, *, voxel=None, **options):
+    if voxel is not None:
+        if "voxel_size" in options:
+            raise TypeError("splat(): give voxel or voxel_size, not both")
+        options["voxel_size"] = voxel
+    return _v.splat(_cloud(points, normals, colors, scales), _fill(SplatOptions, options, "splat"))
+
+
+_document(splat, """Splats oriented points into a Volume (Gaussian-weighted signed distance,
+FSSR, Fuhrmann and Goesele 2014).
+
+points: PointCloud or (N, 3) array; normals (N, 3) required (here or in the cloud); colors
+(N, 3) linear 0..1; scales (N,) footprints in world units (see estimate_normals).
+voxel: voxel edge in world units (same as voxel_size; required here, > 0).
+Returns a SplatResult: .volume and statistics.""",
+          _struct_entries(SplatOptions),
+          [_pos("points"), _pos("normals", None), _pos("colors", None), _pos("scales", None),
+           _kw("voxel", None)])
+
+
+def extract_mesh(volume, **options):
+    return _v.extract_mesh(_volume(volume), _fill(MeshOptions, options, "extract_mesh"))
+
+
+_document(extract_mesh, """Extracts the iso-surface of the volume's sdf grid; faces only in valid
+cells, trimmed where the data ends.
+
+volume: Volume, .vdb path, or pyopenvdb grid(s) (see from_pyopenvdb).
+Returns a MeshResult: .mesh, .dropped_faces, .trimmed_faces.""",
+          _struct_entries(MeshOptions), [_pos("volume")])
+
+
+def clean_mesh(mesh, **options):
+    return _v.clean_mesh(_mesh(mesh, "mesh"), _fill(CleanOptions, options, "clean_mesh"))
+
+
+_document(clean_mesh, """Removes small edge-connected components and optionally smooths (Taubin
+lambda|mu, boundary vertices fixed).
+
+mesh: Mesh or mesh path.
+Returns a CleanResult: .mesh, .components_before, .removed_components, .removed_faces.""",
+          _struct_entries(CleanOptions), [_pos("mesh")])
+
+
+def evaluate(recon, reference, **options):
+    return _v.evaluate(_mesh(recon, "recon"), _mesh(reference, "reference"),
+                       _fill(EvalOptions, options, "evaluate"))
+
+
+_document(evaluate, """Compares a reconstruction with a reference mesh (Mesh objects or paths):
+accuracy, completeness, Chamfer-L1, Hausdorff (world units), precision/recall/F per tau,
+normal consistency and topology. EvalResult.to_json() is what `vdbrecon eval` prints.""",
+          _struct_entries(EvalOptions), [_pos("recon"), _pos("reference")])
+
+
+def mesh_topology(mesh):
+    """TopologyStats of a Mesh (or mesh path): components, boundary and non-manifold edges,
+    Euler characteristic, area, signed volume."""
+    return _v.mesh_topology(_mesh(mesh, "mesh"))
+
+
+# ---- the whole pipeline ----------------------------------------------------------------------
+
+_RECONSTRUCT_PARAMS = ("points", "normals", "colors", "voxel", "return_result")
+# Stages and fields of PipelineOptions that only matter when files are read or written.
+_FILE_ONLY_STAGES = ("read", "write")
+_FILE_ONLY_FIELDS = ("write_vdb",)
+_RECONSTRUCT_NAMES = _pipeline_names(
+    [s for s in PipelineOptions._stages if s not in _FILE_ONLY_STAGES],
+    [f for f, _ in PipelineOptions._fields if f not in _FILE_ONLY_FIELDS], _RECONSTRUCT_PARAMS)
+_RUN_PARAMS = ("input", "output", "voxel")
+_RUN_NAMES = _pipeline_names(PipelineOptions._stages, [f for f, _ in PipelineOptions._fields],
+                             _RUN_PARAMS)
+
+
+def _voxel_option(voxel, options, func):
+    if voxel is not None:
+        if any(n in options for n in ("voxel_size", "splat_voxel_size")):
+            raise TypeError(f"{func}(): give voxel or voxel_size, not both")
+        options["voxel_size"] = voxel
+
+
+def reconstruct(points, normals=None, colors=None, *, voxel=None, return_result=False,
+                **options):
+    _voxel_option(voxel, options, "reconstruct")
+    o = _fill_pipeline(_RECONSTRUCT_NAMES, options, "reconstruct")
+    cloud = _cloud(points, normals, colors)
+    result = _v.reconstruct(cloud, o)
+    return result if return_result else result.mesh
+
+
+_document(reconstruct, """Reconstructs a triangle mesh from a point cloud: normals and scales >
+Gaussian splat into sparse OpenVDB grids > mesh extraction.
+
+points: (N, 3) array (float32 used as is, other real dtypes converted once) or PointCloud,
+world units. normals: (N, 3) outward normals, optional (estimated when missing, see `mode`).
+colors: (N, 3) linear 0..1 RGB, optional (splatted into the volume's color grid).
+voxel: voxel edge in world units; None chooses auto_voxel_factor x the median point spacing.
+Every option below is a field of PipelineOptions or of one of its stage structs, given by its
+own name, or as <stage>_<field> (always accepted; required for mesh_normals, whose plain name
+is the `normals` argument).
+return_result: return the PipelineResult (mesh, volume, statistics, timings) instead of the Mesh.
+
+Returns a Mesh: .vertices (V, 3) float32, .faces (F, 3) int32 (counter-clockwise seen from
+outside), .normals (V, 3) or None, .colors or None, .origin.
+Raises InvalidArgument (ValueError) for options out of range, NumericalError when nothing can
+be reconstructed, TypeError for unknown options.""",
+          _pipeline_entries(_RECONSTRUCT_NAMES),
+          [_pos("points"), _pos("normals", None), _pos("colors", None), _kw("voxel", None),
+           _kw("return_result", False)])
+
+
+def run(input, output=None, *, voxel=None, **options):
+    _voxel_option(voxel, options, "run")
+    o = _fill_pipeline(_RUN_NAMES, options, "run")
+    return _v.run(_path(input, "input"), "" if output is None else _path(output, "output"), o)
+
+
+_document(run, """Reads `input`, reconstructs and writes `output` (.ply or .obj; None:
+<input stem>.recon.ply) and <output stem>.splat.vdb: exactly what the CLI does,
+`vdbrecon INPUT -o OUTPUT ...`, with the same options (read_*, write_* included).
+
+Returns a RunResult: .result (PipelineResult), .read (ReadResult counts), .mesh_path,
+.vdb_path.""",
+          _pipeline_entries(_RUN_NAMES), [_pos("input"), _pos("output", None),
+                                          _kw("voxel", None)])

@@ -1,0 +1,186 @@
+#include <openvdb/tools/LevelSetSphere.h>
+
+#include <random>
+
+#include "support.h"
+#include "vdbrecon/clean.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
+#include "vdbrecon/mesh.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+Mesh sphere_mesh(double radius, double voxel, const openvdb::Vec3f& centre = {0, 0, 0}) {
+    initialize_openvdb();
+    Volume v;
+    v.sdf = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(float(radius), centre,
+                                                                    float(voxel), 3.0f);
+    v.voxel_size = voxel;
+    return extract_mesh(v).mesh;
+}
+
+/// Appends `b` to `a` (indices shifted).
+void append(Mesh& a, const Mesh& b) {
+    const std::int32_t base = std::int32_t(a.vertices.size());
+    a.vertices.insert(a.vertices.end(), b.vertices.begin(), b.vertices.end());
+    a.normals.insert(a.normals.end(), b.normals.begin(), b.normals.end());
+    for (Triangle t : b.faces) a.faces.push_back({t[0] + base, t[1] + base, t[2] + base});
+}
+
+/// A tetrahedron (4 faces) at `c`.
+Mesh tetra(float x, float y, float z) {
+    Mesh m;
+    m.vertices = {{x, y, z}, {x + 0.01f, y, z}, {x, y + 0.01f, z}, {x, y, z + 0.01f}};
+    m.normals.assign(4, {0.0f, 0.0f, 1.0f});
+    m.faces = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+    return m;
+}
+
+double radial_spread(const Mesh& m, double r, double* mean_error = nullptr) {
+    double worst = 0.0, sum = 0.0;
+    for (const Vec3f& v : m.vertices) {
+        const double e = std::sqrt(double(v[0]) * v[0] + double(v[1]) * v[1] + double(v[2]) * v[2]) - r;
+        worst = std::max(worst, std::fabs(e));
+        sum += e;
+    }
+    if (mean_error) *mean_error = sum / double(m.vertices.size());
+    return worst;
+}
+
+}  // namespace
+
+TEST_CASE("clean: small islands are removed, exactly those", "[clean]") {
+    Mesh big = sphere_mesh(1.0, 0.05);
+    Mesh small = sphere_mesh(0.3, 0.05, {3.0f, 0.0f, 0.0f});  // a second real object, ~9 % size
+    const std::size_t big_faces = big.faces.size(), small_faces = small.faces.size();
+    Mesh m = big;
+    append(m, tetra(5, 5, 5));
+    append(m, small);
+    append(m, tetra(-5, 0, 0));
+    append(m, tetra(0, -5, 0));
+    const CleanResult r = clean_mesh(m);
+    REQUIRE(r.components_before == 5);
+    REQUIRE(r.removed_components == 3);
+    REQUIRE(r.removed_faces == 12);
+    REQUIRE(r.removed_vertices == 12);
+    REQUIRE(r.mesh.faces.size() == big_faces + small_faces);
+    REQUIRE(r.mesh.normals.size() == r.mesh.vertices.size());
+    const TopologyStats t = mesh_topology(r.mesh);
+    REQUIRE(t.components == 2);
+    REQUIRE(t.boundary_edges == 0);
+    // Order is kept: the big sphere comes first, unchanged.
+    for (std::size_t f = 0; f < big_faces; ++f) REQUIRE(r.mesh.faces[f] == big.faces[f]);
+    // A stricter ratio drops the small sphere too; ratio 0 keeps everything.
+    CleanOptions strict;
+    strict.min_component_ratio = 0.5;
+    REQUIRE(clean_mesh(m, strict).mesh.faces.size() == big_faces);
+    CleanOptions keep;
+    keep.min_component_ratio = 0.0;
+    REQUIRE(clean_mesh(m, keep).mesh.faces.size() == m.faces.size());
+    CleanOptions absolute;
+    absolute.min_component_ratio = 0.0;
+    absolute.min_component_faces = 5;
+    REQUIRE(clean_mesh(m, absolute).removed_components == 3);
+}
+
+TEST_CASE("clean: two faces touching at a vertex only are separate components", "[clean]") {
+    Mesh m;
+    m.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {-1, 0, 0}, {0, -1, 0}};
+    m.faces = {{0, 1, 2}, {0, 3, 4}};
+    REQUIRE(clean_mesh(m).components_before == 2);
+    REQUIRE(mesh_topology(m).components == 2);
+}
+
+TEST_CASE("clean: Taubin smoothing removes noise and keeps a sphere's size", "[clean]") {
+    const double r = 1.0, voxel = 0.05;
+    const Mesh clean = sphere_mesh(r, voxel);
+    Mesh noisy = clean;
+    std::mt19937 rng(5);
+    std::normal_distribution<float> noise(0.0f, float(0.2 * voxel));
+    for (Vec3f& v : noisy.vertices) {
+        for (float& c : v) c += noise(rng);
+    }
+    CleanOptions o;
+    o.smooth_iterations = 10;
+    const CleanResult sc = clean_mesh(clean, o);
+    REQUIRE(sc.smoothed_iterations == 10);
+    double mean = 0.0;
+    // Shrinkage of the clean sphere over 10 iterations: below 0.1 voxel on average and at worst.
+    REQUIRE(radial_spread(sc.mesh, r, &mean) < 0.1 * voxel);
+    REQUIRE(std::fabs(mean) < 0.1 * voxel);
+    // Plain Laplacian smoothing (mu = lambda would not be allowed) shrinks; Taubin does not:
+    // its volume stays within 0.5 %.
+    REQUIRE(mesh_topology(sc.mesh).signed_volume ==
+            Approx(mesh_topology(clean).signed_volume).epsilon(0.005));
+    // Noise of 0.2 voxel is mostly removed.
+    const double before = radial_spread(noisy, r);
+    const CleanResult sn = clean_mesh(noisy, o);
+    double rms_before = 0, rms_after = 0;
+    for (std::size_t i = 0; i < noisy.vertices.size(); ++i) {
+        auto rad = [&](const Vec3f& v) {
+            return std::sqrt(double(v[0]) * v[0] + double(v[1]) * v[1] + double(v[2]) * v[2]) - r;
+        };
+        rms_before += std::pow(rad(noisy.vertices[i]), 2);
+        rms_after += std::pow(rad(sn.mesh.vertices[i]), 2);
+    }
+    REQUIRE(before > 0.5 * voxel);
+    REQUIRE(std::sqrt(rms_after) < 0.4 * std::sqrt(rms_before));
+    // Normals are recomputed and point outwards.
+    for (std::size_t i = 0; i < sn.mesh.vertices.size(); ++i) {
+        const Vec3f& p = sn.mesh.vertices[i];
+        const Vec3f& n = sn.mesh.normals[i];
+        REQUIRE(p[0] * n[0] + p[1] * n[1] + p[2] * n[2] > 0.9);
+    }
+}
+
+TEST_CASE("clean: smoothing keeps the border of an open patch in place", "[clean]") {
+    Mesh m;
+    const int n = 20;
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> bump(-0.02f, 0.02f);
+    for (int i = 0; i <= n; ++i) {
+        for (int j = 0; j <= n; ++j) m.vertices.push_back({float(i) / n, float(j) / n, bump(rng)});
+    }
+    for (int i = 0; i < n; ++i) {
+        for (int j = 0; j < n; ++j) {
+            const int a = i * (n + 1) + j, b = a + 1, c = a + n + 1, d = c + 1;
+            m.faces.push_back({a, c, b});
+            m.faces.push_back({b, c, d});
+        }
+    }
+    CleanOptions o;
+    o.smooth_iterations = 20;
+    const Mesh s = clean_mesh(m, o).mesh;
+    double interior_bump = 0.0;
+    for (int i = 0; i <= n; ++i) {
+        for (int j = 0; j <= n; ++j) {
+            const std::size_t v = std::size_t(i * (n + 1) + j);
+            if (i == 0 || j == 0 || i == n || j == n) {
+                REQUIRE(s.vertices[v] == m.vertices[v]);
+            } else {
+                interior_bump = std::max(interior_bump, double(std::fabs(s.vertices[v][2])));
+            }
+        }
+    }
+    REQUIRE(interior_bump < 0.02);
+}
+
+TEST_CASE("clean: options are validated, bad faces rejected", "[clean]") {
+    const Mesh m = tetra(0, 0, 0);
+    CleanOptions o;
+    o.min_component_ratio = 1.5;
+    REQUIRE_THROWS_AS(clean_mesh(m, o), InvalidArgument);
+    o = {};
+    o.smooth_mu = -0.3;  // |mu| < lambda: shrinks
+    REQUIRE_THROWS_AS(clean_mesh(m, o), InvalidArgument);
+    o = {};
+    o.smooth_iterations = -1;
+    REQUIRE_THROWS_AS(clean_mesh(m, o), InvalidArgument);
+    Mesh bad = m;
+    bad.faces.push_back({0, 1, 7});
+    REQUIRE_THROWS_AS(clean_mesh(bad), InvalidArgument);
+    REQUIRE(clean_mesh(Mesh{}).mesh.faces.empty());
+}

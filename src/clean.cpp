@@ -159,13 +159,32 @@ CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
     CleanResult r;
     const std::size_t nf = mesh.faces.size();
 
-    // Edge-connected components of faces.
+    // Edge-connected components of faces: faces around each vertex (counting sort, linear), then
+    // every face is joined to the faces that share one of its edges (both end vertices).
     DisjointSets sets(nf);
     {
-        const auto edges = sorted_edges(mesh.faces);
-        for (std::size_t i = 1; i < edges.size(); ++i) {
-            if (edges[i][0] == edges[i - 1][0] && edges[i][1] == edges[i - 1][1]) {
-                sets.unite(edges[i][2], edges[i - 1][2]);
+        const std::size_t nv = mesh.vertices.size();
+        std::vector<std::size_t> first(nv + 1, 0);
+        for (const Triangle& t : mesh.faces) {
+            for (std::int32_t i : t) ++first[std::size_t(i) + 1];
+        }
+        for (std::size_t v = 0; v < nv; ++v) first[v + 1] += first[v];
+        std::vector<std::int32_t> around(first[nv]);
+        std::vector<std::size_t> fill(first.begin(), first.end() - 1);
+        for (std::size_t f = 0; f < nf; ++f) {
+            for (std::int32_t i : mesh.faces[f]) around[fill[std::size_t(i)]++] = std::int32_t(f);
+        }
+        for (std::size_t f = 0; f < nf; ++f) {
+            const Triangle& t = mesh.faces[f];
+            for (int k = 0; k < 3; ++k) {
+                const std::size_t a = std::size_t(t[k]);
+                const std::int32_t b = t[(k + 1) % 3];
+                for (std::size_t j = first[a]; j < first[a + 1]; ++j) {
+                    const std::int32_t g = around[j];
+                    if (std::size_t(g) <= f) continue;  // each pair once
+                    const Triangle& u = mesh.faces[std::size_t(g)];
+                    if (u[0] == b || u[1] == b || u[2] == b) sets.unite(std::int32_t(f), g);
+                }
             }
         }
     }

@@ -4,10 +4,10 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <numeric>
 #include <string>
 #include <vector>
 
+#include "detail/mesh_graph.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -33,64 +33,14 @@ void CleanOptions::validate() const {
 
 namespace {
 
-/// Union-find with path halving; the representative is the smallest index, so labels do not
-/// depend on the order of the unions.
-struct DisjointSets {
-    std::vector<std::int32_t> parent;
-    explicit DisjointSets(std::size_t n) : parent(n) {
-        std::iota(parent.begin(), parent.end(), std::int32_t(0));
-    }
-    std::int32_t find(std::int32_t x) {
-        while (parent[std::size_t(x)] != x) {
-            parent[std::size_t(x)] = parent[std::size_t(parent[std::size_t(x)])];
-            x = parent[std::size_t(x)];
-        }
-        return x;
-    }
-    void unite(std::int32_t a, std::int32_t b) {
-        a = find(a);
-        b = find(b);
-        if (a == b) return;
-        if (a < b) std::swap(a, b);
-        parent[std::size_t(a)] = b;
-    }
-};
-
-/// Undirected edges of the mesh as (low vertex, high vertex, face), sorted.
-std::vector<std::array<std::int32_t, 3>> sorted_edges(const std::vector<Triangle>& faces) {
-    std::vector<std::array<std::int32_t, 3>> edges;
-    edges.reserve(3 * faces.size());
-    for (std::size_t f = 0; f < faces.size(); ++f) {
-        const Triangle& t = faces[f];
-        for (int k = 0; k < 3; ++k) {
-            const std::int32_t a = t[k], b = t[(k + 1) % 3];
-            edges.push_back({std::min(a, b), std::max(a, b), std::int32_t(f)});
-        }
-    }
-    std::sort(edges.begin(), edges.end());
-    return edges;
-}
-
-/// Area-weighted vertex normals of a mesh.
-std::vector<Vec3f> face_normals_at_vertices(const Mesh& m) {
-    std::vector<std::array<double, 3>> acc(m.vertices.size(), {0.0, 0.0, 0.0});
-    for (const Triangle& t : m.faces) {
-        const Vec3f &a = m.vertices[std::size_t(t[0])], &b = m.vertices[std::size_t(t[1])],
-                    &c = m.vertices[std::size_t(t[2])];
-        const double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-        const double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        const double n[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
-                             u[0] * v[1] - u[1] * v[0]};
-        for (std::int32_t i : t) {
-            for (int k = 0; k < 3; ++k) acc[std::size_t(i)][std::size_t(k)] += n[k];
-        }
-    }
+/// Area-weighted unit vertex normals.
+std::vector<Vec3f> vertex_normals(const Mesh& m) {
+    const std::vector<std::array<double, 3>> sum = detail::face_normal_sums(m);
     std::vector<Vec3f> out(m.vertices.size(), Vec3f{0.0f, 0.0f, 0.0f});
-    for (std::size_t i = 0; i < acc.size(); ++i) {
-        const double len = std::sqrt(acc[i][0] * acc[i][0] + acc[i][1] * acc[i][1] + acc[i][2] * acc[i][2]);
-        if (len > 0.0) {
-            out[i] = {float(acc[i][0] / len), float(acc[i][1] / len), float(acc[i][2] / len)};
-        }
+    for (std::size_t i = 0; i < sum.size(); ++i) {
+        const auto& n = sum[i];
+        const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        if (len > 0.0) out[i] = {float(n[0] / len), float(n[1] / len), float(n[2] / len)};
     }
     return out;
 }
@@ -98,21 +48,16 @@ std::vector<Vec3f> face_normals_at_vertices(const Mesh& m) {
 /// Taubin lambda|mu smoothing with the uniform Laplacian; boundary vertices are fixed.
 void taubin(Mesh& m, const CleanOptions& o) {
     const std::size_t nv = m.vertices.size();
-    const auto edges = sorted_edges(m.faces);
-    // Unique undirected edges, and which vertices lie on a boundary edge (used by one face).
-    std::vector<std::pair<std::int32_t, std::int32_t>> unique;
+    // Edges, and the vertices on a boundary (or non-manifold) edge: those stay fixed.
+    const std::vector<detail::EdgeUse> edges = detail::undirected_edges(m.faces);
     std::vector<char> fixed(nv, 0);
-    for (std::size_t i = 0; i < edges.size();) {
-        std::size_t j = i;
-        while (j < edges.size() && edges[j][0] == edges[i][0] && edges[j][1] == edges[i][1]) ++j;
-        unique.push_back({edges[i][0], edges[i][1]});
-        if (j - i != 2) fixed[std::size_t(edges[i][0])] = fixed[std::size_t(edges[i][1])] = 1;
-        i = j;
+    for (const detail::EdgeUse& e : edges) {
+        if (e.faces != 2) fixed[std::size_t(e.a)] = fixed[std::size_t(e.b)] = 1;
     }
     std::vector<int> degree(nv, 0);
-    for (const auto& e : unique) {
-        ++degree[std::size_t(e.first)];
-        ++degree[std::size_t(e.second)];
+    for (const detail::EdgeUse& e : edges) {
+        ++degree[std::size_t(e.a)];
+        ++degree[std::size_t(e.b)];
     }
     std::vector<std::array<double, 3>> x(nv), sum(nv);
     for (std::size_t i = 0; i < nv; ++i) {
@@ -120,10 +65,10 @@ void taubin(Mesh& m, const CleanOptions& o) {
     }
     auto step = [&](double factor) {
         for (auto& s : sum) s = {0.0, 0.0, 0.0};
-        for (const auto& e : unique) {
+        for (const detail::EdgeUse& e : edges) {
             for (int k = 0; k < 3; ++k) {
-                sum[std::size_t(e.first)][std::size_t(k)] += x[std::size_t(e.second)][std::size_t(k)];
-                sum[std::size_t(e.second)][std::size_t(k)] += x[std::size_t(e.first)][std::size_t(k)];
+                sum[std::size_t(e.a)][std::size_t(k)] += x[std::size_t(e.b)][std::size_t(k)];
+                sum[std::size_t(e.b)][std::size_t(k)] += x[std::size_t(e.a)][std::size_t(k)];
             }
         }
         for (std::size_t i = 0; i < nv; ++i) {
@@ -141,7 +86,7 @@ void taubin(Mesh& m, const CleanOptions& o) {
     for (std::size_t i = 0; i < nv; ++i) {
         m.vertices[i] = {float(x[i][0]), float(x[i][1]), float(x[i][2])};
     }
-    if (!m.normals.empty()) m.normals = face_normals_at_vertices(m);
+    if (!m.normals.empty()) m.normals = vertex_normals(m);
 }
 
 }  // namespace
@@ -159,37 +104,10 @@ CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
     CleanResult r;
     const std::size_t nf = mesh.faces.size();
 
-    // Edge-connected components of faces: faces around each vertex (counting sort, linear), then
-    // every face is joined to the faces that share one of its edges (both end vertices).
-    DisjointSets sets(nf);
-    {
-        const std::size_t nv = mesh.vertices.size();
-        std::vector<std::size_t> first(nv + 1, 0);
-        for (const Triangle& t : mesh.faces) {
-            for (std::int32_t i : t) ++first[std::size_t(i) + 1];
-        }
-        for (std::size_t v = 0; v < nv; ++v) first[v + 1] += first[v];
-        std::vector<std::int32_t> around(first[nv]);
-        std::vector<std::size_t> fill(first.begin(), first.end() - 1);
-        for (std::size_t f = 0; f < nf; ++f) {
-            for (std::int32_t i : mesh.faces[f]) around[fill[std::size_t(i)]++] = std::int32_t(f);
-        }
-        for (std::size_t f = 0; f < nf; ++f) {
-            const Triangle& t = mesh.faces[f];
-            for (int k = 0; k < 3; ++k) {
-                const std::size_t a = std::size_t(t[k]);
-                const std::int32_t b = t[(k + 1) % 3];
-                for (std::size_t j = first[a]; j < first[a + 1]; ++j) {
-                    const std::int32_t g = around[j];
-                    if (std::size_t(g) <= f) continue;  // each pair once
-                    const Triangle& u = mesh.faces[std::size_t(g)];
-                    if (u[0] == b || u[1] == b || u[2] == b) sets.unite(std::int32_t(f), g);
-                }
-            }
-        }
-    }
+    // Edge-connected components, by size.
+    const std::vector<std::int32_t> label = detail::face_components(mesh.faces, mesh.vertices.size());
     std::vector<std::size_t> size(nf, 0);
-    for (std::size_t f = 0; f < nf; ++f) ++size[std::size_t(sets.find(std::int32_t(f)))];
+    for (std::size_t f = 0; f < nf; ++f) ++size[std::size_t(label[f])];
     std::size_t largest = 0;
     for (std::size_t f = 0; f < nf; ++f) {
         if (size[f] > 0) {
@@ -211,7 +129,7 @@ CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
     out.origin = mesh.origin;
     std::vector<std::int32_t> remap(mesh.vertices.size(), -1);
     for (std::size_t f = 0; f < nf; ++f) {
-        if (double(size[std::size_t(sets.find(std::int32_t(f)))]) < min_faces) continue;
+        if (double(size[std::size_t(label[f])]) < min_faces) continue;
         out.faces.push_back(mesh.faces[f]);
         for (std::int32_t i : mesh.faces[f]) remap[std::size_t(i)] = 0;
     }

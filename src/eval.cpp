@@ -4,7 +4,6 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
-#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <array>
@@ -13,6 +12,7 @@
 #include <limits>
 #include <numeric>
 
+#include "detail/mesh_graph.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -288,50 +288,14 @@ TopologyStats mesh_topology(const Mesh& mesh) {
     }
     for (char u : used) s.vertices += u;
 
-    // Edges as sorted (min, max) keys with their face.
-    struct EdgeRef {
-        std::uint64_t key;
-        std::uint32_t face;
-        bool operator<(const EdgeRef& o) const { return key != o.key ? key < o.key : face < o.face; }
-    };
-    std::vector<EdgeRef> edges;
-    edges.reserve(3 * nf);
-    for (std::size_t f = 0; f < nf; ++f) {
-        const Triangle& t = mesh.faces[f];
-        for (int e = 0; e < 3; ++e) {
-            std::uint32_t u = std::uint32_t(t[e]), v = std::uint32_t(t[(e + 1) % 3]);
-            if (u == v) continue;
-            if (u > v) std::swap(u, v);
-            edges.push_back({(std::uint64_t(u) << 32) | v, std::uint32_t(f)});
-        }
+    const std::vector<detail::EdgeUse> edges = detail::undirected_edges(mesh.faces);
+    for (const detail::EdgeUse& e : edges) {
+        if (e.faces == 1) ++s.boundary_edges;
+        if (e.faces > 2) ++s.nonmanifold_edges;
     }
-    tbb::parallel_sort(edges.begin(), edges.end());
-
-    std::vector<std::uint32_t> parent(nf);
-    std::iota(parent.begin(), parent.end(), 0u);
-    auto find = [&](std::uint32_t x) {
-        while (parent[x] != x) {
-            parent[x] = parent[parent[x]];
-            x = parent[x];
-        }
-        return x;
-    };
-    std::size_t unique_edges = 0;
-    for (std::size_t i = 0; i < edges.size();) {
-        std::size_t j = i;
-        while (j < edges.size() && edges[j].key == edges[i].key) ++j;
-        const std::size_t m = j - i;
-        ++unique_edges;
-        if (m == 1) ++s.boundary_edges;
-        if (m > 2) ++s.nonmanifold_edges;
-        for (std::size_t k = i + 1; k < j; ++k) {
-            const std::uint32_t ra = find(edges[i].face), rb = find(edges[k].face);
-            if (ra != rb) parent[std::max(ra, rb)] = std::min(ra, rb);
-        }
-        i = j;
-    }
-    for (std::uint32_t f = 0; f < nf; ++f) s.components += find(f) == f;
-    s.euler = std::int64_t(s.vertices) - std::int64_t(unique_edges) + std::int64_t(nf);
+    const std::vector<std::int32_t> label = detail::face_components(mesh.faces, mesh.vertices.size());
+    for (std::size_t f = 0; f < nf; ++f) s.components += std::size_t(label[f]) == f;
+    s.euler = std::int64_t(s.vertices) - std::int64_t(edges.size()) + std::int64_t(nf);
 
     for (const Triangle& t : mesh.faces) {
         const Vec3f &p = mesh.vertices[std::size_t(t[0])], &q = mesh.vertices[std::size_t(t[1])],

@@ -10,6 +10,7 @@
 #include <memory>
 
 #include "detail/mesh_common.h"
+#include "detail/mesh_graph.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -161,19 +162,14 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
 
     if (options.normals && !mesh.vertices.empty()) {
         // Normalised SDF gradient; area-weighted face normals where it vanishes or disagrees.
-        std::vector<openvdb::Vec3d> face_n(mesh.vertices.size(), openvdb::Vec3d(0.0));
-        for (const Triangle& t : mesh.faces) {
-            const openvdb::Vec3d a(mesh.vertices[t[0]].data()), b(mesh.vertices[t[1]].data()),
-                c(mesh.vertices[t[2]].data());
-            const openvdb::Vec3d fn = (b - a).cross(c - a);
-            for (std::int32_t i : t) face_n[std::size_t(i)] += fn;
-        }
+        const std::vector<std::array<double, 3>> face_n = face_normal_sums(mesh);
         mesh.normals.resize(mesh.vertices.size());
         for (std::size_t i = 0; i < npoints; ++i) {
             if (remap[i] < 0) continue;
             const std::size_t v = std::size_t(remap[i]);
             openvdb::Vec3d g(grad[i]);
-            if (!(g.length() > 1e-12) || g.dot(face_n[v]) < 0.0) g = face_n[v];
+            const openvdb::Vec3d fn(face_n[v][0], face_n[v][1], face_n[v][2]);
+            if (!(g.length() > 1e-12) || g.dot(fn) < 0.0) g = fn;
             const double len = g.length();
             if (len > 0.0) g /= len;
             mesh.normals[v] = {float(g[0]), float(g[1]), float(g[2])};

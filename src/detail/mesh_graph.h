@@ -1,0 +1,33 @@
+// Connectivity of indexed triangle meshes, shared by topology statistics (eval), cleanup and the
+// meshers' normals: undirected edges with their use counts, edge-connected face components, and
+// area-weighted vertex normals.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "vdbrecon/types.h"
+
+namespace vdbrecon::detail {
+
+/// An undirected edge (a < b) and how many faces use it (1: boundary, 2: manifold, > 2:
+/// non-manifold).
+struct EdgeUse {
+    std::int32_t a, b;
+    std::uint32_t faces;
+};
+
+/// Every undirected edge of the faces, sorted by (a, b); degenerate edges (a == b) are skipped.
+std::vector<EdgeUse> undirected_edges(const std::vector<Triangle>& faces);
+
+/// Edge-connected components of the faces (two faces that share an edge belong together): per
+/// face, its component's label, the smallest face index in it. Linear time.
+std::vector<std::int32_t> face_components(const std::vector<Triangle>& faces,
+                                          std::size_t vertex_count);
+
+/// Per vertex, the sum of the (unnormalised, so area-weighted) normals of the faces around it.
+std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh);
+
+}  // namespace vdbrecon::detail

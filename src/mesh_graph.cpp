@@ -1,0 +1,98 @@
+// Mesh connectivity helpers (see detail/mesh_graph.h).
+#include "detail/mesh_graph.h"
+
+#include <tbb/parallel_sort.h>
+
+#include <algorithm>
+#include <numeric>
+
+namespace vdbrecon::detail {
+
+std::vector<EdgeUse> undirected_edges(const std::vector<Triangle>& faces) {
+    std::vector<std::uint64_t> keys;
+    keys.reserve(3 * faces.size());
+    for (const Triangle& t : faces) {
+        for (int k = 0; k < 3; ++k) {
+            std::uint32_t u = std::uint32_t(t[k]), v = std::uint32_t(t[(k + 1) % 3]);
+            if (u == v) continue;
+            if (u > v) std::swap(u, v);
+            keys.push_back((std::uint64_t(u) << 32) | v);
+        }
+    }
+    tbb::parallel_sort(keys.begin(), keys.end());
+    std::vector<EdgeUse> edges;
+    for (std::size_t i = 0; i < keys.size();) {
+        std::size_t j = i;
+        while (j < keys.size() && keys[j] == keys[i]) ++j;
+        edges.push_back({std::int32_t(keys[i] >> 32), std::int32_t(keys[i] & 0xffffffffu),
+                         std::uint32_t(j - i)});
+        i = j;
+    }
+    return edges;
+}
+
+std::vector<std::int32_t> face_components(const std::vector<Triangle>& faces,
+                                          std::size_t vertex_count) {
+    const std::size_t nf = faces.size();
+    // Union-find whose roots are the smallest index, so labels do not depend on union order.
+    std::vector<std::int32_t> parent(nf);
+    std::iota(parent.begin(), parent.end(), std::int32_t(0));
+    auto find = [&](std::int32_t x) {
+        while (parent[std::size_t(x)] != x) {
+            parent[std::size_t(x)] = parent[std::size_t(parent[std::size_t(x)])];
+            x = parent[std::size_t(x)];
+        }
+        return x;
+    };
+    // Faces around each vertex (counting sort); a face g that holds both ends of an edge (a, b)
+    // of face f has that edge too.
+    std::vector<std::size_t> first(vertex_count + 1, 0);
+    for (const Triangle& t : faces) {
+        for (std::int32_t i : t) ++first[std::size_t(i) + 1];
+    }
+    for (std::size_t v = 0; v < vertex_count; ++v) first[v + 1] += first[v];
+    std::vector<std::int32_t> around(first[vertex_count]);
+    std::vector<std::size_t> fill(first.begin(), first.end() - 1);
+    for (std::size_t f = 0; f < nf; ++f) {
+        for (std::int32_t i : faces[f]) around[fill[std::size_t(i)]++] = std::int32_t(f);
+    }
+    for (std::size_t f = 0; f < nf; ++f) {
+        const Triangle& t = faces[f];
+        for (int k = 0; k < 3; ++k) {
+            const std::size_t a = std::size_t(t[k]);
+            const std::int32_t b = t[(k + 1) % 3];
+            if (std::int32_t(a) == b) continue;  // a degenerate edge joins nothing
+            for (std::size_t j = first[a]; j < first[a + 1]; ++j) {
+                const std::int32_t g = around[j];
+                if (std::size_t(g) <= f) continue;  // each pair once
+                const Triangle& u = faces[std::size_t(g)];
+                if (u[0] != b && u[1] != b && u[2] != b) continue;
+                const std::int32_t ra = find(std::int32_t(f)), rb = find(g);
+                if (ra != rb) parent[std::size_t(std::max(ra, rb))] = std::min(ra, rb);
+            }
+        }
+    }
+    for (std::size_t f = 0; f < nf; ++f) parent[f] = find(std::int32_t(f));
+    return parent;
+}
+
+std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh) {
+    std::vector<std::array<double, 3>> sum(mesh.vertices.size(), {0.0, 0.0, 0.0});
+    for (const Triangle& t : mesh.faces) {
+        const Vec3f &pa = mesh.vertices[std::size_t(t[0])], &pb = mesh.vertices[std::size_t(t[1])],
+                    &pc = mesh.vertices[std::size_t(t[2])];
+        double u[3], v[3];
+        for (int k = 0; k < 3; ++k) {
+            u[k] = double(pb[k]) - double(pa[k]);
+            v[k] = double(pc[k]) - double(pa[k]);
+        }
+        const double n[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                             u[0] * v[1] - u[1] * v[0]};
+        for (std::int32_t i : t) {
+            for (int k = 0; k < 3; ++k) sum[std::size_t(i)][std::size_t(k)] += n[k];
+        }
+    }
+    return sum;
+}
+
+}  // namespace vdbrecon::detail

@@ -30,17 +30,6 @@
 namespace vdbrecon::detail {
 namespace {
 
-/// Gradient at a voxel that does not smear across a kink of the field (the medial planes inside a
-/// box, the rounded region outside its edges), in the spirit of essentially non-oscillatory
-/// differencing (A. Harten et al., J. Comput. Phys. 1987) but choosing whole stencils, which also
-/// works for kinks oblique to the grid. Candidates: the central difference, and the eight
-/// one-sided "octant" differences (forward or backward along each axis). Each is scored by how
-/// well its plane predicts the neighbours it did not use (central: the mismatch of forward and
-/// backward differences; octant: the octant's three face-diagonal corners and its far corner),
-/// and the best one wins; the central difference is preferred unless an octant is clearly better,
-/// so smooth curved fields keep second-order gradients. Index units; false when inactive.
-/// `misfit` is the winner's score relative to the slope (0 for a locally linear field; large at
-/// a corner, where no stencil stays in one linear region).
 /// The 3x3x3 neighbourhood of a voxel: values and active states, index (dx+1)*9 + (dy+1)*3 + dz+1.
 struct Stencil27 {
     float f[27];
@@ -221,27 +210,13 @@ struct PatchVertex {
 
 /// The face (kFaceCorner index) on which two cube edges meet, or -1.
 int common_face(int a, int b) {
-    static const auto faces = [] {
-        std::array<std::uint8_t, 12> f{};
-        for (int e = 0; e < 12; ++e) f[std::size_t(e)] = edge_faces(e);
-        return f;
-    }();
-    const unsigned m = faces[std::size_t(a)] & faces[std::size_t(b)];
+    const unsigned m = edge_faces(a) & edge_faces(b);
     return m ? __builtin_ctz(m) : -1;
 }
 
-/// How often loop l walks across face f (segments on that face).
-int face_visits(const CellLoops& loops, int l, int f) {
-    const int n = loops.size[l];
-    int visits = 0;
-    for (int k = 0; k < n; ++k) {
-        visits += common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]) == f;
-    }
-    return visits;
-}
-
-/// Bit mask of the faces loop l walks across twice (a loop of a cell with no ambiguous face
-/// crosses every face at most once, the common case).
+/// Bit mask of the faces loop l walks across twice. A face holds at most four crossings, so a
+/// loop crosses it at most twice; a loop of a cell with no ambiguous face crosses every face at
+/// most once, the common case.
 unsigned twice_visited_faces(const CellLoops& loops, int l) {
     const int n = loops.size[l];
     unsigned once = 0, twice = 0;
@@ -267,7 +242,7 @@ int loop_chains(const SurfaceCell& cell, int l, Field& acc, float iso, int start
     int cuts = 0;
     const unsigned twice_faces = twice_visited_faces(loops, l);
     for (int f = 0; f < 6; ++f) {
-        if (!((twice_faces >> f) & 1u) || face_visits(loops, l, f) != 2) continue;
+        if (!((twice_faces >> f) & 1u)) continue;
         // The neighbour across face f, and the loop there that holds one of this face's crossings.
         const int axis = f / 2, dir = f % 2 ? 1 : -1;
         openvdb::Coord nb = cell.origin;
@@ -300,7 +275,7 @@ int loop_chains(const SurfaceCell& cell, int l, Field& acc, float iso, int start
         bool twice = false;
         for (int m = 0; m < other.count && !twice; ++m) {
             for (int k = 0; k < other.size[m]; ++k) {
-                if (other.edge[m][k] == theirs) twice = face_visits(other, m, f ^ 1) == 2;
+                if (other.edge[m][k] == theirs) twice = (twice_visited_faces(other, m) >> (f ^ 1)) & 1u;
             }
         }
         if (!twice) continue;

@@ -54,13 +54,20 @@ constexpr int kFaceCorner[6][4] = {
 
 /// Bit mask of the faces (kFaceCorner order) each edge lies on.
 inline std::uint8_t edge_faces(int e) {
-    std::uint8_t m = 0;
-    for (int f = 0; f < 6; ++f) {
-        for (int i = 0; i < 4; ++i) {
-            if (edge_between(kFaceCorner[f][i], kFaceCorner[f][(i + 1) % 4]) == e) m |= 1u << f;
+    static const auto table = [] {
+        std::array<std::uint8_t, 12> t{};
+        for (int edge = 0; edge < 12; ++edge) {
+            for (int f = 0; f < 6; ++f) {
+                for (int i = 0; i < 4; ++i) {
+                    if (edge_between(kFaceCorner[f][i], kFaceCorner[f][(i + 1) % 4]) == edge) {
+                        t[std::size_t(edge)] |= std::uint8_t(1u << f);
+                    }
+                }
+            }
         }
-    }
-    return m;
+        return t;
+    }();
+    return table[std::size_t(e)];
 }
 
 /// Up to four loops of up to twelve edges each.
@@ -136,17 +143,12 @@ inline bool cell_loops(const float f[8], float iso, CellLoops& out) {
 /// own segments, which each cell beside the face uses once. Returns -1 when every apex has such
 /// a diagonal (the caller then fans around a centre point).
 inline int fan_apex(const CellLoops& loops, int l) {
-    static const auto faces = [] {
-        std::array<std::uint8_t, 12> f{};
-        for (int e = 0; e < 12; ++e) f[std::size_t(e)] = edge_faces(e);
-        return f;
-    }();
     const int n = loops.size[l];
     for (int apex = 0; apex < n; ++apex) {
         bool ok = true;
         for (int j = 2; j + 1 < n && ok; ++j) {  // diagonals apex -> apex + j
             const int a = loops.edge[l][apex], b = loops.edge[l][(apex + j) % n];
-            ok = (faces[std::size_t(a)] & faces[std::size_t(b)]) == 0;
+            ok = (edge_faces(a) & edge_faces(b)) == 0;
         }
         if (ok) return apex;
     }

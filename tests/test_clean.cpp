@@ -1,8 +1,7 @@
-#include <openvdb/tools/LevelSetSphere.h>
-
 #include <random>
 
 #include "support.h"
+#include "support_volume.h"
 #include "vdbrecon/clean.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
@@ -14,12 +13,7 @@ using namespace vdbrecon::test;
 namespace {
 
 Mesh sphere_mesh(double radius, double voxel, const openvdb::Vec3f& centre = {0, 0, 0}) {
-    initialize_openvdb();
-    Volume v;
-    v.sdf = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(float(radius), centre,
-                                                                    float(voxel), 3.0f);
-    v.voxel_size = voxel;
-    return extract_mesh(v).mesh;
+    return extract_mesh(sphere_volume(float(radius), centre, float(voxel))).mesh;
 }
 
 /// Appends `b` to `a` (indices shifted).

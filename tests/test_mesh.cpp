@@ -1,6 +1,5 @@
-#include <openvdb/tools/LevelSetSphere.h>
-
 #include "support.h"
+#include "support_volume.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
 #include "vdbrecon/mesh.h"
@@ -10,15 +9,6 @@ using namespace vdbrecon;
 using namespace vdbrecon::test;
 
 namespace {
-
-Volume sphere_volume(float radius, const openvdb::Vec3f& centre, float voxel) {
-    initialize_openvdb();
-    Volume v;
-    v.sdf = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(radius, centre, voxel, 3.0f);
-    v.sdf->setName("sdf");
-    v.voxel_size = voxel;
-    return v;
-}
 
 double radial_error(const Mesh& m, const Vec3d& c, double r) {
     double worst = 0;

@@ -1,7 +1,6 @@
 // Our marching cubes and dual contouring against shapes with known answers: level-set sphere and
 // torus (topology, volume), boxes and a drilled block (sharp features), an open splatted patch,
 // thread-count independence and colour.
-#include <openvdb/tools/LevelSetSphere.h>
 #include <openvdb/tools/SignedFloodFill.h>
 #include <tbb/global_control.h>
 
@@ -9,6 +8,7 @@
 #include <map>
 
 #include "support.h"
+#include "support_volume.h"
 #include "vdbrecon/eval.h"
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/splat.h"
@@ -226,13 +226,8 @@ Mesh mesh_with(const Volume& v, Mesher method) {
 
 TEST_CASE("mc and dc: level-set sphere and torus are closed with the right genus and volume",
           "[mesh]") {
-    initialize_openvdb();
     const double voxel = 0.04;
-    Volume sphere;
-    sphere.sdf = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(1.0f, {0.13f, -0.21f, 0.05f},
-                                                                         float(voxel), 3.0f);
-    sphere.sdf->setName("sdf");
-    sphere.voxel_size = voxel;
+    const Volume sphere = sphere_volume(1.0f, {0.13f, -0.21f, 0.05f}, float(voxel));
     const double R = 0.8, r = 0.3;
     const Volume torus = analytic_volume(
         [&](const V3& p) { return std::hypot(std::hypot(p[0], p[2]) - R, p[1]) - r; }, 1.3, voxel);

@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "vdbrecon/choices.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
 #include "vdbrecon/io.h"
@@ -41,36 +42,9 @@ std::string fmt(double v) {
     return s.str();
 }
 
-/// The names an enum option accepts on the command line, in --help order.
-template <typename E>
-using Choices = std::vector<std::pair<std::string, E>>;
-
-const Choices<NormalMode> kNormalModes = {
-    {"auto", NormalMode::automatic}, {"estimate", NormalMode::estimate}, {"keep", NormalMode::keep}};
-const Choices<ScaleMode> kScaleModes = {
-    {"auto", ScaleMode::automatic}, {"knn", ScaleMode::knn}, {"none", ScaleMode::none}};
-const Choices<Mesher> kMeshers = {{"vdb", Mesher::vdb}, {"mc", Mesher::mc}, {"dc", Mesher::dc}};
-
-template <typename E>
-std::string choice_list(const Choices<E>& choices, const char* sep) {
-    std::string s;
-    for (const auto& c : choices) s += (s.empty() ? "" : sep) + c.first;
-    return s;
-}
-
-template <typename E>
-std::string choice_name(const Choices<E>& choices, E value) {
-    for (const auto& c : choices) {
-        if (c.second == value) return c.first;
-    }
-    return "?";
-}
-
 template <typename E>
 E parse_choice(const std::string& opt, const std::string& value, const Choices<E>& choices) {
-    for (const auto& c : choices) {
-        if (c.first == value) return c.second;
-    }
+    if (const E* e = find_choice(choices, value)) return *e;
     throw UsageError(opt + ": '" + value + "' is not one of " + choice_list(choices, ", "));
 }
 
@@ -106,14 +80,14 @@ void print_help() {
         << fmt(d.mesh.min_surface_weight) << "]\n"
         << "  --max-gap G            faces farther than G voxels from every point are trimmed ["
         << fmt(d.mesh.max_gap) << "]\n"
-        << "  --normals MODE         " << choice_list(kNormalModes, "|") << " ["
-        << choice_name(kNormalModes, d.normals.mode) << "]\n"
+        << "  --normals MODE         " << choice_list(normal_mode_choices(), "|") << " ["
+        << choice_name(normal_mode_choices(), d.normals.mode) << "]\n"
         << "  --k K                  neighbours for normals and spacing [" << d.normals.k << "]\n"
-        << "  --scale MODE           per-point scale: " << choice_list(kScaleModes, "|") << " ["
-        << choice_name(kScaleModes, d.normals.scale) << "]\n"
+        << "  --scale MODE           per-point scale: " << choice_list(scale_mode_choices(), "|") << " ["
+        << choice_name(scale_mode_choices(), d.normals.scale) << "]\n"
         << "  --viewpoint x,y,z      sensor position; estimated normals face it [none: MST]\n"
-        << "  --mesher NAME          " << choice_list(kMeshers, "|") << " ["
-        << choice_name(kMeshers, d.mesh.method) << "]\n"
+        << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
+        << choice_name(mesher_choices(), d.mesh.method) << "]\n"
         << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
         << "]\n"
         << "  --min-component R      drop pieces with fewer faces than R x the largest's ["
@@ -257,17 +231,17 @@ int run_reconstruct(Args& args) {
         } else if (a == "--max-gap") {
             o.mesh.max_gap = parse_number(a, args.value(a));
         } else if (a == "--normals") {
-            o.normals.mode = parse_choice(a, args.value(a), kNormalModes);
+            o.normals.mode = parse_choice(a, args.value(a), normal_mode_choices());
         } else if (a == "--k") {
             o.normals.k = parse_int(a, args.value(a));
         } else if (a == "--scale") {
-            o.normals.scale = parse_choice(a, args.value(a), kScaleModes);
+            o.normals.scale = parse_choice(a, args.value(a), scale_mode_choices());
         } else if (a == "--viewpoint") {
             const std::vector<double> v = parse_list(a, args.value(a));
             if (v.size() != 3) throw UsageError("--viewpoint needs three numbers: x,y,z");
             o.normals.viewpoint = Vec3d{v[0], v[1], v[2]};
         } else if (a == "--mesher") {
-            o.mesh.method = parse_choice(a, args.value(a), kMeshers);
+            o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
         } else if (a == "--adaptivity") {
             o.mesh.adaptivity = parse_number(a, args.value(a));
         } else if (a == "--min-component") {

@@ -23,6 +23,7 @@
 #include <utility>
 #include <vector>
 
+#include "vdbrecon/choices.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/types.h"
 
@@ -64,38 +65,17 @@ py::tuple to_tuple(const Vec3d& v);
 
 // ---- enum options as strings (the CLI's names) ----------------------------------------------
 
-template <typename E>
-using Choices = std::vector<std::pair<std::string, E>>;
-
-/// "a, b, c"
-template <typename E>
-std::string choice_list(const Choices<E>& choices) {
-    std::string s;
-    for (const auto& c : choices) s += (s.empty() ? "" : ", ") + ("'" + c.first + "'");
-    return s;
-}
-
-template <typename E>
-std::string choice_name(const Choices<E>& choices, E value) {
-    for (const auto& c : choices) {
-        if (c.second == value) return c.first;
-    }
-    return "?";
-}
-
 /// Parses a choice; TypeError for a non-string, InvalidArgument (-> vdbrecon.InvalidArgument,
 /// a ValueError) for an unknown name, naming the field and the valid names.
 template <typename E>
 E parse_choice(const Choices<E>& choices, const std::string& field, const py::handle& value) {
     if (!py::isinstance<py::str>(value)) {
-        throw py::type_error(field + ": expected a string, one of " + choice_list(choices) +
+        throw py::type_error(field + ": expected a string, one of " + choice_list(choices, ", ", "'") +
                              "; got " + std::string(py::str(py::type::of(value).attr("__name__"))));
     }
     const std::string s = value.cast<std::string>();
-    for (const auto& c : choices) {
-        if (c.first == s) return c.second;
-    }
-    throw InvalidArgument(field + ": '" + s + "' is not one of " + choice_list(choices));
+    if (const E* e = find_choice(choices, s)) return *e;
+    throw InvalidArgument(field + ": '" + s + "' is not one of " + choice_list(choices, ", ", "'"));
 }
 
 // ---- options structs -------------------------------------------------------------------------

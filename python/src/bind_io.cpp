@@ -7,7 +7,7 @@ namespace vdbrecon::python {
 void bind_io(py::module_& m) {
     OptionsClass<ReadOptions> read(m, "ReadOptions", "How point files are read.");
     read.choice("non_finite", &ReadOptions::non_finite,
-                {{"drop", NonFinitePolicy::drop}, {"error", NonFinitePolicy::error}},
+                non_finite_choices(),
                 "Rows with NaN/inf coordinates: 'drop' them (a counted warning) or raise "
                 "FormatError ('error').")
         .field("local_frame", &ReadOptions::local_frame,
@@ -18,9 +18,7 @@ void bind_io(py::module_& m) {
     OptionsClass<WriteOptions> write(m, "WriteOptions", "How meshes and points are written.");
     write
         .choice("encoding", &WriteOptions::encoding,
-                {{"binary_little_endian", PlyEncoding::binary_little_endian},
-                 {"binary_big_endian", PlyEncoding::binary_big_endian},
-                 {"ascii", PlyEncoding::ascii}},
+                ply_encoding_choices(),
                 "PLY encoding (ignored for OBJ); the CLI's --ascii selects 'ascii'.")
         .field("comments", &WriteOptions::comments,
                "Extra header comments (PLY) or # lines (OBJ), a list of strings.");

@@ -10,7 +10,7 @@ void bind_mesh(py::module_& m) {
                                 "volumeToMesh, 'mc' marching cubes (Lorensen 87), 'dc' dual "
                                 "contouring (Ju 02).");
     o.choice("method", &MeshOptions::method,
-             {{"vdb", Mesher::vdb}, {"mc", Mesher::mc}, {"dc", Mesher::dc}},
+             mesher_choices(),
              "Which mesher extracts the surface (CLI --mesher).")
         .field("isovalue", &MeshOptions::isovalue,
                "Iso-value of the surface, world units (0 = the zero crossing of the SDF).")

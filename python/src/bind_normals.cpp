@@ -9,9 +9,7 @@ void bind_normals(py::module_& m) {
                                   "Normal and per-point scale estimation (PCA over k nearest "
                                   "neighbours, Hoppe 1992 MST orientation).");
     o.choice("mode", &NormalOptions::mode,
-             {{"auto", NormalMode::automatic},
-              {"estimate", NormalMode::estimate},
-              {"keep", NormalMode::keep}},
+             normal_mode_choices(),
              "Where normals come from: 'auto' keeps the file's normals when every point has one "
              "and estimates otherwise, 'estimate' always estimates, 'keep' requires them (CLI "
              "--normals).")
@@ -22,7 +20,7 @@ void bind_normals(py::module_& m) {
                "None: minimum-spanning-tree orientation (CLI --viewpoint).")
         .choice(
             "scale", &NormalOptions::scale,
-            {{"auto", ScaleMode::automatic}, {"knn", ScaleMode::knn}, {"none", ScaleMode::none}},
+            scale_mode_choices(),
             "Per-point scale: 'auto' the file's when present else the mean kNN distance, "
             "'knn' always the kNN distance, 'none' no scale (CLI --scale).");
     o.finish();

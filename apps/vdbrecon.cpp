@@ -61,7 +61,8 @@ void print_help() {
         << "\n"
         << "reconstruction options:\n"
         << "  -o, --output PATH      mesh to write, .ply or .obj [<input stem>.recon.ply]\n"
-        << "                         the volume goes to <output stem>.splat.vdb\n"
+        << "                         the volume goes to <output stem>.splat.vdb (and the\n"
+        << "                         closed one to <output stem>.closed.vdb)\n"
         << "  --voxel V              voxel edge, world units [auto: " << fmt(d.auto_voxel_factor)
         << " x median point spacing]\n"
         << "  --sigma S              kernel width, sigma = S x per-point scale ["
@@ -87,6 +88,14 @@ void print_help() {
         << choice_name(scale_mode_choices(), d.normals.scale) << "]\n"
         << "  --viewpoint x,y,z      sensor position; estimated normals face it [none: MST]\n"
         << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
+        << "  --outliers, --no-outliers\n"
+        << "                         remove stray points before splatting (statistical and\n"
+        << "                         planarity rules, k=" << d.outliers.k << ") ["
+        << (d.outliers.enabled ? "on" : "off") << "]\n"
+        << "  --close R              close holes up to ~2R voxels across (dilate, fill, erode);\n"
+        << "                         open borders stay [" << d.close.hole_radius << ": off]\n"
+        << "  --close-solid R        close concavities narrower than ~2R voxels of a\n"
+        << "                         watertight surface [" << d.close.solid_radius << ": off]\n"
         << choice_name(mesher_choices(), d.mesh.method) << "]\n"
         << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
         << "]\n"
@@ -259,6 +268,14 @@ int run_reconstruct(Args& args) {
             quiet = true;
         } else if (a.size() > 1 && a[0] == '-') {
             throw UsageError("unknown option '" + a + "' (see --help)");
+        } else if (a == "--outliers") {
+            o.outliers.enabled = true;
+        } else if (a == "--no-outliers") {
+            o.outliers.enabled = false;
+        } else if (a == "--close") {
+            o.close.hole_radius = parse_int(a, args.value(a));
+        } else if (a == "--close-solid") {
+            o.close.solid_radius = parse_int(a, args.value(a));
         } else if (input.empty()) {
             input = a;
         } else {
@@ -303,6 +320,10 @@ int run_reconstruct(Args& args) {
         s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max
           << " (median " << p.splat.sigma_median << "), " << p.splat.active_voxels
           << " valid voxels in " << p.splat.leaves << " leaves, " << p.splat.updates
+        if (o.outliers.enabled) {
+            s << "vdbrecon: outliers: removed " << p.outliers.statistical << " (statistical) + "
+              << p.outliers.planarity << " (planarity) points\n";
+        }
           << " kernel updates";
         if (p.splat.skipped_points) s << ", " << p.splat.skipped_points << " points without normal";
         s << "\n";
@@ -324,6 +345,15 @@ int run_reconstruct(Args& args) {
             s.precision(3);
             s << t.seconds << " s,";
             mem << " " << t.stage << " " << long(t.peak_rss_mb) << " MB,";
+        }
+        if (o.close.hole_radius > 0) {
+            s << "vdbrecon: close: " << p.close.supported_voxels << " supported voxels -> "
+              << p.close.closed_voxels << " after closing by " << o.close.hole_radius << ", "
+              << p.close.filled_voxels << " filled\n";
+        }
+        if (o.close.solid_radius > 0) {
+            s << "vdbrecon: close-solid: " << p.close.solid_voxels_before << " -> "
+              << p.close.solid_voxels_after << " voxels inside\n";
         }
         const double wall =
             std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -353,6 +383,7 @@ int main(int argc, char** argv) {
             if (a == "--help" || a == "-h") {
                 print_help();
                 return kExitOk;
+        if (!r.closed_vdb_path.empty()) std::cout << "closed volume: " << r.closed_vdb_path << "\n";
             }
             if (a == "--version") {
                 std::cout << "vdbrecon " << version() << "\n";

@@ -108,12 +108,15 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
         std::unique_ptr<Vec3Accessor> nacc;
         if (trim_weight) wacc = std::make_unique<FloatAccessor>(volume.weight->tree());
         if (trim_gap) nacc = std::make_unique<Vec3Accessor>(volume.nearest->tree());
+        std::unique_ptr<FloatAccessor> facc;
+        if (volume.fill) facc = std::make_unique<FloatAccessor>(volume.fill->tree());
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             if (!used[i]) continue;
             const openvdb::Vec3d p(raw.points[i]);
             if (raw.check_cells && !point_in_valid_cells(acc, p)) continue;
             point_ok[i] = 1;
             grad[i] = openvdb::Vec3f(gradient_at(acc, p));
+            if (facc && point_in_valid_cells(*facc, p)) continue;  // a closing vouches for it
             if (trim_weight &&
                 openvdb::tools::BoxSampler::sample(*wacc, p) < options.min_surface_weight) {
                 point_ok[i] = 2;

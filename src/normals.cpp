@@ -4,11 +4,11 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
-#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <queue>
 
+#include "detail/pca.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
 #include "vdbrecon/log.h"
@@ -36,28 +36,14 @@ void flip(Vec3f& n) {
     for (float& c : n) c = -c;
 }
 
-/// PCA normal of point i and its neighbours (coordinates taken relative to point i).
+/// PCA normal of point i and its neighbours.
 bool neighbourhood_normal(const std::vector<Vec3f>& pts, std::size_t i, const int* nb, int k,
                           Vec3f& normal) {
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    const Vec3f& c = pts[i];
-    auto rel = [&](std::size_t j) {
-        return Eigen::Vector3d(double(pts[j][0]) - c[0], double(pts[j][1]) - c[1],
-                               double(pts[j][2]) - c[2]);
-    };
-    for (int j = 0; j < k; ++j) mean += rel(std::size_t(nb[j]));
-    mean /= double(k + 1);  // the point itself contributes (0,0,0)
-    Eigen::Matrix3d cov = mean * mean.transpose();  // the point itself: (0 - mean)(0 - mean)^T
-    for (int j = 0; j < k; ++j) {
-        const Eigen::Vector3d d = rel(std::size_t(nb[j])) - mean;
-        cov += d * d.transpose();
-    }
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
-    if (es.info() != Eigen::Success) return false;
-    const Eigen::Vector3d ev = es.eigenvalues();  // ascending
+    Eigen::Vector3d ev, n;
+    if (!detail::neighbourhood_pca(pts, i, nb, k, ev, n)) return false;
     // Degenerate: all points coincide, or they lie on a line (two vanishing eigenvalues).
     if (!(ev[2] > 0.0) || ev[1] <= 1e-12 * ev[2]) return false;
-    const Eigen::Vector3d n = es.eigenvectors().col(0).normalized();
+    n.normalize();
     normal = {float(n[0]), float(n[1]), float(n[2])};
     return std::isfinite(normal[0]) && std::isfinite(normal[1]) && std::isfinite(normal[2]);
 }

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <mutex>
 #include <sstream>
 
 #include "detail/io_common.h"
@@ -24,7 +25,9 @@ namespace vdbrecon {
 const char* version() { return VDBRECON_VERSION; }
 
 void PipelineOptions::validate() const {
+    outliers.validate();
     normals.validate();
+    close.validate();
     // voxel_size 0 means "choose"; check the rest with a stand-in voxel.
     SplatOptions s = splat;
     if (s.voxel_size == 0.0) s.voxel_size = 1.0;
@@ -120,6 +123,13 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
     if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
     PipelineResult r;
     in_arena(options.threads, [&] {
+        if (options.outliers.enabled) {
+            StageClock clock(r.timings, on_stage, "outliers");
+            r.outliers = remove_outliers(cloud, options.outliers);
+            cloud = std::move(r.outliers.cloud);
+            r.outliers.cloud = PointCloud{};
+            if (cloud.empty()) throw InvalidArgument("reconstruct: every point was an outlier");
+        }
         {
             StageClock clock(r.timings, on_stage, "normals");
             r.normals = estimate_normals(cloud, options.normals);
@@ -140,19 +150,35 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
             r.volume = std::move(r.splat.volume);
             r.splat.volume = Volume{};
         }
+        // Each volume is handed to on_volume (e.g. written to disk) while the next stage runs.
         tbb::task_group side;
-        if (on_volume) side.run([&] { on_volume(r.volume); });
-        try {
-            StageClock clock(r.timings, on_stage, "mesh");
-            r.mesh_stats = extract_mesh(r.volume, options.mesh);
-            r.mesh = std::move(r.mesh_stats.mesh);
-            r.mesh_stats.mesh = Mesh{};
-        } catch (...) {
+        auto hand_over = [&](const char* stage, const Volume& v) {
+            if (on_volume) side.run([&on_volume, stage, &v] { on_volume(stage, v); });
+        };
+        auto stop_side = [&] {
             side.cancel();
             try {
                 side.wait();
             } catch (...) {
             }
+        };
+        hand_over("splat", r.volume);
+        try {
+            const Volume* meshed = &r.volume;
+            if (options.close.enabled()) {
+                StageClock clock(r.timings, on_stage, "close");
+                r.close = close_volume(r.volume, options.close, options.mesh);
+                r.closed_volume = std::move(r.close.volume);
+                r.close.volume = Volume{};
+                meshed = &r.closed_volume;
+                hand_over("closed", r.closed_volume);
+            }
+            StageClock clock(r.timings, on_stage, "mesh");
+            r.mesh_stats = extract_mesh(*meshed, options.mesh);
+            r.mesh = std::move(r.mesh_stats.mesh);
+            r.mesh_stats.mesh = Mesh{};
+        } catch (...) {
+            stop_side();
             throw;
         }
         side.wait();  // rethrows what on_volume threw
@@ -181,10 +207,14 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     if (same_file(input, out.mesh_path)) {
         throw InvalidArgument("output '" + out.mesh_path + "' is the input file; refusing to overwrite it");
     }
-    if (options.write_vdb) out.vdb_path = stage_volume_path(out.mesh_path, "splat");
+    if (options.write_vdb) {
+        out.vdb_path = stage_volume_path(out.mesh_path, "splat");
+        if (options.close.enabled()) out.closed_vdb_path = stage_volume_path(out.mesh_path, "closed");
+    }
     // Fail before the work, not after it.
     detail::check_writable(out.mesh_path);
-    if (options.write_vdb) detail::check_writable(out.vdb_path);
+    if (!out.vdb_path.empty()) detail::check_writable(out.vdb_path);
+    if (!out.closed_vdb_path.empty()) detail::check_writable(out.closed_vdb_path);
 
     std::vector<StageTiming> timings;
     PointCloud cloud;
@@ -194,15 +224,18 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         cloud = std::move(out.read.cloud);
         out.read.cloud = PointCloud{};
     }
-    // The volume is written while the mesh is extracted (I/O and compression are serial).
+    // The volumes are written while the next stage runs (I/O and compression are serial).
     double vdb_seconds = 0.0;
+    std::mutex vdb_mutex;  // the two volumes may be written at the same time
     VolumeCallback write_vdb;
     if (options.write_vdb) {
-        write_vdb = [&](const Volume& v) {
+        write_vdb = [&](const std::string& stage, const Volume& v) {
             const auto start = std::chrono::steady_clock::now();
-            write_volume(out.vdb_path, v);
-            vdb_seconds =
+            write_volume(stage == "closed" ? out.closed_vdb_path : out.vdb_path, v);
+            const double s =
                 std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+            std::lock_guard<std::mutex> lock(vdb_mutex);
+            vdb_seconds += s;
         };
     }
     out.result = reconstruct(cloud, options, on_stage, write_vdb);
@@ -216,7 +249,7 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         w.comments.insert(w.comments.begin(), c.str());
         in_arena(options.threads, [&] { write_mesh(out.mesh_path, out.result.mesh, w); });
     }
-    if (options.write_vdb) timings.push_back({"vdb (during mesh)", vdb_seconds, peak_rss_mb()});
+    if (options.write_vdb) timings.push_back({"vdb (in the background)", vdb_seconds, peak_rss_mb()});
     out.result.timings = std::move(timings);
     return out;
 }

@@ -115,6 +115,7 @@ void write_volume(const std::string& path, const Volume& volume) {
     if (volume.nearest) grids.push_back(volume.nearest);
     grids.push_back(make_density(*volume.sdf));
     if (volume.color) grids.push_back(volume.color);
+    if (volume.fill) grids.push_back(volume.fill);
 
     openvdb::MetaMap meta;
     meta.insertMeta("creator", openvdb::StringMetadata(std::string("vdbrecon ") + version()));
@@ -159,6 +160,9 @@ Volume read_volume(const std::string& path) {
         }
         if (in.hasGrid("color")) {
             v.color = openvdb::gridPtrCast<openvdb::Vec3fGrid>(in.readGrid("color"));
+        }
+        if (in.hasGrid("fill")) {
+            v.fill = openvdb::gridPtrCast<openvdb::FloatGrid>(in.readGrid("fill"));
         }
         const openvdb::MetaMap::Ptr meta = in.getMetadata();
         for (auto it = meta->beginMeta(); it != meta->endMeta(); ++it) {

@@ -3,15 +3,19 @@
 
 #include <catch2/catch.hpp>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <map>
 #include <random>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "vdbrecon/types.h"
 
@@ -48,6 +52,58 @@ inline PointCloud sample_plane(int n, double half, unsigned seed = 7) {
         }
     }
     return c;
+}
+
+/// Lengths of the closed loops the boundary edges (one incident face) form, longest first; empty
+/// when there is no boundary, {-1} when the boundary edges do not form simple loops.
+inline std::vector<double> boundary_loop_lengths(const Mesh& m) {
+    std::map<std::pair<int, int>, int> count;  // undirected edge -> faces
+    for (const Triangle& t : m.faces) {
+        for (int k = 0; k < 3; ++k) {
+            const int a = t[k], b = t[(k + 1) % 3];
+            ++count[{std::min(a, b), std::max(a, b)}];
+        }
+    }
+    std::map<int, std::vector<int>> adj;
+    for (const auto& [e, n] : count) {
+        if (n != 1) continue;
+        adj[e.first].push_back(e.second);
+        adj[e.second].push_back(e.first);
+    }
+    for (const auto& [v, nb] : adj) {
+        if (nb.size() != 2) return {-1.0};
+    }
+    auto dist = [&](int a, int b) {
+        const Vec3f &p = m.vertices[std::size_t(a)], &q = m.vertices[std::size_t(b)];
+        return std::sqrt(double(p[0] - q[0]) * (p[0] - q[0]) + double(p[1] - q[1]) * (p[1] - q[1]) +
+                         double(p[2] - q[2]) * (p[2] - q[2]));
+    };
+    std::map<int, bool> seen;
+    std::vector<double> loops;
+    for (const auto& [v, nb] : adj) {
+        if (seen[v]) continue;
+        double length = 0.0;
+        std::vector<int> stack{v};
+        while (!stack.empty()) {
+            const int x = stack.back();
+            stack.pop_back();
+            if (seen[x]) continue;
+            seen[x] = true;
+            for (int y : adj[x]) {
+                if (x < y) length += dist(x, y);  // each edge once
+                stack.push_back(y);
+            }
+        }
+        loops.push_back(length);
+    }
+    std::sort(loops.rbegin(), loops.rend());
+    return loops;
+}
+
+/// Number of boundary loops (-1 when the boundary edges do not form simple loops).
+inline int boundary_loops(const Mesh& m) {
+    const std::vector<double> l = boundary_loop_lengths(m);
+    return l.size() == 1 && l[0] < 0.0 ? -1 : int(l.size());
 }
 
 /// A fresh empty directory under /tmp, removed (with its files) when the object dies.
@@ -97,6 +153,27 @@ inline int count_files(const std::string& dir) {
         ::pclose(p);
     }
     return n;
+}
+
+/// What a run of the command-line tool did.
+struct CliRun {
+    int code = -1;  ///< exit code, -1 if it died from a signal
+    std::string out, err;
+};
+
+/// Runs `PREFIX vdbrecon ARGS` through the shell (PREFIX: e.g. "ulimit -v N;" or a command that
+/// drops privileges), capturing stdout and stderr in a directory of their own.
+inline CliRun run_cli(const std::string& args, const std::string& prefix = {}) {
+    TempDir capture;
+    const std::string out = capture.file("stdout"), err = capture.file("stderr");
+    const std::string cmd =
+        prefix + " " + VDBRECON_CLI + " " + args + " >'" + out + "' 2>'" + err + "'";
+    const int status = std::system(cmd.c_str());
+    CliRun r;
+    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    r.out = read_bytes(out);
+    r.err = read_bytes(err);
+    return r;
 }
 
 /// Path of a file in ../shared/data, or "" (with a visible warning) when the corpus is absent,

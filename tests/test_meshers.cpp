@@ -19,35 +19,6 @@ using namespace vdbrecon::test;
 namespace {
 
 using V3 = openvdb::Vec3d;
-/// Signed distance (negative inside) and, separately, the exact unsigned distance to the surface.
-using Field = std::function<double(const V3&)>;
-
-/// A level-set volume sampled from an analytic signed distance: every voxel within `half_width`
-/// voxels of the surface is active, the rest is signed background.
-Volume analytic_volume(const Field& sdf, double extent, double voxel, double half_width = 3.0) {
-    initialize_openvdb();
-    const float bg = float(half_width * voxel);
-    auto grid = openvdb::FloatGrid::create(bg);
-    grid->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
-    grid->setGridClass(openvdb::GRID_LEVEL_SET);
-    grid->setName("sdf");
-    auto acc = grid->getAccessor();
-    const int n = int(std::ceil(extent / voxel));
-    for (int i = -n; i <= n; ++i) {
-        for (int j = -n; j <= n; ++j) {
-            for (int k = -n; k <= n; ++k) {
-                const double d = sdf(V3(i, j, k) * voxel);
-                if (std::fabs(d) < bg) acc.setValue(openvdb::Coord(i, j, k), float(d));
-            }
-        }
-    }
-    openvdb::tools::signedFloodFill(grid->tree());
-    Volume v;
-    v.sdf = grid;
-    v.voxel_size = voxel;
-    return v;
-}
-
 double box_sdf(const V3& p, const V3& half) {
     const V3 q(std::fabs(p[0]) - half[0], std::fabs(p[1]) - half[1], std::fabs(p[2]) - half[2]);
     const V3 out(std::max(q[0], 0.0), std::max(q[1], 0.0), std::max(q[2], 0.0));
@@ -179,41 +150,6 @@ double nearest_vertex(const Mesh& mesh, const V3& c) {
     double best = std::numeric_limits<double>::infinity();
     for (const Vec3f& p : mesh.vertices) best = std::min(best, (V3(p[0], p[1], p[2]) - c).length());
     return best;
-}
-
-/// Number of closed loops formed by the boundary edges (-1 if they do not form simple loops).
-int boundary_loops(const Mesh& m) {
-    std::map<std::pair<int, int>, int> count;  // undirected edge -> faces
-    for (const Triangle& t : m.faces) {
-        for (int k = 0; k < 3; ++k) {
-            const int a = t[k], b = t[(k + 1) % 3];
-            ++count[{std::min(a, b), std::max(a, b)}];
-        }
-    }
-    std::map<int, std::vector<int>> adj;
-    for (const auto& [e, n] : count) {
-        if (n != 1) continue;
-        adj[e.first].push_back(e.second);
-        adj[e.second].push_back(e.first);
-    }
-    for (const auto& [v, nb] : adj) {
-        if (nb.size() != 2) return -1;
-    }
-    std::map<int, bool> seen;
-    int loops = 0;
-    for (const auto& [v, nb] : adj) {
-        if (seen[v]) continue;
-        ++loops;
-        std::vector<int> stack{v};
-        while (!stack.empty()) {
-            const int x = stack.back();
-            stack.pop_back();
-            if (seen[x]) continue;
-            seen[x] = true;
-            for (int y : adj[x]) stack.push_back(y);
-        }
-    }
-    return loops;
 }
 
 Mesh mesh_with(const Volume& v, Mesher method) {

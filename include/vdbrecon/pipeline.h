@@ -1,4 +1,4 @@
-// The whole reconstruction: read > normals/scale > splat > mesh > clean > write.
+// The whole reconstruction: read > outliers > normals/scale > splat > close > mesh > clean > write.
 //
 // PipelineOptions nests one options struct per stage; the CLI and the Python module fill the
 // same struct, so both offer the same knobs with the same names and defaults.
@@ -10,9 +10,11 @@
 #include <vector>
 
 #include "vdbrecon/clean.h"
+#include "vdbrecon/close.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/normals.h"
+#include "vdbrecon/outliers.h"
 #include "vdbrecon/splat.h"
 #include "vdbrecon/types.h"
 #include "vdbrecon/volume.h"
@@ -24,14 +26,16 @@ const char* version();
 
 struct PipelineOptions {
     ReadOptions read;
+    OutlierOptions outliers;  ///< off by default
     NormalOptions normals;
     SplatOptions splat;  ///< splat.voxel_size == 0: chosen from the point spacing
+    CloseOptions close;  ///< off by default
     MeshOptions mesh;
     CleanOptions clean;
     WriteOptions write;
     /// Worker threads; 0 = all cores. The output does not depend on it.
     int threads = 0;
-    /// Write <out>.splat.vdb next to the mesh.
+    /// Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh.
     bool write_vdb = true;
     /// Automatic voxel = auto_voxel_factor * median per-point scale (dimensionless).
     double auto_voxel_factor = 1.0;
@@ -51,9 +55,12 @@ struct StageTiming {
 
 struct PipelineResult {
     Mesh mesh;
-    Volume volume;
+    Volume volume;              ///< the splatted volume
+    Volume closed_volume;       ///< the closed volume that was meshed (empty without closing)
+    OutlierResult outliers;     ///< kept points moved into the cloud; counts and flags kept
     NormalResult normals;       ///< normals/scales moved into the cloud; counts kept
     SplatResult splat;          ///< volume moved into `volume`; statistics kept
+    CloseResult close;          ///< volume moved into `closed_volume`; statistics kept
     MeshResult mesh_stats;      ///< mesh moved out; statistics kept
     CleanResult clean_stats;    ///< mesh moved into `mesh`; statistics kept
     double voxel_size = 0.0;    ///< the voxel used, world units
@@ -64,12 +71,12 @@ struct PipelineResult {
 /// Progress callback: stage name, called when a stage starts.
 using StageCallback = std::function<void(const std::string& stage)>;
 
-/// Called with the splatted volume; runs concurrently with mesh extraction (on the same worker
-/// threads), e.g. to write the volume to disk while the mesh is being built.
-using VolumeCallback = std::function<void(const Volume& volume)>;
+/// Called with each stage's volume ("splat", then "closed" when closing); runs concurrently with
+/// the next stage (on the same worker threads), e.g. to write the volume to disk meanwhile.
+using VolumeCallback = std::function<void(const std::string& stage, const Volume& volume)>;
 
-/// Runs normals > splat > mesh > clean on an in-memory cloud (normals and scales are filled in).
-/// Exceptions from `on_volume` propagate once meshing has finished.
+/// Runs outliers > normals > splat > close > mesh > clean on an in-memory cloud (outliers are
+/// removed from it, normals and scales filled in). Exceptions from `on_volume` propagate once meshing has finished.
 PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
                            const StageCallback& on_stage = {},
                            const VolumeCallback& on_volume = {});
@@ -79,10 +86,12 @@ struct RunResult {
     PipelineResult result;
     ReadResult read;            ///< cloud moved into the pipeline; counts kept
     std::string mesh_path;
-    std::string vdb_path;       ///< empty when no .vdb was written
+    std::string vdb_path;       ///< <out>.splat.vdb; empty when no .vdb was written
+    std::string closed_vdb_path;  ///< <out>.closed.vdb; empty without closing or .vdb output
 };
 
-/// Reads `input`, reconstructs and writes `output` (.ply or .obj) and <output stem>.splat.vdb.
+/// Reads `input`, reconstructs and writes `output` (.ply or .obj), <output stem>.splat.vdb and,
+/// when closing, <output stem>.closed.vdb.
 /// An empty `output` means <input stem>.recon.ply beside the input.
 RunResult run(const std::string& input, const std::string& output, const PipelineOptions& options,
               const StageCallback& on_stage = {});

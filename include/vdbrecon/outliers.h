@@ -1,0 +1,55 @@
+// Point outlier removal before splatting, with two rules over each point's k nearest neighbours:
+//
+//  - statistical: d_i, the mean distance of point i to its k neighbours, compared with the local
+//    average, the mean of d_j over those neighbours. A point with d_i > statistical_ratio times
+//    that average sits apart from a surface that is otherwise densely sampled around it (the
+//    local form of R. B. Rusu et al.'s statistical outlier removal, "Towards 3D point cloud based
+//    object maps for household environments", RAS 2008, which compares d_i with the global
+//    mean; the local average keeps varying scan densities, e.g. LiDAR range fall-off, intact).
+//  - planarity: lambda_0 / lambda_1, the ratio of the two smallest eigenvalues of the
+//    neighbourhood covariance, is near 0 on a surface (one thin direction) and near 1 for a
+//    blob of scattered points. Points above planarity_ratio whose d_i is also above
+//    planarity_spacing times the median d over the cloud are removed: this catches clusters of
+//    stray points (whose neighbours are strays too, so the statistical rule sees nothing odd),
+//    while sharp corners and thin ridges of real geometry, which are non-planar too but densely
+//    sampled, stay.
+//
+// Both rules look at the cloud as given (one kd-tree, one pass), so the result does not depend
+// on the order in which points are tested, nor on the thread count.
+#pragma once
+
+#include <cstddef>
+#include <vector>
+
+#include "vdbrecon/types.h"
+
+namespace vdbrecon {
+
+struct OutlierOptions {
+    /// Run the removal at all.
+    bool enabled = false;
+    /// Neighbours per point (count).
+    int k = 16;
+    /// Statistical rule: remove when d_i > ratio x the neighbours' mean d_j (dimensionless;
+    /// 0 disables the rule).
+    double statistical_ratio = 3.0;
+    /// Planarity rule: lambda_0 / lambda_1 above this (0..1; 0 disables the rule) ...
+    double planarity_ratio = 0.3;
+    /// ... and d_i above this times the cloud's median d (dimensionless).
+    double planarity_spacing = 1.5;
+
+    /// Throws InvalidArgument naming the field when out of range.
+    void validate() const;
+};
+
+struct OutlierResult {
+    PointCloud cloud;                ///< the kept points, all attributes, input order
+    std::size_t statistical = 0;     ///< removed by the statistical rule
+    std::size_t planarity = 0;       ///< removed by the planarity rule (and not the first)
+    std::vector<char> removed;       ///< #P flags of the input points, 1 = removed
+};
+
+/// Removes outliers (see above). With fewer than k + 1 points nothing is removed.
+OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options = {});
+
+}  // namespace vdbrecon

@@ -1,0 +1,111 @@
+// Point outlier removal (see outliers.h).
+#include "vdbrecon/outliers.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "detail/pca.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/knn.h"
+
+namespace vdbrecon {
+
+void OutlierOptions::validate() const {
+    if (k < 3 || k > 1000) {
+        throw InvalidArgument("outliers.k = " + std::to_string(k) + ": must be in 3..1000");
+    }
+    if (!(statistical_ratio == 0.0 || (statistical_ratio >= 1.0 && std::isfinite(statistical_ratio)))) {
+        throw InvalidArgument("outliers.statistical_ratio = " + std::to_string(statistical_ratio) +
+                              ": must be 0 (off) or a number >= 1");
+    }
+    if (!(planarity_ratio >= 0.0 && planarity_ratio < 1.0)) {
+        throw InvalidArgument("outliers.planarity_ratio = " + std::to_string(planarity_ratio) +
+                              ": must be in [0, 1)");
+    }
+    if (!(planarity_spacing >= 0.0 && std::isfinite(planarity_spacing))) {
+        throw InvalidArgument("outliers.planarity_spacing = " + std::to_string(planarity_spacing) +
+                              ": must be a non-negative number");
+    }
+}
+
+namespace {
+
+template <typename T>
+void keep_rows(std::vector<T>& v, const std::vector<char>& removed) {
+    if (v.empty()) return;
+    std::size_t w = 0;
+    for (std::size_t i = 0; i < v.size(); ++i) {
+        if (!removed[i]) v[w++] = v[i];
+    }
+    v.resize(w);
+}
+
+}  // namespace
+
+OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options) {
+    options.validate();
+    OutlierResult r;
+    const std::size_t n = cloud.size();
+    r.removed.assign(n, 0);
+    r.cloud = cloud;
+    if (!options.enabled || n < std::size_t(options.k) + 1) return r;
+
+    const KnnIndex index(cloud.positions);
+    const KnnResult knn = index.self_neighbours(options.k);
+    const int k = knn.k;
+    std::vector<double> spacing(n);  // d_i
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
+            const float* d2 = knn.sq_dists(i);
+            double s = 0.0;
+            for (int j = 0; j < k; ++j) s += std::sqrt(double(d2[j]));
+            spacing[i] = s / k;
+        }
+    });
+    std::vector<double> sorted = spacing;
+    std::nth_element(sorted.begin(), sorted.begin() + std::ptrdiff_t(n / 2), sorted.end());
+    const double median = sorted[n / 2];
+    sorted = {};
+    // 1 = statistical, 2 = planarity (0 = kept).
+    std::vector<char> rule(n, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
+            const int* nb = knn.neighbours(i);
+            double local = 0.0;
+            for (int j = 0; j < k; ++j) local += spacing[std::size_t(nb[j])];
+            local /= k;
+            if (!(local > 0.0)) continue;  // coincident points: nothing to compare with
+            const double ratio = spacing[i] / local;
+            if (options.statistical_ratio > 0.0 && ratio > options.statistical_ratio) {
+                rule[i] = 1;
+                continue;
+            }
+            if (options.planarity_ratio > 0.0 && spacing[i] > options.planarity_spacing * median) {
+                Eigen::Vector3d ev, dir;
+                if (detail::neighbourhood_pca(cloud.positions, i, nb, k, ev, dir) &&
+                    ev[1] > 0.0 && ev[0] / ev[1] > options.planarity_ratio) {
+                    rule[i] = 2;
+                }
+            }
+        }
+    });
+    for (std::size_t i = 0; i < n; ++i) {
+        if (rule[i] == 1) ++r.statistical;
+        if (rule[i] == 2) ++r.planarity;
+        r.removed[i] = rule[i] != 0;
+    }
+    keep_rows(r.cloud.positions, r.removed);
+    keep_rows(r.cloud.normals, r.removed);
+    keep_rows(r.cloud.colors, r.removed);
+    keep_rows(r.cloud.scales, r.removed);
+    keep_rows(r.cloud.confidences, r.removed);
+    return r;
+}
+
+}  // namespace vdbrecon

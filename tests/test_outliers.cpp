@@ -1,0 +1,130 @@
+// Point outlier removal (outliers.h): a sphere with stray points, a cube whose corners must stay.
+#include <random>
+
+#include "support.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
+#include "vdbrecon/outliers.h"
+#include "vdbrecon/pipeline.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+/// Appends `count` points uniform in [-extent, extent]^3 with random unit normals.
+std::size_t add_strays(PointCloud& c, std::size_t count, double extent, unsigned seed) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<float> u(float(-extent), float(extent));
+    std::normal_distribution<float> g;
+    for (std::size_t i = 0; i < count; ++i) {
+        c.positions.push_back({u(rng), u(rng), u(rng)});
+        Vec3f n{g(rng), g(rng), g(rng)};
+        const float len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        for (float& v : n) v /= len;
+        c.normals.push_back(n);
+    }
+    return count;
+}
+
+}  // namespace
+
+TEST_CASE("outliers: strays around a sphere go, the sphere stays", "[outliers]") {
+    const std::size_t surface = 30000;
+    PointCloud c = sample_sphere(surface, 1.0);
+    add_strays(c, surface / 50, 1.2, 3);  // 2 %
+    OutlierOptions o;
+    o.enabled = true;
+    const OutlierResult r = remove_outliers(c, o);
+    // Strays more than 2 voxels (at voxel 0.05) off the sphere must go; nearer ones are as
+    // good as noisy surface samples and may stay.
+    std::size_t far = 0, far_removed = 0, near_removed = 0, surface_removed = 0;
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        const Vec3f& p = c.positions[i];
+        const double off = std::fabs(std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) - 1.0);
+        if (i < surface) {
+            surface_removed += r.removed[i];
+        } else if (off > 0.1) {
+            ++far;
+            far_removed += r.removed[i];
+        } else {
+            near_removed += r.removed[i];
+        }
+    }
+    INFO("statistical " << r.statistical << ", planarity " << r.planarity << "; far strays removed "
+                        << far_removed << " of " << far << ", near ones " << near_removed
+                        << " of " << surface / 50 - far << ", surface points " << surface_removed);
+    CHECK(r.statistical > 0);
+    CHECK(r.planarity > 0);
+    CHECK(far_removed >= far * 85 / 100);  // measured 430 of 482: the misses are strays whose
+    // neighbours are strays in a nearly planar layout; alone they weigh too little to make a
+    // surface (the pipeline test below)
+    CHECK(surface_removed == 0);
+    REQUIRE(r.cloud.size() == c.size() - r.statistical - r.planarity);
+    REQUIRE(r.cloud.normals.size() == r.cloud.size());
+}
+
+TEST_CASE("outliers: a densely sampled cube keeps its corners and edges", "[outliers]") {
+    PointCloud c;
+    const int n = 60;
+    for (int face = 0; face < 6; ++face) {
+        const int axis = face / 2;
+        const float side = face % 2 ? 1.0f : -1.0f;
+        for (int i = 0; i < n; ++i) {
+            for (int j = 0; j < n; ++j) {
+                Vec3f p{}, nrm{};
+                p[axis] = side;
+                p[(axis + 1) % 3] = -1.0f + 2.0f * float(i) / float(n - 1);
+                p[(axis + 2) % 3] = -1.0f + 2.0f * float(j) / float(n - 1);
+                nrm[axis] = side;
+                c.positions.push_back(p);
+                c.normals.push_back(nrm);
+            }
+        }
+    }
+    OutlierOptions o;
+    o.enabled = true;
+    const OutlierResult r = remove_outliers(c, o);
+    CHECK(r.statistical == 0);
+    CHECK(r.planarity == 0);
+}
+
+TEST_CASE("outliers: the reconstruction with strays matches the clean one", "[outliers][pipeline]") {
+    const double voxel = 0.05;
+    PointCloud clean = sample_sphere(30000, 1.0);
+    PointCloud noisy = clean;
+    add_strays(noisy, 600, 1.2, 11);
+    PipelineOptions o;
+    o.splat.voxel_size = voxel;
+    const PipelineResult ref = reconstruct(clean, o);
+
+    PointCloud without = noisy;
+    const PipelineResult plain = reconstruct(without, o);
+    o.outliers.enabled = true;
+    const PipelineResult filtered = reconstruct(noisy, o);
+
+    const TopologyStats t = mesh_topology(filtered.mesh);
+    CHECK(t.watertight());
+    CHECK(t.components == 1);
+    EvalOptions e;
+    e.samples = 200000;
+    const double with_removal = evaluate(filtered.mesh, ref.mesh, e).hausdorff;
+    const double no_removal = evaluate(plain.mesh, ref.mesh, e).hausdorff;
+    INFO("Hausdorff to the clean result: " << with_removal / voxel << " voxels with --outliers, "
+         << no_removal / voxel << " voxels without ("
+         << mesh_topology(plain.mesh).components << " components)");
+    CHECK(with_removal < 0.25 * voxel);
+    CHECK(no_removal > with_removal);
+}
+
+TEST_CASE("outlier options are validated", "[outliers]") {
+    OutlierOptions o;
+    o.k = 2;
+    REQUIRE_THROWS_AS(o.validate(), InvalidArgument);
+    o = {};
+    o.statistical_ratio = 0.5;
+    REQUIRE_THROWS_AS(o.validate(), InvalidArgument);
+    o = {};
+    o.planarity_ratio = 1.0;
+    REQUIRE_THROWS_AS(o.validate(), InvalidArgument);
+}

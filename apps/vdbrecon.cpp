@@ -56,6 +56,7 @@ void print_help() {
         << "\n"
         << "usage: vdbrecon INPUT [options]\n"
         << "       vdbrecon eval RECON REF [--tau T[,T...]] [--samples N]\n"
+        << "                     [--mask-points FILE --mask-distance D]\n"
         << "\n"
         << "INPUT: .ply (ascii/binary), .xyz/.pts/.txt (x y z [nx ny nz]), .obj (v/vn)\n"
         << "\n"
@@ -87,7 +88,6 @@ void print_help() {
         << "  --scale MODE           per-point scale: " << choice_list(scale_mode_choices(), "|") << " ["
         << choice_name(scale_mode_choices(), d.normals.scale) << "]\n"
         << "  --viewpoint x,y,z      sensor position; estimated normals face it [none: MST]\n"
-        << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
         << "  --outliers, --no-outliers\n"
         << "                         remove stray points before splatting (statistical and\n"
         << "                         planarity rules, k=" << d.outliers.k << ") ["
@@ -96,6 +96,7 @@ void print_help() {
         << "                         open borders stay [" << d.close.hole_radius << ": off]\n"
         << "  --close-solid R        close concavities narrower than ~2R voxels of a\n"
         << "                         watertight surface [" << d.close.solid_radius << ": off]\n"
+        << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
         << choice_name(mesher_choices(), d.mesh.method) << "]\n"
         << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
         << "]\n"
@@ -106,12 +107,18 @@ void print_help() {
         << "  --ascii                write ascii PLY [binary little endian]\n"
         << "  --threads N            worker threads, 0 = all cores [" << d.threads << "]\n"
         << "  --no-vdb               do not write the .vdb volume\n"
+        << "  --preview PATH         write a shaded picture of the mesh: .png, or .exr with a\n"
+        << "                         depth channel Z [none]\n"
         << "  -q, --quiet            no progress or timings on stderr\n"
         << "  --help, --version\n"
         << "\n"
         << "eval options:\n"
         << "  --tau T[,T...]         F-score thresholds, world units [0.2% of REF's diagonal]\n"
         << "  --samples N            samples per mesh [" << e.samples << "]\n"
+        << "  --mask-points FILE     points (e.g. the scan): REF regions farther than\n"
+        << "                         --mask-distance from all of them are not counted in\n"
+        << "                         completeness and recall [none]\n"
+        << "  --mask-distance D      mask radius, world units (needed with --mask-points)\n"
         << "\n"
         << "exit codes: 0 ok, 2 usage/invalid argument, 3 I/O or file format, 4 other error\n";
 }
@@ -182,6 +189,7 @@ long peak_rss_mb() {
 int run_eval(Args& args) {
     EvalOptions options;
     std::vector<std::string> files;
+    std::string mask_path;
     while (!args.done()) {
         const std::string a = args.next();
         if (a == "--tau") {
@@ -192,6 +200,11 @@ int run_eval(Args& args) {
                 throw UsageError("--samples must be a whole number in 1000..1e8");
             }
             options.samples = std::size_t(n);
+        } else if (a == "--mask-points") {
+            mask_path = args.value(a);
+        } else if (a == "--mask-distance") {
+            options.mask_distance = parse_number(a, args.value(a));
+            if (!(options.mask_distance > 0.0)) throw UsageError("--mask-distance must be positive");
         } else if (!a.empty() && a[0] == '-') {
             throw UsageError("eval: unknown option '" + a + "'");
         } else {
@@ -202,8 +215,16 @@ int run_eval(Args& args) {
     for (double t : options.taus) {
         if (!(t > 0.0)) throw UsageError("--tau values must be positive");
     }
+    if (mask_path.empty() != (options.mask_distance == 0.0)) {
+        throw UsageError("--mask-points and --mask-distance go together");
+    }
     const Mesh recon = read_mesh(files[0]);
     const Mesh ref = read_mesh(files[1]);
+    if (!mask_path.empty()) {
+        PointCloud mask = read_points(mask_path).cloud;
+        options.mask_points = std::move(mask.positions);
+        options.mask_origin = mask.origin;
+    }
     std::cout << to_json(evaluate(recon, ref, options));
     return kExitOk;
 }
@@ -249,6 +270,14 @@ int run_reconstruct(Args& args) {
             const std::vector<double> v = parse_list(a, args.value(a));
             if (v.size() != 3) throw UsageError("--viewpoint needs three numbers: x,y,z");
             o.normals.viewpoint = Vec3d{v[0], v[1], v[2]};
+        } else if (a == "--outliers") {
+            o.outliers.enabled = true;
+        } else if (a == "--no-outliers") {
+            o.outliers.enabled = false;
+        } else if (a == "--close") {
+            o.close.hole_radius = parse_int(a, args.value(a));
+        } else if (a == "--close-solid") {
+            o.close.solid_radius = parse_int(a, args.value(a));
         } else if (a == "--mesher") {
             o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
         } else if (a == "--adaptivity") {
@@ -262,20 +291,14 @@ int run_reconstruct(Args& args) {
         } else if (a == "--threads") {
             o.threads = parse_int(a, args.value(a));
             if (o.threads < 0) throw UsageError("--threads must be >= 0");
+        } else if (a == "--preview") {
+            o.preview_path = args.value(a);
         } else if (a == "--no-vdb") {
             o.write_vdb = false;
         } else if (a == "-q" || a == "--quiet") {
             quiet = true;
         } else if (a.size() > 1 && a[0] == '-') {
             throw UsageError("unknown option '" + a + "' (see --help)");
-        } else if (a == "--outliers") {
-            o.outliers.enabled = true;
-        } else if (a == "--no-outliers") {
-            o.outliers.enabled = false;
-        } else if (a == "--close") {
-            o.close.hole_radius = parse_int(a, args.value(a));
-        } else if (a == "--close-solid") {
-            o.close.solid_radius = parse_int(a, args.value(a));
         } else if (input.empty()) {
             input = a;
         } else {
@@ -301,6 +324,10 @@ int run_reconstruct(Args& args) {
         s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << ")";
         if (r.read.dropped_nonfinite) s << ", dropped " << r.read.dropped_nonfinite << " NaN/inf";
         s << "\n";
+        if (o.outliers.enabled) {
+            s << "vdbrecon: outliers: removed " << p.outliers.statistical << " (statistical) + "
+              << p.outliers.planarity << " (planarity) points\n";
+        }
         s << "vdbrecon: normals: ";
         if (p.normals.estimated == 0) {
             s << "from the file";
@@ -320,13 +347,18 @@ int run_reconstruct(Args& args) {
         s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max
           << " (median " << p.splat.sigma_median << "), " << p.splat.active_voxels
           << " valid voxels in " << p.splat.leaves << " leaves, " << p.splat.updates
-        if (o.outliers.enabled) {
-            s << "vdbrecon: outliers: removed " << p.outliers.statistical << " (statistical) + "
-              << p.outliers.planarity << " (planarity) points\n";
-        }
           << " kernel updates";
         if (p.splat.skipped_points) s << ", " << p.splat.skipped_points << " points without normal";
         s << "\n";
+        if (o.close.hole_radius > 0) {
+            s << "vdbrecon: close: " << p.close.supported_voxels << " supported voxels -> "
+              << p.close.closed_voxels << " after closing by " << o.close.hole_radius << ", "
+              << p.close.filled_voxels << " filled\n";
+        }
+        if (o.close.solid_radius > 0) {
+            s << "vdbrecon: close-solid: " << p.close.solid_voxels_before << " -> "
+              << p.close.solid_voxels_after << " voxels inside\n";
+        }
         s << "vdbrecon: mesh: " << p.mesh.vertices.size() << " vertices, " << p.mesh.faces.size()
           << " triangles (" << p.mesh_stats.dropped_faces << " dropped outside valid cells, "
           << p.mesh_stats.trimmed_faces << " trimmed for low weight)\n";
@@ -346,15 +378,6 @@ int run_reconstruct(Args& args) {
             s << t.seconds << " s,";
             mem << " " << t.stage << " " << long(t.peak_rss_mb) << " MB,";
         }
-        if (o.close.hole_radius > 0) {
-            s << "vdbrecon: close: " << p.close.supported_voxels << " supported voxels -> "
-              << p.close.closed_voxels << " after closing by " << o.close.hole_radius << ", "
-              << p.close.filled_voxels << " filled\n";
-        }
-        if (o.close.solid_radius > 0) {
-            s << "vdbrecon: close-solid: " << p.close.solid_voxels_before << " -> "
-              << p.close.solid_voxels_after << " voxels inside\n";
-        }
         const double wall =
             std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
         s << " wall " << wall << " s; peak memory " << peak_rss_mb() << " MB\n";
@@ -364,6 +387,8 @@ int run_reconstruct(Args& args) {
         std::cerr << s.str();
         std::cout << "mesh: " << r.mesh_path << "\n";
         if (!r.vdb_path.empty()) std::cout << "volume: " << r.vdb_path << "\n";
+        if (!o.preview_path.empty()) std::cout << "preview: " << o.preview_path << "\n";
+        if (!r.closed_vdb_path.empty()) std::cout << "closed volume: " << r.closed_vdb_path << "\n";
     }
     return kExitOk;
 }
@@ -383,7 +408,6 @@ int main(int argc, char** argv) {
             if (a == "--help" || a == "-h") {
                 print_help();
                 return kExitOk;
-        if (!r.closed_vdb_path.empty()) std::cout << "closed volume: " << r.closed_vdb_path << "\n";
             }
             if (a == "--version") {
                 std::cout << "vdbrecon " << version() << "\n";

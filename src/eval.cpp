@@ -14,6 +14,7 @@
 
 #include "detail/mesh_graph.h"
 #include "vdbrecon/error.h"
+#include "vdbrecon/knn.h"
 
 namespace vdbrecon {
 
@@ -27,11 +28,23 @@ void EvalOptions::validate() const {
         throw InvalidArgument("eval.samples = " + std::to_string(samples) +
                               ": must be in 1000..1e8");
     }
+    if (!(std::isfinite(mask_distance) && mask_distance >= 0.0) ||
+        (!mask_points.empty() && mask_distance == 0.0)) {
+        throw InvalidArgument("eval.mask_distance = " + std::to_string(mask_distance) +
+                              ": must be a positive distance when mask points are given");
+    }
 }
 
 namespace {
 
 using V3 = std::array<double, 3>;
+
+/// A number as JSON and messages print it (9 significant digits).
+std::string num(double v) {
+    char buf[64];
+    std::snprintf(buf, sizeof(buf), "%.9g", v);
+    return buf;
+}
 
 inline V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
 inline V3 add(const V3& a, const V3& b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
@@ -338,6 +351,36 @@ std::vector<V3> face_normals(const Mesh& m) {
     return n;
 }
 
+/// Keeps the reference samples (and their faces) within `mask_distance` of a mask point, in
+/// place; `frame` is the origin the samples are relative to.
+void keep_masked(std::vector<Vec3f>& samples, std::vector<std::int32_t>& faces,
+                 const EvalOptions& o, const Vec3d& frame) {
+    std::vector<Vec3f> mask(o.mask_points.size());
+    for (std::size_t i = 0; i < mask.size(); ++i) {
+        for (int k = 0; k < 3; ++k) {
+            mask[i][k] = float(double(o.mask_points[i][k]) + o.mask_origin[k] - frame[k]);
+        }
+    }
+    const KnnResult nearest = KnnIndex(mask).query(samples, 1);
+    const double r2 = o.mask_distance * o.mask_distance;
+    std::size_t kept = 0;
+    for (std::size_t i = 0; i < samples.size(); ++i) {
+        if (double(nearest.sq_distances[i]) <= r2) {
+            samples[kept] = samples[i];
+            faces[kept] = faces[i];
+            ++kept;
+        }
+    }
+    if (kept == 0) {
+        throw InvalidArgument("evaluate: no reference sample lies within mask_distance = " +
+                              num(o.mask_distance) + " of the " + std::to_string(mask.size()) +
+                              " mask points. Hint: the mask must share the reference's frame "
+                              "and units");
+    }
+    samples.resize(kept);
+    faces.resize(kept);
+}
+
 }  // namespace
 
 EvalResult evaluate(const Mesh& recon_in, const Mesh& reference, const EvalOptions& options) {
@@ -353,7 +396,9 @@ EvalResult evaluate(const Mesh& recon_in, const Mesh& reference, const EvalOptio
 
     std::vector<std::int32_t> rf, gf, rcl, gcl;
     const std::vector<Vec3f> rs = sample_surface(recon, options.samples, options.seed, &rf);
-    const std::vector<Vec3f> gs = sample_surface(reference, options.samples, options.seed + 1, &gf);
+    std::vector<Vec3f> gs = sample_surface(reference, options.samples, options.seed + 1, &gf);
+    if (!options.mask_points.empty()) keep_masked(gs, gf, options, reference.origin);
+    r.reference_samples = gs.size();
     const MeshDistance to_ref(reference), to_recon(recon);
     const std::vector<double> dr = to_ref.distances(rs, &rcl);
     const std::vector<double> dg = to_recon.distances(gs, &gcl);
@@ -400,12 +445,6 @@ EvalResult evaluate(const Mesh& recon_in, const Mesh& reference, const EvalOptio
 
 namespace {
 
-std::string num(double v) {
-    char buf[64];
-    std::snprintf(buf, sizeof(buf), "%.9g", v);
-    return buf;
-}
-
 std::string topology_json(const TopologyStats& t, const std::string& indent) {
     std::string s = "{\n";
     s += indent + "  \"vertices\": " + std::to_string(t.vertices) + ",\n";
@@ -440,6 +479,7 @@ std::string to_json(const EvalResult& r) {
     }
     s += "],\n";
     s += "  \"samples\": " + std::to_string(r.samples) + ",\n";
+    s += "  \"reference_samples\": " + std::to_string(r.reference_samples) + ",\n";
     s += "  \"recon\": " + topology_json(r.recon, "  ") + ",\n";
     s += "  \"reference\": " + topology_json(r.reference, "  ") + "\n";
     s += "}\n";

@@ -7,7 +7,9 @@
 #include <cerrno>
 #include <charconv>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <mutex>
 #include <set>
 #include <sstream>
@@ -59,6 +61,29 @@ std::string where(const std::string& path, const std::string& message) {
     return path + ": " + message;
 }
 
+std::string printable(std::string_view text) {
+    constexpr std::size_t kMax = 32;
+    std::string out;
+    for (const char ch : text) {
+        const unsigned char c = static_cast<unsigned char>(ch);
+        if (c >= 0x20 && c < 0x7f) {
+            out += ch;
+        } else {
+            static const char hex[] = "0123456789abcdef";
+            out += {'\\', 'x', hex[c >> 4], hex[c & 15]};
+        }
+        if (out.size() > kMax) break;
+    }
+    if (out.size() > kMax) {
+        out.resize(kMax - 3);
+        // Never leave half an escape before the "...".
+        const std::size_t slash = out.find_last_of('\\');
+        if (slash != std::string::npos && slash + 4 > out.size()) out.resize(slash);
+        out += "...";
+    }
+    return out;
+}
+
 std::string read_file(const std::string& path) {
     struct stat st {};
     if (::stat(path.c_str(), &st) != 0) {
@@ -79,16 +104,47 @@ std::string read_file(const std::string& path) {
     return content;
 }
 
+namespace {
+
+bool finite_row(const double* p) {
+    return std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
+}
+
+/// `p - origin` in single precision; throws FormatError naming the row when it does not fit
+/// (a coordinate like 1e300, or points spread wider than float's range).
+Vec3f local_point(const double* p, const Vec3d& origin, const std::string& path,
+                  const char* row_kind, std::size_t row) {
+    Vec3f q;
+    for (int a = 0; a < 3; ++a) {
+        q[a] = float(p[a] - origin[a]);
+        if (!std::isfinite(q[a])) {
+            throw FormatError(where(path, std::string(row_kind) + " " + std::to_string(row) +
+                                              ": coordinate " + format_number(p[a]) +
+                                              " is out of single-precision range (even "
+                                              "relative to the centre of the points)"));
+        }
+    }
+    return q;
+}
+
+}  // namespace
+
 Vec3d choose_origin(const double* xyz, std::size_t rows) {
-    if (rows == 0) return {0.0, 0.0, 0.0};
     double lo[3], hi[3];
-    for (int a = 0; a < 3; ++a) lo[a] = hi[a] = xyz[a];
+    for (int a = 0; a < 3; ++a) {
+        lo[a] = std::numeric_limits<double>::infinity();
+        hi[a] = -lo[a];
+    }
+    bool any = false;
     for (std::size_t i = 0; i < rows; ++i) {
+        if (!finite_row(xyz + 3 * i)) continue;  // rows the reader drops
+        any = true;
         for (int a = 0; a < 3; ++a) {
             lo[a] = std::min(lo[a], xyz[3 * i + a]);
             hi[a] = std::max(hi[a], xyz[3 * i + a]);
         }
     }
+    if (!any) return {0.0, 0.0, 0.0};
     double diag2 = 0.0, magnitude = 0.0;
     for (int a = 0; a < 3; ++a) {
         diag2 += (hi[a] - lo[a]) * (hi[a] - lo[a]);
@@ -100,7 +156,12 @@ Vec3d choose_origin(const double* xyz, std::size_t rows) {
     if (magnitude <= 8.0 * std::max(diag, 1e-30) || magnitude < 1.0) return {0.0, 0.0, 0.0};
     const double q = std::ldexp(1.0, int(std::ceil(std::log2(std::max(diag, 1e-6)))));
     Vec3d origin;
-    for (int a = 0; a < 3; ++a) origin[a] = std::round(0.5 * (lo[a] + hi[a]) / q) * q;
+    for (int a = 0; a < 3; ++a) {
+        // 0.5 lo + 0.5 hi, not 0.5 (lo + hi), which overflows near double's maximum; and beyond
+        // 2^52 q the centre is a multiple of q already (c / q could overflow).
+        const double c = 0.5 * lo[a] + 0.5 * hi[a];
+        origin[a] = std::fabs(c) < std::ldexp(q, 52) ? std::round(c / q) * q : c;
+    }
     return origin;
 }
 
@@ -112,16 +173,24 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
     result.rows = rows;
     if (rows == 0) throw FormatError(where(path, "contains no points"));
 
-    // Drop rows with non-finite coordinates, compacting every attribute in place.
+    // The local frame (from the finite rows), then one pass that drops rows with non-finite
+    // coordinates, converts the others and compacts every attribute in place.
+    PointCloud& cloud = result.cloud;
+    cloud.origin = options.local_frame ? choose_origin(raw.xyz.data(), rows) : Vec3d{0, 0, 0};
+    cloud.positions.resize(rows);
     std::size_t kept = 0, first_bad = rows;
     for (std::size_t i = 0; i < rows; ++i) {
         const double* p = &raw.xyz[3 * i];
-        if (!(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) {
+        if (!finite_row(p)) {
+            if (options.non_finite == NonFinitePolicy::error) {
+                throw FormatError(where(path, "row " + std::to_string(i) +
+                                                  ": NaN or infinite coordinate"));
+            }
             if (first_bad == rows) first_bad = i;
             continue;
         }
+        cloud.positions[kept] = local_point(p, cloud.origin, path, "row", i);
         if (kept != i) {
-            for (int a = 0; a < 3; ++a) raw.xyz[3 * kept + a] = p[a];
             for (auto* v : {&raw.normals, &raw.colors}) {
                 if (!v->empty()) std::copy_n(v->data() + 3 * i, 3, v->data() + 3 * kept);
             }
@@ -131,12 +200,10 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         }
         ++kept;
     }
+    raw.xyz = {};
+    cloud.positions.resize(kept);
     result.dropped_nonfinite = rows - kept;
     if (result.dropped_nonfinite > 0) {
-        if (options.non_finite == NonFinitePolicy::error) {
-            throw FormatError(where(path, "row " + std::to_string(first_bad) +
-                                              ": NaN or infinite coordinate"));
-        }
         if (kept == 0) {
             throw FormatError(where(path, "all " + std::to_string(rows) +
                                               " rows have NaN or infinite coordinates"));
@@ -147,15 +214,6 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
                                     std::to_string(first_bad) + ")"));
     }
 
-    PointCloud& cloud = result.cloud;
-    cloud.origin = options.local_frame ? choose_origin(raw.xyz.data(), kept) : Vec3d{0, 0, 0};
-    cloud.positions.resize(kept);
-    for (std::size_t i = 0; i < kept; ++i) {
-        for (int a = 0; a < 3; ++a) {
-            cloud.positions[i][a] = float(raw.xyz[3 * i + a] - cloud.origin[a]);
-        }
-    }
-    raw.xyz = {};
     auto to_vec3 = [kept](std::vector<float>& src, std::vector<Vec3f>& dst) {
         if (src.empty()) return;
         dst.resize(kept);
@@ -195,19 +253,15 @@ Mesh finalize_mesh(RawPoints&& raw, const std::string& path) {
     Mesh mesh;
     const std::size_t rows = raw.rows();
     for (std::size_t i = 0; i < rows; ++i) {
-        for (int a = 0; a < 3; ++a) {
-            if (!std::isfinite(raw.xyz[3 * i + a])) {
-                throw FormatError(where(path, "vertex " + std::to_string(i) +
-                                                  ": NaN or infinite coordinate"));
-            }
+        if (!finite_row(&raw.xyz[3 * i])) {
+            throw FormatError(where(path, "vertex " + std::to_string(i) +
+                                              ": NaN or infinite coordinate"));
         }
     }
     mesh.origin = choose_origin(raw.xyz.data(), rows);
     mesh.vertices.resize(rows);
     for (std::size_t i = 0; i < rows; ++i) {
-        for (int a = 0; a < 3; ++a) {
-            mesh.vertices[i][a] = float(raw.xyz[3 * i + a] - mesh.origin[a]);
-        }
+        mesh.vertices[i] = local_point(&raw.xyz[3 * i], mesh.origin, path, "vertex", i);
     }
     if (!raw.normals.empty()) {
         mesh.normals.resize(rows);
@@ -310,6 +364,23 @@ void ByteWriter::flush() {
     buf_.clear();
 }
 
+bool parse_double(const char* b, const char* e, double& v) {
+    if (b < e && *b == '+') {  // from_chars takes no leading '+'
+        ++b;
+        if (b < e && *b == '-') return false;
+    }
+    const auto r = std::from_chars(b, e, v);
+    if (r.ptr != e) return false;
+    if (r.ec == std::errc::result_out_of_range) {
+        // from_chars leaves v as it was; strtod rounds to +-inf or to +-0 / a subnormal. It sees
+        // only tokens from_chars accepted, so strtod's extras (hex, locale) never apply.
+        const std::string token(b, e);
+        v = std::strtod(token.c_str(), nullptr);
+        return true;
+    }
+    return r.ec == std::errc();
+}
+
 template <typename T>
 static std::string format_number_impl(T v) {
     char buf[64];
@@ -328,7 +399,7 @@ namespace {
 
 enum class Format { ply, xyz, obj };
 
-Format detect_format(const std::string& path, const std::string& content) {
+Format detect_format(const std::string& path, std::string_view content) {
     const std::string ext = file_extension(path);
     if (ext == "ply") return Format::ply;
     if (ext == "xyz" || ext == "pts" || ext == "txt" || ext == "asc" || ext == "xyzn") {
@@ -340,13 +411,9 @@ Format detect_format(const std::string& path, const std::string& content) {
         path, "unknown file type '." + ext + "' (supported: .ply, .xyz/.pts/.txt, .obj)"));
 }
 
-}  // namespace
-
-namespace {
-
-/// Reads any supported file into raw rows; `want_faces` also reads faces (meshes).
-detail::RawPoints read_raw(const std::string& path, bool want_faces, std::string& format) {
-    const std::string content = detail::read_file(path);
+/// Parses a whole file's bytes into raw rows; `want_faces` also reads faces (meshes).
+detail::RawPoints read_raw(std::string_view content, const std::string& path, bool want_faces,
+                           std::string& format) {
     if (content.empty()) throw FormatError(detail::where(path, "file is empty"));
     switch (detect_format(path, content)) {
         case Format::ply:
@@ -366,17 +433,26 @@ detail::RawPoints read_raw(const std::string& path, bool want_faces, std::string
 
 }  // namespace
 
-ReadResult read_points(const std::string& path, const ReadOptions& options) {
+ReadResult read_points_from_memory(std::string_view bytes, const std::string& name,
+                                   const ReadOptions& options) {
     std::string format;
-    detail::RawPoints raw = read_raw(path, false, format);
-    return detail::finalize_points(std::move(raw), path, format, options);
+    detail::RawPoints raw = read_raw(bytes, name, false, format);
+    return detail::finalize_points(std::move(raw), name, format, options);
+}
+
+Mesh read_mesh_from_memory(std::string_view bytes, const std::string& name) {
+    std::string format;
+    detail::RawPoints raw = read_raw(bytes, name, true, format);
+    if (raw.faces.empty()) throw FormatError(detail::where(name, "has no faces"));
+    return detail::finalize_mesh(std::move(raw), name);
+}
+
+ReadResult read_points(const std::string& path, const ReadOptions& options) {
+    return read_points_from_memory(detail::read_file(path), path, options);
 }
 
 Mesh read_mesh(const std::string& path) {
-    std::string format;
-    detail::RawPoints raw = read_raw(path, true, format);
-    if (raw.faces.empty()) throw FormatError(detail::where(path, "has no faces"));
-    return detail::finalize_mesh(std::move(raw), path);
+    return read_mesh_from_memory(detail::read_file(path), path);
 }
 
 // ---------------------------------------------------------------------------------------------

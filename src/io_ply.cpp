@@ -13,7 +13,12 @@
 
 #include "detail/io_common.h"
 #include "vdbrecon/error.h"
-#include "vdbrecon/pipeline.h"
+
+// The build's version string, not version() from pipeline.h: the readers and writers must build
+// without OpenVDB (fuzz/ compiles only the io sources).
+#ifndef VDBRECON_VERSION
+#define VDBRECON_VERSION "0.0.0"
+#endif
 
 namespace vdbrecon::detail {
 namespace {
@@ -104,14 +109,14 @@ std::vector<std::string> split_words(const std::string& line) {
     return w;
 }
 
-Header parse_header(const std::string& path, const std::string& content) {
+Header parse_header(const std::string& path, std::string_view content) {
     Header h;
     std::size_t pos = 0, lineno = 0;
     bool have_format = false, ended = false;
     while (pos < content.size()) {
         std::size_t eol = content.find('\n', pos);
         if (eol == std::string::npos) break;
-        std::string line = content.substr(pos, eol - pos);
+        std::string line(content.substr(pos, eol - pos));
         pos = eol + 1;
         ++lineno;
         if (!line.empty() && line.back() == '\r') line.pop_back();
@@ -135,10 +140,11 @@ Header parse_header(const std::string& path, const std::string& content) {
             } else if (w[1] == "binary_big_endian") {
                 h.encoding = Encoding::binary_be;
             } else {
-                throw FormatError(where(path, at + "unknown format '" + w[1] + "'"));
+                throw FormatError(where(path, at + "unknown format '" + printable(w[1]) + "'"));
             }
             if (w[2] != "1.0" && w[2] != "1") {
-                throw FormatError(where(path, at + "unsupported PLY version '" + w[2] + "'"));
+                throw FormatError(
+                    where(path, at + "unsupported PLY version '" + printable(w[2]) + "'"));
             }
             have_format = true;
         } else if (w[0] == "element") {
@@ -149,7 +155,7 @@ Header parse_header(const std::string& path, const std::string& content) {
             const char* b = w[2].data();
             const auto r = std::from_chars(b, b + w[2].size(), e.count);
             if (r.ec != std::errc() || r.ptr != b + w[2].size()) {
-                throw FormatError(where(path, at + "bad element count '" + w[2] + "'"));
+                throw FormatError(where(path, at + "bad element count '" + printable(w[2]) + "'"));
             }
             h.elements.push_back(std::move(e));
         } else if (w[0] == "property") {
@@ -168,7 +174,8 @@ Header parse_header(const std::string& path, const std::string& content) {
                 p.name = w[4];
             } else if (w.size() == 3) {
                 if (!parse_type(w[1], p.type)) {
-                    throw FormatError(where(path, at + "unknown property type '" + w[1] + "'"));
+                    throw FormatError(
+                        where(path, at + "unknown property type '" + printable(w[1]) + "'"));
                 }
                 p.name = w[2];
             } else {
@@ -176,7 +183,7 @@ Header parse_header(const std::string& path, const std::string& content) {
             }
             h.elements.back().props.push_back(std::move(p));
         } else {
-            throw FormatError(where(path, at + "unknown header keyword '" + w[0] + "'"));
+            throw FormatError(where(path, at + "unknown header keyword '" + printable(w[0]) + "'"));
         }
     }
     if (!ended) throw FormatError(where(path, "header has no end_header line (truncated?)"));
@@ -188,7 +195,7 @@ Header parse_header(const std::string& path, const std::string& content) {
 // Reads one scalar of type t; returns false at end of data.
 class Cursor {
 public:
-    Cursor(const std::string& content, std::size_t offset, Encoding enc)
+    Cursor(std::string_view content, std::size_t offset, Encoding enc)
         : p_(reinterpret_cast<const unsigned char*>(content.data()) + offset),
           end_(reinterpret_cast<const unsigned char*>(content.data()) + content.size()),
           enc_(enc) {}
@@ -255,17 +262,9 @@ private:
         while (p_ < end_ && !(*p_ == ' ' || *p_ == '\t' || *p_ == '\n' || *p_ == '\r')) ++p_;
         const char* b = reinterpret_cast<const char*>(s);
         const char* e = reinterpret_cast<const char*>(p_);
-        // from_chars does not accept a leading '+'.
-        const char* parse_from = (b < e && *b == '+') ? b + 1 : b;
-        const auto r = std::from_chars(parse_from, e, v);
-        if (r.ec == std::errc::result_out_of_range) {
-            v = (*b == '-') ? -std::numeric_limits<double>::infinity()
-                            : std::numeric_limits<double>::infinity();
-            return true;
-        }
-        if (r.ec != std::errc() || r.ptr != e) {
+        if (!parse_double(b, e, v)) {
             fail = Fail::not_a_number;
-            bad_token.assign(b, std::min<std::size_t>(std::size_t(e - b), 32));
+            bad_token = printable(std::string_view(b, std::size_t(e - b)));
             return false;
         }
         return true;
@@ -312,6 +311,11 @@ Role role_of(const std::string& name) {
     return Role::ignore;
 }
 
+/// "vertex 12: ", the start of a message about one row of an element.
+std::string at_row(const Element& e, std::uint64_t row) {
+    return printable(e.name) + " " + std::to_string(row) + ": ";
+}
+
 [[noreturn]] void fail_at(const std::string& path, const Element& e, std::uint64_t row,
                           const Cursor& c, Encoding enc) {
     std::string what;
@@ -322,7 +326,7 @@ Role role_of(const std::string& name) {
     } else {
         what = "truncated binary data";
     }
-    throw FormatError(where(path, e.name + " " + std::to_string(row) + ": " + what));
+    throw FormatError(where(path, at_row(e, row) + what));
 }
 
 // Smallest number of bytes (binary) or tokens (ascii) one record of `e` can occupy.
@@ -348,12 +352,12 @@ std::uint64_t read_list_count(const std::string& path, const Element& e, std::ui
     double v = 0.0;
     if (!c.read(p.count_type, v)) fail_at(path, e, row, c, enc);
     if (!(v >= 0.0) || v != std::floor(v)) {
-        throw FormatError(where(path, e.name + " " + std::to_string(row) + ": list '" + p.name +
+        throw FormatError(where(path, at_row(e, row) + "list '" + printable(p.name) +
                                           "' has invalid length " + format_number(v)));
     }
     const std::size_t per_item = enc == Encoding::ascii ? 1 : type_size(p.type);
     if (v * double(per_item) > double(c.remaining())) {
-        throw FormatError(where(path, e.name + " " + std::to_string(row) + ": list '" + p.name +
+        throw FormatError(where(path, at_row(e, row) + "list '" + printable(p.name) +
                                           "' of length " + format_number(v) +
                                           " runs past the end of the file"));
     }
@@ -361,6 +365,7 @@ std::uint64_t read_list_count(const std::string& path, const Element& e, std::ui
 }
 
 void skip_element(const std::string& path, const Element& e, Cursor& c, Encoding enc) {
+    if (e.props.empty()) return;  // rows without properties take no bytes, however many
     if (enc != Encoding::ascii && fixed_size(e)) {
         const std::size_t rec = min_record_size(e, enc);
         if (!c.skip(std::size_t(e.count) * rec)) {
@@ -390,7 +395,12 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
     bool has[12] = {};
     PlyType colour_type = PlyType::uint8;
     for (const Property& p : e.props) {
-        Role r = p.list ? Role::ignore : role_of(p.name);
+        Role r = role_of(p.name);
+        if (p.list && (r == Role::x || r == Role::y || r == Role::z)) {
+            throw FormatError(where(path, printable(e.name) + " property '" + p.name +
+                                              "' is a list; coordinates must be scalars"));
+        }
+        if (p.list) r = Role::ignore;
         if (r != Role::ignore && has[int(r)]) r = Role::ignore;  // first one wins
         if (r != Role::ignore) has[int(r)] = true;
         if (r == Role::red) colour_type = p.type;
@@ -399,7 +409,7 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
     for (Role r : {Role::x, Role::y, Role::z}) {
         if (!has[int(r)]) {
             const char* n = r == Role::x ? "x" : r == Role::y ? "y" : "z";
-            throw FormatError(where(path, "element '" + e.name + "' has no '" + n +
+            throw FormatError(where(path, "element '" + printable(e.name) + "' has no '" + n +
                                               "' property"));
         }
     }
@@ -491,7 +501,7 @@ void read_faces(const std::string& path, const Element& e, Cursor& c, Encoding e
 
 }  // namespace
 
-RawPoints read_ply_raw(const std::string& path, const std::string& content, bool want_faces,
+RawPoints read_ply_raw(const std::string& path, std::string_view content, bool want_faces,
                        std::string& format) {
     const Header h = parse_header(path, content);
     format = h.encoding == Encoding::ascii       ? "ply ascii"
@@ -512,15 +522,16 @@ RawPoints read_ply_raw(const std::string& path, const std::string& content, bool
             const std::string declared = " (the header declares " + std::to_string(e.count) +
                                          " rows";
             if (h.encoding != Encoding::ascii && fixed_size(e) && rec > 0) {
-                const auto whole = std::uint64_t((double(body) - before) / double(rec));
-                throw FormatError(where(path, e.name + " " + std::to_string(whole) +
-                                                  ": truncated binary data" + declared +
-                                                  ", the file holds " + std::to_string(whole) +
-                                                  ")"));
+                // Earlier elements may have claimed a byte more than there is (the +1 above).
+                const auto whole =
+                    std::uint64_t(std::max(0.0, double(body) - before) / double(rec));
+                throw FormatError(where(path, at_row(e, whole) + "truncated binary data" +
+                                                  declared + ", the file holds " +
+                                                  std::to_string(whole) + ")"));
             }
-            throw FormatError(where(path, e.name + ": the file is too short for its rows" +
-                                              declared + ", " + std::to_string(body) +
-                                              " bytes of data)"));
+            throw FormatError(where(path, printable(e.name) +
+                                              ": the file is too short for its rows" + declared +
+                                              ", " + std::to_string(body) + " bytes of data)"));
         }
         if (&e == &*vertex && !want_faces) break;  // later elements are never read
     }
@@ -586,7 +597,7 @@ void write_ply(const std::string& path, const std::vector<Vec3f>& positions, con
     std::string header = "ply\nformat ";
     header += ascii ? "ascii" : big ? "binary_big_endian" : "binary_little_endian";
     header += " 1.0\ncomment written by vdbrecon ";
-    header += version();
+    header += VDBRECON_VERSION;
     header += "\n";
     for (const std::string& c : options.comments) {
         std::string line = c;

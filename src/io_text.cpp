@@ -2,7 +2,6 @@
 #include <charconv>
 #include <cmath>
 #include <cstring>
-#include <limits>
 
 #include "detail/io_common.h"
 #include "vdbrecon/error.h"
@@ -24,19 +23,9 @@ void tokenize(const char* b, const char* e, std::vector<std::pair<const char*, c
     }
 }
 
-bool to_double(const char* b, const char* e, double& v) {
-    if (b < e && *b == '+') ++b;
-    const auto r = std::from_chars(b, e, v);
-    if (r.ec == std::errc::result_out_of_range) {
-        v = std::numeric_limits<double>::infinity();
-        return r.ptr == e;
-    }
-    return r.ec == std::errc() && r.ptr == e;
-}
-
 /// Iterates over the lines of `content`, calling f(line_number, begin, end).
 template <typename F>
-void for_each_line(const std::string& content, F&& f) {
+void for_each_line(std::string_view content, F&& f) {
     const char* p = content.data();
     const char* end = p + content.size();
     std::size_t lineno = 0;
@@ -51,7 +40,7 @@ void for_each_line(const std::string& content, F&& f) {
 
 }  // namespace
 
-RawPoints read_xyz_raw(const std::string& path, const std::string& content) {
+RawPoints read_xyz_raw(const std::string& path, std::string_view content) {
     RawPoints raw;
     std::vector<std::pair<const char*, const char*>> tok;
     std::size_t columns = 0;
@@ -85,10 +74,10 @@ RawPoints read_xyz_raw(const std::string& path, const std::string& content) {
                                               " numbers, found " + std::to_string(tok.size())));
         }
         for (std::size_t i = 0; i < columns; ++i) {
-            if (!to_double(tok[i].first, tok[i].second, v[i])) {
-                throw FormatError(where(path, at + "'" +
-                                                  std::string(tok[i].first, tok[i].second).substr(0, 32) +
-                                                  "' is not a number"));
+            if (!parse_double(tok[i].first, tok[i].second, v[i])) {
+                const std::string_view token(tok[i].first,
+                                             std::size_t(tok[i].second - tok[i].first));
+                throw FormatError(where(path, at + "'" + printable(token) + "' is not a number"));
             }
         }
         raw.xyz.insert(raw.xyz.end(), v, v + 3);
@@ -101,7 +90,7 @@ RawPoints read_xyz_raw(const std::string& path, const std::string& content) {
     return raw;
 }
 
-RawPoints read_obj_raw(const std::string& path, const std::string& content, bool want_faces) {
+RawPoints read_obj_raw(const std::string& path, std::string_view content, bool want_faces) {
     RawPoints raw;
     std::vector<float> vn;                 // 3 per vn line
     std::vector<std::int64_t> vertex_vn;   // per v: index of a vn from the faces, or -1
@@ -115,8 +104,8 @@ RawPoints read_obj_raw(const std::string& path, const std::string& content, bool
         const std::string at = "line " + std::to_string(lineno) + ": ";
         auto number = [&](std::size_t i) {
             double x;
-            if (i >= tok.size() || !to_double(tok[i].first, tok[i].second, x)) {
-                throw FormatError(where(path, at + "malformed '" + key + "' line"));
+            if (i >= tok.size() || !parse_double(tok[i].first, tok[i].second, x)) {
+                throw FormatError(where(path, at + "malformed '" + printable(key) + "' line"));
             }
             return x;
         };

@@ -34,6 +34,7 @@ void PipelineOptions::validate() const {
     s.validate();
     mesh.validate();
     clean.validate();
+    preview.validate();
     if (threads < 0 || threads > 1024) {
         throw InvalidArgument("threads = " + std::to_string(threads) + ": must be in 0..1024");
     }
@@ -215,6 +216,14 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     detail::check_writable(out.mesh_path);
     if (!out.vdb_path.empty()) detail::check_writable(out.vdb_path);
     if (!out.closed_vdb_path.empty()) detail::check_writable(out.closed_vdb_path);
+    if (!options.preview_path.empty()) {
+        const std::string pext = file_extension(options.preview_path);
+        if (pext != "png" && pext != "exr") {
+            throw InvalidArgument("preview '" + options.preview_path +
+                                  "': unknown image extension (use .png or .exr)");
+        }
+        detail::check_writable(options.preview_path);
+    }
 
     std::vector<StageTiming> timings;
     PointCloud cloud;
@@ -248,6 +257,10 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         c << "vdbrecon " << version() << " from " << input << ", voxel " << out.result.voxel_size;
         w.comments.insert(w.comments.begin(), c.str());
         in_arena(options.threads, [&] { write_mesh(out.mesh_path, out.result.mesh, w); });
+    }
+    if (!options.preview_path.empty() && !out.result.mesh.faces.empty()) {
+        StageClock clock(timings, on_stage, "preview");
+        write_image(options.preview_path, render_preview(out.result.mesh, options.preview));
     }
     if (options.write_vdb) timings.push_back({"vdb (in the background)", vdb_seconds, peak_rss_mb()});
     out.result.timings = std::move(timings);

@@ -153,3 +153,81 @@ TEST_CASE("eval JSON has every field", "[eval]") {
     // Default tau: 0.2 % of the reference diagonal.
     REQUIRE(evaluate(c, c, o).fscores[0].tau == Approx(0.002 * std::sqrt(3.0)));
 }
+
+TEST_CASE("a coverage mask restricts completeness and recall to the covered reference", "[eval]") {
+    // Reference: the whole sphere. Reconstruction: the faces above z = 0 (a subset of the
+    // reference's faces, so the covered part scores exactly 0). Mask: points above z = 0.05,
+    // as a scan that only saw the top would give.
+    const Mesh s = sphere_mesh(1.0f, 0.02f);
+    Mesh top = s;
+    top.faces.clear();
+    for (const Triangle& t : s.faces) {
+        if (s.vertices[t[0]][2] > 0 && s.vertices[t[1]][2] > 0 && s.vertices[t[2]][2] > 0) {
+            top.faces.push_back(t);
+        }
+    }
+    std::vector<Vec3f> upper, lower;
+    for (const Vec3f& p : sample_sphere(100000, 1.0).positions) {
+        if (p[2] > 0.05f) upper.push_back(p);
+        if (p[2] < -0.05f) lower.push_back(p);
+    }
+    EvalOptions o;
+    o.samples = 100000;
+    o.taus = {0.01};
+
+    const EvalResult all = evaluate(top, s, o);
+    REQUIRE(all.reference_samples == o.samples);
+    REQUIRE(all.completeness > 0.15);  // the bottom half is missing
+    REQUIRE(all.fscores[0].recall == Approx(0.5).margin(0.02));
+
+    o.mask_points = upper;
+    o.mask_distance = 0.02;
+    const EvalResult masked = evaluate(top, s, o);
+    // Kept: the reference above z = 0.05 - 0.02, i.e. (1 - 0.03) / 2 of the sphere's area.
+    REQUIRE(double(masked.reference_samples) / double(o.samples) == Approx(0.485).margin(0.01));
+    REQUIRE(masked.completeness < 1e-6);
+    REQUIRE(masked.fscores[0].recall == Approx(1.0));
+    // Each kept sample keeps its own face: normals agree exactly on the shared faces.
+    REQUIRE(masked.normal_consistency == Approx(1.0).margin(1e-6));
+    REQUIRE(all.normal_consistency < 0.99);
+    // The reconstruction side is not masked.
+    REQUIRE(masked.accuracy == all.accuracy);
+    REQUIRE(masked.fscores[0].precision == all.fscores[0].precision);
+    REQUIRE(masked.hausdorff < all.hausdorff);
+
+    // The same mask in another local frame (a read scan's origin) keeps the same samples.
+    EvalOptions shifted = o;
+    shifted.mask_origin = {100.0, 0.0, -50.0};
+    for (Vec3f& p : shifted.mask_points) {
+        p[0] -= 100.0f;
+        p[2] += 50.0f;
+    }
+    const EvalResult moved = evaluate(top, s, shifted);
+    REQUIRE(std::abs(double(moved.reference_samples) - double(masked.reference_samples)) < 50);
+    REQUIRE(moved.completeness < 1e-6);
+
+    // A mask on the uncovered half keeps only what the reconstruction misses.
+    o.mask_points = lower;
+    const EvalResult bottom = evaluate(top, s, o);
+    REQUIRE(bottom.completeness > all.completeness);
+    REQUIRE(bottom.fscores[0].recall < 0.01);
+    REQUIRE_THAT(to_json(bottom), Catch::Contains("\"reference_samples\": " +
+                                                  std::to_string(bottom.reference_samples)));
+}
+
+TEST_CASE("a coverage mask needs a radius and must overlap the reference", "[eval]") {
+    const Mesh c = cube();
+    EvalOptions o;
+    o.samples = 2000;
+    o.mask_points = {{0.5f, 0.5f, 0.0f}};
+    // No mask_distance, or a negative one: refused by validate(), naming the field.
+    REQUIRE_THROWS_AS(evaluate(c, c, o), InvalidArgument);
+    REQUIRE_THROWS_WITH(evaluate(c, c, o), Catch::StartsWith("eval.mask_distance"));
+    o.mask_distance = -1.0;
+    REQUIRE_THROWS_WITH(evaluate(c, c, o), Catch::StartsWith("eval.mask_distance"));
+    o.mask_distance = 0.1;
+    REQUIRE(evaluate(c, c, o).reference_samples > 0);
+    o.mask_points = {{5.0f, 5.0f, 5.0f}};  // nowhere near the cube
+    REQUIRE_THROWS_AS(evaluate(c, c, o), InvalidArgument);
+    REQUIRE_THROWS_WITH(evaluate(c, c, o), Catch::Contains("no reference sample"));
+}

@@ -96,6 +96,7 @@ TEST_CASE("outliers: the reconstruction with strays matches the clean one", "[ou
     add_strays(noisy, 600, 1.2, 11);
     PipelineOptions o;
     o.splat.voxel_size = voxel;
+    o.outliers.enabled = false;  // (on by default)
     const PipelineResult ref = reconstruct(clean, o);
 
     PointCloud without = noisy;

@@ -7,6 +7,9 @@
 //   hausdorff = max(max d_r, max d_g), precision(tau) = P(d_r < tau), recall(tau) = P(d_g < tau),
 //   F(tau) = 2 P R / (P + R) (Knapitsch et al., "Tanks and Temples", 2017),
 //   normal_consistency = mean |n . n_closest| over both directions (Mescheder et al. 2019).
+// With a coverage mask (EvalOptions::mask_points), d_g keeps only the reference samples within
+// mask_distance of a mask point: completeness and recall then score the part of the reference
+// that the input actually covers (a turntable scan that misses the top and bottom).
 #pragma once
 
 #include <cstdint>
@@ -26,6 +29,16 @@ struct EvalOptions {
     std::size_t samples = 1000000;
     /// Seed of the sampler; the same seed gives the same numbers.
     std::uint64_t seed = 1;
+    /// Coverage mask, e.g. the scan the reconstruction came from: when non-empty, reference
+    /// samples farther than `mask_distance` from every mask point are left out of everything
+    /// measured from the reference side (completeness, recall, Hausdorff, normal consistency),
+    /// so regions the scanner never saw do not count as missing. #M by 3, world units, relative
+    /// to `mask_origin`.
+    std::vector<Vec3f> mask_points;
+    /// World position of the mask points' local frame (PointCloud::origin of a read scan).
+    Vec3d mask_origin{0.0, 0.0, 0.0};
+    /// Radius of the mask around each mask point, world units; must be > 0 with mask points.
+    double mask_distance = 0.0;
 
     void validate() const;
 };
@@ -52,6 +65,9 @@ struct EvalResult {
     double normal_consistency = 0;
     std::vector<FScore> fscores;  ///< one per tau
     std::size_t samples = 0;
+    /// Reference samples counted on the reference side: `samples` without a mask, those within
+    /// `mask_distance` of a mask point with one.
+    std::size_t reference_samples = 0;
     TopologyStats recon, reference;
 };
 

@@ -9,6 +9,7 @@
 
 #include <cstddef>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "vdbrecon/types.h"
@@ -45,6 +46,15 @@ ReadResult read_points(const std::string& path, const ReadOptions& options = {})
 /// Reads a triangle mesh (PLY with a face element, or OBJ with f lines; polygons are fanned
 /// into triangles). Throws IoError / FormatError naming the file.
 Mesh read_mesh(const std::string& path);
+
+/// read_points on a file's bytes already in memory (read_points reads the file and calls this).
+/// `name` stands for the path: its extension picks the format (else the content does) and
+/// every message starts with it. Throws FormatError.
+ReadResult read_points_from_memory(std::string_view bytes, const std::string& name,
+                                   const ReadOptions& options = {});
+
+/// read_mesh on a file's bytes already in memory (read_mesh reads the file and calls this).
+Mesh read_mesh_from_memory(std::string_view bytes, const std::string& name);
 
 enum class PlyEncoding { binary_little_endian, binary_big_endian, ascii };
 

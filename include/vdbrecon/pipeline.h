@@ -15,6 +15,7 @@
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/normals.h"
 #include "vdbrecon/outliers.h"
+#include "vdbrecon/preview.h"
 #include "vdbrecon/splat.h"
 #include "vdbrecon/types.h"
 #include "vdbrecon/volume.h"
@@ -26,7 +27,7 @@ const char* version();
 
 struct PipelineOptions {
     ReadOptions read;
-    OutlierOptions outliers;  ///< off by default
+    OutlierOptions outliers;  ///< on by default
     NormalOptions normals;
     SplatOptions splat;  ///< splat.voxel_size == 0: chosen from the point spacing
     CloseOptions close;  ///< off by default
@@ -35,6 +36,10 @@ struct PipelineOptions {
     WriteOptions write;
     /// Worker threads; 0 = all cores. The output does not depend on it.
     int threads = 0;
+    /// run() only: write a shaded picture of the mesh here (.png, or .exr with a depth
+    /// channel); empty = none.
+    std::string preview_path;
+    PreviewOptions preview;
     /// Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh.
     bool write_vdb = true;
     /// Automatic voxel = auto_voxel_factor * median per-point scale (dimensionless).

@@ -2,11 +2,12 @@
 // option-struct binding (fields with their documentation and defaults), enum choices as strings,
 // and calling the library without the GIL.
 //
-// One bind_<stage>.cpp per public header. Adding a stage (e.g. `close`): write bind_close.cpp
-// with `void bind_close(py::module_&)`, declare it below, call it from module.cpp, list it in
-// python/CMakeLists.txt, and add its options struct to PipelineOptions in bind_pipeline.cpp
-// (`nested("close", &PipelineOptions::close)`). vdbrecon/__init__.py picks up the new options
-// and functions from the `_fields` tables without further changes.
+// One bind_<stage>.cpp per public header. Adding a stage (as bind_close.cpp did): write
+// bind_<stage>.cpp with `void bind_<stage>(py::module_&)`, declare it below, call it from
+// module.cpp, list it in python/CMakeLists.txt, and add its options struct to PipelineOptions in
+// bind_pipeline.cpp (`nested("close", &PipelineOptions::close)`). vdbrecon/__init__.py picks up
+// the new pipeline options from the `_fields` tables; the stage's own function needs a wrapper
+// there.
 //
 // Only vdbrecon's public headers are included here; the OpenVDB-heavy templates stay in the
 // library.
@@ -196,10 +197,12 @@ void bind_common(py::module_& m);    // log forwarding
 void bind_errors(py::module_& m);    // exception classes
 void bind_types(py::module_& m);     // PointCloud, Mesh, BBox
 void bind_io(py::module_& m);        // read_points, read_mesh, write_mesh, write_points
+void bind_outliers(py::module_& m);  // remove_outliers
 void bind_normals(py::module_& m);   // estimate_normals
 void bind_volume(py::module_& m);    // Volume, read_volume, write_volume
 void bind_splat(py::module_& m);     // splat
 void bind_mesh(py::module_& m);      // extract_mesh
+void bind_close(py::module_& m);     // close_volume (after bind_mesh: takes MeshOptions)
 void bind_clean(py::module_& m);     // clean_mesh
 void bind_eval(py::module_& m);      // evaluate, mesh_topology
 void bind_pipeline(py::module_& m);  // PipelineOptions, reconstruct, run

@@ -12,7 +12,16 @@ void bind_eval(py::module_& m) {
         .field("samples", &EvalOptions::samples,
                "Samples drawn on each mesh, count (CLI eval --samples).")
         .field("seed", &EvalOptions::seed,
-               "Seed of the sampler; the same seed gives the same numbers.");
+               "Seed of the sampler; the same seed gives the same numbers.")
+        .field("mask_points", &EvalOptions::mask_points,
+               "Coverage mask, e.g. the scan: a sequence of (x, y, z) rows, world units relative "
+               "to mask_origin; reference samples farther than mask_distance from all of them "
+               "are not counted in completeness and recall (CLI eval --mask-points).")
+        .field("mask_origin", &EvalOptions::mask_origin,
+               "World position of the mask points' local frame (PointCloud.origin of a scan).")
+        .field("mask_distance", &EvalOptions::mask_distance,
+               "Radius of the coverage mask, world units; > 0 with mask_points "
+               "(CLI eval --mask-distance).");
     o.finish();
 
     py::class_<TopologyStats>(m, "TopologyStats", "Topology of a mesh.")
@@ -55,6 +64,8 @@ void bind_eval(py::module_& m) {
         .def_readonly("normal_consistency", &EvalResult::normal_consistency)
         .def_readonly("fscores", &EvalResult::fscores, "One FScore per tau.")
         .def_readonly("samples", &EvalResult::samples)
+        .def_readonly("reference_samples", &EvalResult::reference_samples,
+                      "Reference samples counted: all without a mask, the covered ones with one.")
         .def_readonly("recon", &EvalResult::recon, "TopologyStats of the reconstruction.")
         .def_readonly("reference", &EvalResult::reference, "TopologyStats of the reference.")
         .def(

@@ -6,11 +6,17 @@ namespace vdbrecon::python {
 
 namespace {
 
-/// reconstruct() fills normals and scales into the cloud it is given. The Python PointCloud
+/// reconstruct() fills normals and scales into the cloud it is given, and with outlier removal
+/// replaces all of its arrays by the kept points (freeing the old ones). The Python PointCloud
 /// must not change under its numpy views, so the call works on a cloud that borrows the
 /// untouched arrays (vector swaps keep the buffers, hence the views, valid) and copies the two
-/// it replaces.
+/// it replaces -- or, with outlier removal, on a copy (the outlier stage copies the cloud
+/// anyway; this one is freed when that stage ends).
 PipelineResult reconstruct_borrowed(PointCloud& cloud, const PipelineOptions& options) {
+    if (options.outliers.enabled) {
+        PointCloud copy = cloud;
+        return reconstruct(copy, options);
+    }
     PointCloud work;
     work.positions.swap(cloud.positions);
     work.colors.swap(cloud.colors);
@@ -37,16 +43,19 @@ void bind_pipeline(py::module_& m) {
                                     "Every knob of the reconstruction: one nested options struct "
                                     "per stage plus the pipeline's own fields.");
     o.nested("read", &PipelineOptions::read, "ReadOptions (run() only).")
+        .nested("outliers", &PipelineOptions::outliers, "OutlierOptions; on by default.")
         .nested("normals", &PipelineOptions::normals, "NormalOptions.")
         .nested("splat", &PipelineOptions::splat,
                 "SplatOptions; splat.voxel_size == 0 chooses the voxel from the point spacing.")
+        .nested("close", &PipelineOptions::close, "CloseOptions; off by default.")
         .nested("mesh", &PipelineOptions::mesh, "MeshOptions.")
         .nested("clean", &PipelineOptions::clean, "CleanOptions.")
         .nested("write", &PipelineOptions::write, "WriteOptions (run() only).")
         .field("threads", &PipelineOptions::threads,
                "Worker threads, 0 = all cores; the output does not depend on it (CLI --threads).")
         .field("write_vdb", &PipelineOptions::write_vdb,
-               "Write <out>.splat.vdb next to the mesh (run() only; CLI --no-vdb sets False).")
+               "Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh "
+               "(run() only; CLI --no-vdb sets False).")
         .field("auto_voxel_factor", &PipelineOptions::auto_voxel_factor,
                "Automatic voxel = auto_voxel_factor * median per-point scale, dimensionless.")
         .field("auto_voxel_max_cells", &PipelineOptions::auto_voxel_max_cells,
@@ -65,9 +74,21 @@ void bind_pipeline(py::module_& m) {
     py::class_<PipelineResult>(m, "PipelineResult", "Everything reconstruct() produced.")
         .def_readonly("mesh", &PipelineResult::mesh, "The Mesh.")
         .def_readonly("volume", &PipelineResult::volume, "The splatted Volume.")
+        .def_property_readonly(
+            "closed_volume",
+            [](const PipelineResult& r) -> py::object {
+                if (!r.closed_volume.sdf) return py::none();
+                return py::cast(r.closed_volume);
+            },
+            "The closed Volume that was meshed (with its 'fill' grid), or None without closing.")
+        .def_readonly("outliers", &PipelineResult::outliers,
+                      "OutlierResult (counts and the removed flags of the input points; no "
+                      "cloud).")
         .def_readonly("normals", &PipelineResult::normals,
                       "NormalResult (counts; its arrays are empty here).")
         .def_readonly("splat", &PipelineResult::splat, "SplatResult (statistics; no volume).")
+        .def_readonly("close", &PipelineResult::close,
+                      "CloseResult (statistics; no volume, see closed_volume).")
         .def_readonly("mesh_stats", &PipelineResult::mesh_stats,
                       "MeshResult (statistics; no mesh).")
         .def_readonly("clean_stats", &PipelineResult::clean_stats,
@@ -85,7 +106,10 @@ void bind_pipeline(py::module_& m) {
         .def_readonly("result", &RunResult::result, "The PipelineResult.")
         .def_readonly("read", &RunResult::read, "The ReadResult (counts; no cloud).")
         .def_readonly("mesh_path", &RunResult::mesh_path)
-        .def_readonly("vdb_path", &RunResult::vdb_path, "Empty when no .vdb was written.");
+        .def_readonly("vdb_path", &RunResult::vdb_path,
+                      "<out>.splat.vdb; empty when no .vdb was written.")
+        .def_readonly("closed_vdb_path", &RunResult::closed_vdb_path,
+                      "<out>.closed.vdb; empty without closing or when no .vdb was written.");
 
     m.def("version", &version, "Library version, 'major.minor.patch'.");
     m.def(
@@ -94,14 +118,16 @@ void bind_pipeline(py::module_& m) {
             return without_gil([&] { return reconstruct_borrowed(cloud, options); });
         },
         py::arg("cloud"), py::arg("options"),
-        "Runs normals > splat > mesh on a PointCloud (left unchanged).");
+        "Runs outliers > normals > splat > close > mesh > clean on a PointCloud (left "
+        "unchanged).");
     m.def(
         "run",
         [](const std::string& input, const std::string& output, const PipelineOptions& options) {
             return without_gil([&] { return run(input, output, options); });
         },
         py::arg("input"), py::arg("output"), py::arg("options"),
-        "Reads `input`, reconstructs, writes `output` and <output stem>.splat.vdb (the CLI).");
+        "Reads `input`, reconstructs, writes `output`, <output stem>.splat.vdb and, when "
+        "closing, <output stem>.closed.vdb (the CLI).");
     m.def("stage_volume_path", &stage_volume_path, py::arg("mesh_path"), py::arg("stage"),
           "'out/scan.ply', 'splat' -> 'out/scan.splat.vdb'.");
 }

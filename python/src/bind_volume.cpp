@@ -45,15 +45,13 @@ py::tuple active_arrays(const GridT& grid) {
     }
 }
 
-std::vector<std::array<std::int32_t, 3>> to_coords(const py::handle& obj) {
+std::vector<std::array<std::int32_t, 3>> to_coords(const py::handle& obj, const char* name) {
     using Array = py::array_t<std::int32_t, py::array::c_style>;
-    if (!py::isinstance<Array>(obj)) {
-        throw py::type_error("coords: expected a C-contiguous int32 array of shape (N, 3)");
-    }
+    const std::string expected =
+        std::string(name) + ": expected a C-contiguous int32 array of shape (N, 3)";
+    if (!py::isinstance<Array>(obj)) throw py::type_error(expected);
     Array a = py::reinterpret_borrow<Array>(obj);
-    if (a.ndim() != 2 || a.shape(1) != 3) {
-        throw py::value_error("coords: expected a C-contiguous int32 array of shape (N, 3)");
-    }
+    if (a.ndim() != 2 || a.shape(1) != 3) throw py::value_error(expected);
     std::vector<std::array<std::int32_t, 3>> v(std::size_t(a.shape(0)));
     if (!v.empty()) std::memcpy(v.data(), a.data(), v.size() * 12);
     return v;
@@ -67,12 +65,13 @@ openvdb::math::Transform::Ptr make_transform(double voxel, const Vec3d& origin) 
 
 Volume from_arrays(const py::object& coords_obj, const py::object& sdf_obj, double voxel_size,
                    const Vec3d& origin, const py::object& weight_obj, const py::object& nearest_obj,
-                   const py::object& color_obj, const py::object& background_obj) {
+                   const py::object& color_obj, const py::object& fill_obj,
+                   const py::object& background_obj) {
     if (!(std::isfinite(voxel_size) && voxel_size > 0.0)) {
         throw InvalidArgument("voxel_size = " + std::to_string(voxel_size) +
                               ": must be a positive number (world units)");
     }
-    const auto coords = to_coords(coords_obj);
+    const auto coords = to_coords(coords_obj, "coords");
     const auto n = py::ssize_t(coords.size());
     const std::vector<float> sdf = to_column(sdf_obj, "sdf", n);
     std::vector<float> weight;
@@ -138,6 +137,15 @@ Volume from_arrays(const py::object& coords_obj, const py::object& sdf_obj, doub
         v.color = vec_grid(color, "color");
         v.color->setVectorType(openvdb::VEC_INVARIANT);
     }
+    if (!fill_obj.is_none()) {  // a mask: 1 on its voxels, as close_volume() makes it
+        v.fill = openvdb::FloatGrid::create(0.0f);
+        v.fill->setName("fill");
+        v.fill->setTransform(xform->copy());
+        auto acc = v.fill->getAccessor();
+        for (const auto& c : to_coords(fill_obj, "fill")) {
+            acc.setValueOn(openvdb::Coord(c[0], c[1], c[2]), 1.0f);
+        }
+    }
     return v;
 }
 
@@ -148,6 +156,7 @@ py::list grid_names(const Volume& v) {
     if (v.nearest) names.append("nearest");
     if (v.sdf) names.append("density");
     if (v.color) names.append("color");
+    if (v.fill) names.append("fill");
     return names;
 }
 
@@ -157,26 +166,29 @@ void bind_volume(py::module_& m) {
     py::class_<Volume>(m, "Volume",
                        "The fused volume: sparse OpenVDB grids 'sdf' (level set, world units, "
                        "negative inside), 'weight' (summed kernel weight), 'nearest' (vector to "
-                       "the nearest sample, world units), optional 'color', and 'density' (fog "
-                       "0..1, derived from sdf). Index-to-world: world = origin + voxel_size * "
+                       "the nearest sample, world units), optional 'color', optional 'fill' (1 on "
+                       "the voxels a closing vouches for, see close()), and 'density' (fog 0..1, "
+                       "derived from sdf). Index-to-world: world = origin + voxel_size * "
                        "ijk. Cheap to copy (grids are shared, never modified in place).")
         .def_static(
             "from_arrays",
             [](const py::object& coords, const py::object& sdf, double voxel_size,
                const py::object& origin, const py::object& weight, const py::object& nearest,
-               const py::object& color, const py::object& background) {
+               const py::object& color, const py::object& fill, const py::object& background) {
                 const auto o = origin.cast<std::array<double, 3>>();
                 return from_arrays(coords, sdf, voxel_size, {o[0], o[1], o[2]}, weight, nearest,
-                                   color, background);
+                                   color, fill, background);
             },
             py::arg("coords"), py::arg("sdf"), py::kw_only(), py::arg("voxel_size"),
             py::arg("origin") = py::make_tuple(0.0, 0.0, 0.0), py::arg("weight") = py::none(),
             py::arg("nearest") = py::none(), py::arg("color") = py::none(),
-            py::arg("background") = py::none(),
+            py::arg("fill") = py::none(), py::arg("background") = py::none(),
             "Builds a Volume from active voxels: coords (N, 3) int32 index coordinates, sdf (N,) "
             "float32 signed distances in world units (negative inside); optional weight (N,), "
-            "nearest (N, 3) and color (N, 3) on the same voxels. background: the sdf value of "
-            "inactive voxels, world units (default max(3 voxels, max |sdf|)).")
+            "nearest (N, 3) and color (N, 3) on the same voxels; optional fill (M, 3) int32 index "
+            "coordinates of the voxels a closing vouches for (to_arrays('fill')[0]). "
+            "background: the sdf value of inactive voxels, world units (default max(3 voxels, "
+            "max |sdf|)).")
         .def_readonly("voxel_size", &Volume::voxel_size, "Voxel edge, world units.")
         .def_property_readonly(
             "origin", [](const Volume& v) { return to_tuple(v.origin); },
@@ -199,6 +211,7 @@ void bind_volume(py::module_& m) {
                 if (grid == "weight" && v.weight) return active_arrays(*v.weight);
                 if (grid == "nearest" && v.nearest) return active_arrays(*v.nearest);
                 if (grid == "color" && v.color) return active_arrays(*v.color);
+                if (grid == "fill" && v.fill) return active_arrays(*v.fill);
                 if (grid == "density" && v.sdf) {
                     openvdb::FloatGrid::Ptr d;
                     {
@@ -213,7 +226,7 @@ void bind_volume(py::module_& m) {
             py::arg("grid") = "sdf",
             "The active voxels of one grid as (coords, values): coords (N, 3) int32 index "
             "coordinates (world = origin + voxel_size * coords), values (N,) float32 for "
-            "sdf/weight/density or (N, 3) float32 for nearest/color.")
+            "sdf/weight/density/fill or (N, 3) float32 for nearest/color.")
         .def("__repr__", [](const Volume& v) {
             return "Volume(voxel_size=" + std::to_string(v.voxel_size) +
                    ", active_voxels=" + std::to_string(v.sdf ? v.sdf->activeVoxelCount() : 0) +
@@ -230,7 +243,7 @@ void bind_volume(py::module_& m) {
             without_gil([&] { write_volume(path, v); });
         },
         py::arg("path"), py::arg("volume"),
-        "Writes sdf, weight, nearest, density and color to a .vdb file, atomically.");
+        "Writes sdf, weight, nearest, density, color and fill to a .vdb file, atomically.");
 }
 
 }  // namespace vdbrecon::python

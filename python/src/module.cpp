@@ -13,10 +13,12 @@ PYBIND11_MODULE(_vdbrecon, m) {
     bind_errors(m);
     bind_types(m);
     bind_io(m);
+    bind_outliers(m);
     bind_normals(m);
     bind_volume(m);
     bind_splat(m);
     bind_mesh(m);
+    bind_close(m);
     bind_clean(m);
     bind_eval(m);
     bind_pipeline(m);

@@ -64,3 +64,26 @@ def test_run_ascii_and_no_vdb(tmp_path):
     assert b"format ascii 1.0" in (tmp_path / "o.ply").read_bytes()[:200]
     with pytest.raises(vdbrecon.InvalidArgument, match="extension"):
         vdbrecon.run(src, tmp_path / "o.stl", voxel=0.1)
+
+
+def test_run_with_closing_writes_the_same_files_as_the_cli(cli, tmp_path):
+    points, normals = sphere(40000)
+    keep = points[:, 1] <= 0.985  # a hole 7 voxels across in the top
+    src = tmp_path / "capped.ply"
+    vdbrecon.write_points(src, vdbrecon.PointCloud(points[keep], normals[keep]))
+    run_cli(cli, src, "-o", tmp_path / "cli.ply", "--voxel", "0.05", "--close", "4",
+            "--no-outliers", "-q")
+    r = vdbrecon.run(src, tmp_path / "py.ply", voxel=0.05, hole_radius=4, outliers_enabled=False)
+    assert r.closed_vdb_path == str(tmp_path / "py.closed.vdb")
+    assert r.vdb_path == str(tmp_path / "py.splat.vdb")
+    for suffix in ("splat.vdb", "closed.vdb"):
+        assert (tmp_path / f"py.{suffix}").read_bytes() == \
+            (tmp_path / f"cli.{suffix}").read_bytes(), suffix
+    mesh = vdbrecon.read_mesh(tmp_path / "py.ply")
+    assert_same_mesh(vdbrecon.read_mesh(tmp_path / "cli.ply"), mesh)
+    assert vdbrecon.mesh_topology(mesh).boundary_edges == 0
+    assert "fill" in vdbrecon.read_volume(r.closed_vdb_path).grids()
+    assert r.result.timings[0].stage == "read" and "outliers" not in [
+        t.stage for t in r.result.timings]
+    plain = vdbrecon.run(src, tmp_path / "plain.ply", voxel=0.05)
+    assert plain.closed_vdb_path == "" and not (tmp_path / "plain.closed.vdb").exists()

@@ -27,16 +27,34 @@ CLI_FLAGS = {
     "--adaptivity": (vdbrecon.MeshOptions, "adaptivity"),
     "--threads": (vdbrecon.PipelineOptions, "threads"),
     "--samples": (vdbrecon.EvalOptions, "samples"),
+    "--outliers": (vdbrecon.OutlierOptions, "enabled"),
+    "--close": (vdbrecon.CloseOptions, "hole_radius"),
+    "--close-solid": (vdbrecon.CloseOptions, "solid_radius"),
 }
+
+
+def cli_help_entries(out):
+    """Flag -> (text, the last [default] of its entry) from the CLI's help; an entry is a line
+    starting with '  -' and its indented continuation lines."""
+    entries = []
+    for line in out.splitlines():
+        if line.startswith("  -"):
+            entries.append(line.strip())
+        elif entries and entries[-1] is not None and re.match(r"^ {10,}\S", line):
+            entries[-1] += " " + line.strip()
+        else:
+            entries.append(None)
+    found = {}
+    for entry in filter(None, entries):
+        m = re.match(r"^(--[\w-]+)(?:, --[\w-]+)*(?: \S+)?\s+(.*)\[([^\]]*)\]$", entry)
+        if m:
+            found[m.group(1)] = (m.group(2), m.group(3))
+    return found
 
 
 def test_defaults_and_choices_agree_with_the_cli_help(cli):
     out = subprocess.run([cli, "--help"], capture_output=True, text=True, check=True).stdout
-    found = {}
-    for line in out.splitlines():
-        m = re.match(r"^\s+(--[\w-]+)(?: \S+)?\s+(.*)\[([^\]]*)\]\s*$", line)
-        if m:
-            found[m.group(1)] = (m.group(2), m.group(3))
+    found = cli_help_entries(out)
     assert set(CLI_FLAGS) <= set(found), set(CLI_FLAGS) - set(found)
     for flag, (cls, field) in CLI_FLAGS.items():
         text, default = found[flag]
@@ -44,13 +62,17 @@ def test_defaults_and_choices_agree_with_the_cli_help(cli):
         if field in cls._choices:
             assert value == default, flag
             assert "|".join(cls._choices[field]) in text, flag
-        else:
-            assert float(default) == pytest.approx(float(value)), flag
+        elif isinstance(value, bool):  # --x, --no-x [on|off]
+            assert default in ("on", "off") and value == (default == "on"), flag
+        else:  # "[0: off]" -> 0
+            assert float(default.split(":")[0]) == pytest.approx(float(value)), flag
+    assert f"k={vdbrecon.OutlierOptions().k})" in found["--outliers"][0]
 
 
 def test_every_field_has_a_documented_unit_or_meaning():
-    for cls in (vdbrecon.ReadOptions, vdbrecon.WriteOptions, vdbrecon.NormalOptions,
-                vdbrecon.SplatOptions, vdbrecon.MeshOptions, vdbrecon.EvalOptions,
+    for cls in (vdbrecon.ReadOptions, vdbrecon.WriteOptions, vdbrecon.OutlierOptions,
+                vdbrecon.NormalOptions, vdbrecon.SplatOptions, vdbrecon.CloseOptions,
+                vdbrecon.MeshOptions, vdbrecon.CleanOptions, vdbrecon.EvalOptions,
                 vdbrecon.PipelineOptions):
         assert cls._fields, cls
         for name, doc in cls._fields:
@@ -69,8 +91,9 @@ def test_help_shows_options_with_units_and_defaults():
     assert sig.parameters["voxel"].kind is inspect.Parameter.KEYWORD_ONLY
     assert sig.parameters["support"].default == d.splat.support
     assert sig.parameters["mesh_normals"].default is True
-    for f in (vdbrecon.read_points, vdbrecon.estimate_normals, vdbrecon.splat,
-              vdbrecon.extract_mesh, vdbrecon.evaluate, vdbrecon.write_mesh, vdbrecon.run):
+    for f in (vdbrecon.read_points, vdbrecon.remove_outliers, vdbrecon.estimate_normals,
+              vdbrecon.splat, vdbrecon.close, vdbrecon.extract_mesh, vdbrecon.clean_mesh,
+              vdbrecon.evaluate, vdbrecon.write_mesh, vdbrecon.run):
         assert "Options" in f.__doc__, f.__name__
     assert vdbrecon.Volume.to_arrays.__doc__ and vdbrecon.Mesh.vertices.__doc__
 

@@ -46,7 +46,9 @@ def test_result_carries_the_volume_and_statistics(sphere_result):
     assert r.volume.voxel_size == pytest.approx(VOXEL)
     assert r.splat.active_voxels == r.volume.active_voxels > 0
     assert r.normals.estimated == 0  # the given normals were kept
-    assert [t.stage for t in r.timings] == ["normals", "splat", "mesh", "clean"]
+    assert not r.outliers.removed.any() and len(r.outliers.removed) == 20000  # no stray point
+    assert r.closed_volume is None  # closing is off by default
+    assert [t.stage for t in r.timings] == ["outliers", "normals", "splat", "mesh", "clean"]
 
 
 def test_estimated_normals_give_the_same_surface():
@@ -95,9 +97,10 @@ def test_colors_are_splatted():
 
 def test_stage_by_stage_equals_reconstruct(sphere_cloud, sphere_result):
     points, normals = sphere_cloud
-    n = vdbrecon.estimate_normals(points, normals)
-    assert n.estimated == 0 and n.scales.shape == (len(points),)
-    s = vdbrecon.splat(points, n.normals, scales=n.scales, voxel=VOXEL)
+    cloud = vdbrecon.remove_outliers(points, normals).cloud
+    n = vdbrecon.estimate_normals(cloud)
+    assert n.estimated == 0 and n.scales.shape == (len(cloud),) == (len(points),)
+    s = vdbrecon.splat(cloud, n.normals, scales=n.scales, voxel=VOXEL)
     m = vdbrecon.clean_mesh(vdbrecon.extract_mesh(s.volume).mesh).mesh
     np.testing.assert_array_equal(m.vertices, sphere_result.mesh.vertices)
     np.testing.assert_array_equal(m.faces, sphere_result.mesh.faces)

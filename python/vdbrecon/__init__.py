@@ -6,10 +6,11 @@
 
 Stage by stage, with the same option names and defaults as the C++ structs and the CLI:
 
-    cloud = vdbrecon.read_points("scan.ply").cloud
+    cloud = vdbrecon.remove_outliers(vdbrecon.read_points("scan.ply").cloud).cloud
     n = vdbrecon.estimate_normals(cloud, k=12)
     volume = vdbrecon.splat(cloud.positions, n.normals, scales=n.scales, voxel=0.002).volume
-    mesh = vdbrecon.extract_mesh(volume, method="mc").mesh
+    closed = vdbrecon.close(volume, hole_radius=3).volume           # optional
+    mesh = vdbrecon.clean_mesh(vdbrecon.extract_mesh(closed, method="mc").mesh).mesh
     vdbrecon.write_mesh("scan.mesh.ply", mesh)
     vdbrecon.write_volume("scan.splat.vdb", volume)
 
@@ -44,6 +45,8 @@ except ImportError as _e:  # e.g. the source tree's python/vdbrecon shadowing th
 from ._vdbrecon import (  # noqa: F401  (re-exported)
     CleanOptions,
     CleanResult,
+    CloseOptions,
+    CloseResult,
     Error,
     EvalOptions,
     EvalResult,
@@ -57,6 +60,8 @@ from ._vdbrecon import (  # noqa: F401  (re-exported)
     NormalOptions,
     NormalResult,
     NumericalError,
+    OutlierOptions,
+    OutlierResult,
     PipelineOptions,
     PipelineResult,
     PointCloud,
@@ -77,13 +82,15 @@ __version__ = _v.__version__
 
 __all__ = [
     "reconstruct", "run", "read_points", "read_mesh", "write_mesh", "write_points",
-    "estimate_normals", "splat", "extract_mesh", "clean_mesh", "evaluate", "mesh_topology", "read_volume",
-    "write_volume", "to_pyopenvdb", "from_pyopenvdb", "version", "stage_volume_path",
+    "remove_outliers", "estimate_normals", "splat", "close", "extract_mesh", "clean_mesh",
+    "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
+    "version", "stage_volume_path",
     "PointCloud", "Mesh", "Volume", "PipelineOptions", "ReadOptions", "WriteOptions",
-    "NormalOptions", "SplatOptions", "MeshOptions", "CleanOptions", "EvalOptions", "ReadResult", "NormalResult",
-    "SplatResult", "MeshResult", "CleanResult", "EvalResult", "PipelineResult", "RunResult", "TopologyStats",
-    "FScore", "StageTiming", "Error", "IoError", "FormatError", "InvalidArgument",
-    "NumericalError",
+    "OutlierOptions", "NormalOptions", "SplatOptions", "CloseOptions", "MeshOptions",
+    "CleanOptions", "EvalOptions", "ReadResult", "OutlierResult", "NormalResult", "SplatResult",
+    "CloseResult", "MeshResult", "CleanResult", "EvalResult", "PipelineResult", "RunResult",
+    "TopologyStats", "FScore", "StageTiming", "Error", "IoError", "FormatError",
+    "InvalidArgument", "NumericalError",
 ]
 
 # ---- arrays ----------------------------------------------------------------------------------
@@ -189,42 +196,72 @@ def _fill(cls, kwargs, func):
     return struct
 
 
-def _pipeline_names(stages, top_fields, reserved):
-    """Keyword name -> (stage or None, field) for PipelineOptions: every field by its own name
-    when that is unambiguous (one struct has it and it is not a parameter name), and always as
-    <stage>_<field>. Read from the bound structs, so new stages and fields appear by themselves."""
-    places = {}
-    default = PipelineOptions()
-    for f, _ in PipelineOptions._fields:
-        if f in top_fields:
-            places.setdefault(f, []).append((None, f))
-    for stage in stages:
-        for f, _ in type(getattr(default, stage))._fields:
-            places.setdefault(f, []).append((stage, f))
-    names = {n: p[0] for n, p in places.items() if len(p) == 1 and n not in reserved}
-    for stage in stages:
-        for f, _ in type(getattr(default, stage))._fields:
-            names.setdefault(f"{stage}_{f}", (stage, f))
+# A plain keyword name that several structs have, and the stage it means: the one the CLI flag of
+# that name sets (--k sets normals.k; the outlier stage's k is outliers_k).
+_PLAIN_NAME_OWNER = {"k": "normals"}
+# Fields taken only as <stage>_<field>: their plain name would not say which stage they switch
+# (outliers_enabled).
+_QUALIFIED_ONLY = ("enabled",)
+
+
+def _keyword_names(places, reserved):
+    """Keyword name -> (place, field) for the fields of several options structs. `places` maps a
+    place -- a stage name, or None for fields taken by their own name only -- to (struct class,
+    field names). Every field goes by its own name when that is unambiguous (one struct has it or
+    _PLAIN_NAME_OWNER picks one, it is not a parameter name and not in _QUALIFIED_ONLY), and
+    always as <stage>_<field>. Read from the bound structs, so new stages and fields appear by
+    themselves."""
+    where = {}
+    for place, (_, fields) in places.items():
+        for f in fields:
+            where.setdefault(f, []).append((place, f))
+    names = {}
+    for name, found in where.items():
+        if len(found) > 1 and name in _PLAIN_NAME_OWNER:
+            found = [p for p in found if p[0] == _PLAIN_NAME_OWNER[name]]
+        if len(found) == 1 and name not in reserved and name not in _QUALIFIED_ONLY:
+            names[name] = found[0]
+    for place, (_, fields) in places.items():
+        for f in fields if place is not None else ():
+            names.setdefault(f"{place}_{f}", (place, f))
     return names
 
 
-def _fill_pipeline(names, kwargs, func):
-    o = PipelineOptions()
+def _pipeline_places(stages, top_fields):
+    """_keyword_names places of PipelineOptions: its stages in pipeline order, then its own
+    fields."""
+    default = PipelineOptions()
+    places = {}
+    for stage in stages:
+        cls = type(getattr(default, stage))
+        places[stage] = (cls, [f for f, _ in cls._fields])
+    places[None] = (PipelineOptions, list(top_fields))
+    return places
+
+
+def _fill_keywords(names, kwargs, func, structs):
+    """Sets each keyword (a _keyword_names name) on structs[place]; returns `structs`."""
     seen = {}
     for name, value in kwargs.items():
         if name not in names:
             raise _unknown(func, name, names)
-        stage, field = names[name]
-        if (stage, field) in seen:
-            raise TypeError(f"{func}(): '{name}' and '{seen[stage, field]}' set the same option")
-        seen[stage, field] = name
-        _set_field(getattr(o, stage) if stage else o, field, value, func, name)
+        place, field = names[name]
+        if (place, field) in seen:
+            raise TypeError(f"{func}(): '{name}' and '{seen[place, field]}' set the same option")
+        seen[place, field] = name
+        _set_field(structs[place], field, value, func, name)
+    return structs
+
+
+def _fill_pipeline(names, kwargs, func):
+    o = PipelineOptions()
+    _fill_keywords(names, kwargs, func, {None: o, **{s: getattr(o, s) for s in o._stages}})
     return o
 
 
-def _options_doc(entries):
+def _options_doc(entries, defaults):
     """Docstring lines for (keyword, struct class, field) entries, grouped by struct, with the
-    defaults read from default-constructed structs."""
+    defaults read from default-constructed structs (or `defaults`, keyword -> value)."""
     lines = []
     group = None
     for keyword, cls, field in entries:
@@ -232,7 +269,7 @@ def _options_doc(entries):
             group = cls
             lines.append(f"  {cls.__name__}:")
         doc = dict(cls._fields)[field]
-        default = getattr(cls(), field)
+        default = defaults.get(keyword, getattr(cls(), field))
         choices = cls._choices.get(field)
         head = f"    {keyword} = {default!r}"
         if choices:
@@ -246,31 +283,34 @@ def _struct_entries(cls, exclude=()):
     return [(f, cls, f) for f, _ in cls._fields if f not in exclude]
 
 
-def _pipeline_entries(names):
-    default = PipelineOptions()
+def _keyword_entries(names, places):
+    """(keyword, struct class, field) per field of `places`, under its shortest name, in the
+    order of `places` and of the fields."""
     primary = {}
-    for name, (stage, field) in names.items():  # the flat name when there is one
-        key = (stage, field)
+    for name, key in names.items():  # the flat name when there is one
         if key not in primary or len(name) < len(primary[key]):
             primary[key] = name
-    order = list(PipelineOptions._stages) + [None]
-    entries = []
-    for (stage, field), name in sorted(primary.items(), key=lambda kv: order.index(kv[0][0])):
-        cls = type(getattr(default, stage)) if stage else PipelineOptions
-        entries.append((name, cls, field))
-    return entries
+    order = list(places)
+
+    def position(key):
+        place, field = key
+        return order.index(place), places[place][1].index(field)
+    return [(primary[key], places[key[0]][0], key[1]) for key in sorted(primary, key=position)]
 
 
-def _document(func, summary, entries, params_before, extra_params=(), returns=""):
-    """Sets func.__doc__ (options with units and defaults) and func.__signature__."""
+def _document(func, summary, entries, params_before, extra_params=(), returns="", defaults=None):
+    """Sets func.__doc__ (options with units and defaults) and func.__signature__. `defaults`
+    (keyword -> value) overrides the struct's default where the function sets its own."""
+    defaults = defaults or {}
     params = list(params_before)
     for keyword, cls, field in entries:
         params.append(_inspect.Parameter(keyword, _inspect.Parameter.KEYWORD_ONLY,
-                                         default=getattr(cls(), field)))
+                                         default=defaults.get(keyword, getattr(cls(), field))))
     params.extend(extra_params)
     func.__signature__ = _inspect.Signature(params)
     func.__doc__ = summary.rstrip() + "\n\nOptions (keyword only; defaults read from the C++ " \
-        "options structs):\n" + _options_doc(entries) + ("\n\n" + returns if returns else "")
+        "options structs):\n" + _options_doc(entries, defaults) + \
+        ("\n\n" + returns if returns else "")
     return func
 
 
@@ -330,7 +370,7 @@ def read_volume(path):
 
 
 def write_volume(path, volume):
-    """Writes a Volume's grids (sdf, weight, nearest, density, color) to a .vdb file."""
+    """Writes a Volume's grids (sdf, weight, nearest, density, color, fill) to a .vdb file."""
     _v.write_volume(_path(path), _volume(volume))
 
 
@@ -352,7 +392,8 @@ def _is_pyopenvdb_grid(obj):
 
 def to_pyopenvdb(volume):
     """The volume's grids as pyopenvdb objects: {'sdf': FloatGrid, 'weight': FloatGrid,
-    'nearest': Vec3SGrid, 'density': FloatGrid, 'color': Vec3SGrid (when present)}.
+    'nearest': Vec3SGrid, 'density': FloatGrid, 'color': Vec3SGrid and 'fill': FloatGrid (when
+    present)}.
 
     Copied through a temporary .vdb file (Debian's pyopenvdb is Boost.Python and shares no
     objects with this module); needs pyopenvdb."""
@@ -369,7 +410,7 @@ def to_pyopenvdb(volume):
 
 def from_pyopenvdb(grids):
     """A Volume from pyopenvdb grids: a level-set FloatGrid (used as 'sdf' whatever its name), or
-    a list/dict of grids among which one is named 'sdf' ('weight', 'nearest', 'color' are
+    a list/dict of grids among which one is named 'sdf' ('weight', 'nearest', 'color', 'fill' are
     used when present). Copied through a temporary .vdb file; needs pyopenvdb."""
     pyopenvdb = _pyopenvdb()
     if isinstance(grids, dict):
@@ -409,6 +450,30 @@ def _volume(v):
 # ---- stages ----------------------------------------------------------------------------------
 
 
+def remove_outliers(points, normals=None, colors=None, **options):
+    options.setdefault("enabled", True)
+    return _v.remove_outliers(_cloud(points, normals, colors),
+                              _fill(OutlierOptions, options, "remove_outliers"))
+
+
+_document(remove_outliers, """Removes stray points, as reconstruct() does first.
+
+A point goes when its mean distance d_i to its k nearest neighbours exceeds statistical_ratio x
+its neighbours' mean d_j (statistical rule), or when its neighbourhood is not planar
+(lambda_0 / lambda_1 > planarity_ratio) and sparse (d_i > planarity_spacing x the cloud's
+median d) (planarity rule).
+
+points: PointCloud or (N, 3) array, world units; normals, colors: optional (N, 3) arrays that
+are filtered along (as are a PointCloud's scales and confidences).
+enabled is True here whatever OutlierOptions' default: calling this function runs the removal
+(enabled=False returns every point). Nothing is removed with fewer than k + 1 points.
+Returns an OutlierResult: .cloud (PointCloud of the kept points, input order), .removed (N,)
+bool, True for each removed input point, .statistical and .planarity (counts per rule).""",
+          _struct_entries(OutlierOptions),
+          [_pos("points"), _pos("normals", None), _pos("colors", None)],
+          defaults={"enabled": True})
+
+
 def estimate_normals(points, normals=None, **options):
     return _v.estimate_normals(_cloud(points, normals),
                                _fill(NormalOptions, options, "estimate_normals"))
@@ -441,6 +506,42 @@ Returns a SplatResult: .volume and statistics.""",
           _struct_entries(SplatOptions),
           [_pos("points"), _pos("normals", None), _pos("colors", None), _pos("scales", None),
            _kw("voxel", None)])
+
+
+# close(): CloseOptions fields, and MeshOptions fields (the trims that decide which voxels the
+# closing starts from), each by its own name or as close_<field> / mesh_<field>.
+_CLOSE_PLACES = {s: (c, [f for f, _ in c._fields]) for s, c in
+                 (("close", CloseOptions), ("mesh", MeshOptions))}
+_CLOSE_NAMES = _keyword_names(_CLOSE_PLACES, ("volume",))
+_CLOSE_RADII = ("hole_radius", "solid_radius")
+
+
+def close(volume, **options):
+    o = _fill_keywords(_CLOSE_NAMES, options, "close",
+                       {"close": CloseOptions(), "mesh": MeshOptions()})
+    if not any(_CLOSE_NAMES[n][1] in _CLOSE_RADII for n in options):
+        raise TypeError("close() needs hole_radius=R and/or solid_radius=R (voxels); with "
+                        "neither it would return the volume unchanged")
+    return _v.close_volume(_volume(volume), o["close"], o["mesh"])
+
+
+_document(close, """Closes the volume before meshing (dilate > fill > erode), as
+reconstruct(hole_radius=..., solid_radius=...) does between splat and mesh.
+
+Hole closing (hole_radius R) closes the supported voxels -- the valid voxels that the mesher's
+trims keep (min_surface_weight, max_gap) -- with a (2R+1)^3 cube: holes up to about 2R voxels
+across are covered, open borders stay; new voxels get the field extended from their
+neighbours. Solid closing (solid_radius R) offsets a watertight surface out by R voxels and
+back: concavities narrower than about 2R disappear. With both, holes are closed first.
+At least one radius must be given (TypeError otherwise; explicit zeros return the input).
+
+volume: Volume, .vdb path, or pyopenvdb grid(s), e.g. splat(...).volume.
+Options: the CloseOptions fields, and the MeshOptions fields by their own names (give the same
+ones to extract_mesh() on the result); each also as close_<field> / mesh_<field>.
+Returns a CloseResult: .volume (with a 'fill' grid: the voxels the closing vouches for, where
+extract_mesh keeps faces whatever their weight or gap) and voxel counts.
+Raises NumericalError when solid closing finds no watertight surface.""",
+          _keyword_entries(_CLOSE_NAMES, _CLOSE_PLACES), [_pos("volume")])
 
 
 def extract_mesh(volume, **options):
@@ -490,12 +591,13 @@ _RECONSTRUCT_PARAMS = ("points", "normals", "colors", "voxel", "return_result")
 # Stages and fields of PipelineOptions that only matter when files are read or written.
 _FILE_ONLY_STAGES = ("read", "write")
 _FILE_ONLY_FIELDS = ("write_vdb",)
-_RECONSTRUCT_NAMES = _pipeline_names(
+_RECONSTRUCT_PLACES = _pipeline_places(
     [s for s in PipelineOptions._stages if s not in _FILE_ONLY_STAGES],
-    [f for f, _ in PipelineOptions._fields if f not in _FILE_ONLY_FIELDS], _RECONSTRUCT_PARAMS)
+    [f for f, _ in PipelineOptions._fields if f not in _FILE_ONLY_FIELDS])
+_RECONSTRUCT_NAMES = _keyword_names(_RECONSTRUCT_PLACES, _RECONSTRUCT_PARAMS)
 _RUN_PARAMS = ("input", "output", "voxel")
-_RUN_NAMES = _pipeline_names(PipelineOptions._stages, [f for f, _ in PipelineOptions._fields],
-                             _RUN_PARAMS)
+_RUN_PLACES = _pipeline_places(PipelineOptions._stages, [f for f, _ in PipelineOptions._fields])
+_RUN_NAMES = _keyword_names(_RUN_PLACES, _RUN_PARAMS)
 
 
 def _voxel_option(voxel, options, func):
@@ -514,8 +616,9 @@ def reconstruct(points, normals=None, colors=None, *, voxel=None, return_result=
     return result if return_result else result.mesh
 
 
-_document(reconstruct, """Reconstructs a triangle mesh from a point cloud: normals and scales >
-Gaussian splat into sparse OpenVDB grids > mesh extraction.
+_document(reconstruct, """Reconstructs a triangle mesh from a point cloud: outlier removal >
+normals and scales > Gaussian splat into sparse OpenVDB grids > closing (off by default) > mesh
+extraction > cleanup.
 
 points: (N, 3) array (float32 used as is, other real dtypes converted once) or PointCloud,
 world units. normals: (N, 3) outward normals, optional (estimated when missing, see `mode`).
@@ -523,14 +626,16 @@ colors: (N, 3) linear 0..1 RGB, optional (splatted into the volume's color grid)
 voxel: voxel edge in world units; None chooses auto_voxel_factor x the median point spacing.
 Every option below is a field of PipelineOptions or of one of its stage structs, given by its
 own name, or as <stage>_<field> (always accepted; required for mesh_normals, whose plain name
-is the `normals` argument).
-return_result: return the PipelineResult (mesh, volume, statistics, timings) instead of the Mesh.
+is the `normals` argument, for outliers_k, as plain `k` is the normals' k like the CLI's --k,
+and for outliers_enabled).
+return_result: return the PipelineResult (mesh, volume, closed_volume, statistics, timings)
+instead of the Mesh.
 
 Returns a Mesh: .vertices (V, 3) float32, .faces (F, 3) int32 (counter-clockwise seen from
 outside), .normals (V, 3) or None, .colors or None, .origin.
 Raises InvalidArgument (ValueError) for options out of range, NumericalError when nothing can
 be reconstructed, TypeError for unknown options.""",
-          _pipeline_entries(_RECONSTRUCT_NAMES),
+          _keyword_entries(_RECONSTRUCT_NAMES, _RECONSTRUCT_PLACES),
           [_pos("points"), _pos("normals", None), _pos("colors", None), _kw("voxel", None),
            _kw("return_result", False)])
 
@@ -542,10 +647,11 @@ def run(input, output=None, *, voxel=None, **options):
 
 
 _document(run, """Reads `input`, reconstructs and writes `output` (.ply or .obj; None:
-<input stem>.recon.ply) and <output stem>.splat.vdb: exactly what the CLI does,
-`vdbrecon INPUT -o OUTPUT ...`, with the same options (read_*, write_* included).
+<input stem>.recon.ply), <output stem>.splat.vdb and, when closing, <output stem>.closed.vdb:
+exactly what the CLI does, `vdbrecon INPUT -o OUTPUT ...`, with the same options (read_*,
+write_* included; keywords as in reconstruct()).
 
 Returns a RunResult: .result (PipelineResult), .read (ReadResult counts), .mesh_path,
-.vdb_path.""",
-          _pipeline_entries(_RUN_NAMES), [_pos("input"), _pos("output", None),
-                                          _kw("voxel", None)])
+.vdb_path, .closed_vdb_path.""",
+          _keyword_entries(_RUN_NAMES, _RUN_PLACES), [_pos("input"), _pos("output", None),
+                                                      _kw("voxel", None)])

@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "vdbrecon/io.h"
@@ -41,6 +42,10 @@ Vec3d choose_origin(const double* xyz, std::size_t rows);
 
 /// "file: message" — the prefix every reader error carries.
 std::string where(const std::string& path, const std::string& message);
+
+/// Text from a file, fit for a one-line message: bytes outside printable ASCII become \xNN, and
+/// more than 32 characters are cut to 29 + "...".
+std::string printable(std::string_view text);
 
 /// Throws IoError naming `path` unless a file can be created there: its directory must exist,
 /// be a directory and be writable, and `path` itself must not be a directory.
@@ -86,17 +91,22 @@ private:
     std::string buf_;
 };
 
+/// Parses the whole token [b, e) as a decimal number (an optional leading '+', "nan", "inf" and
+/// "infinity" allowed); true on success. Magnitudes beyond double's range become +-inf, below
+/// it +-0 or a subnormal, as strtod gives them.
+bool parse_double(const char* b, const char* e, double& v);
+
 /// Shortest round-trip decimal text of a float / double (std::to_chars).
 std::string format_number(float v);
 std::string format_number(double v);
 
 /// Reads a PLY file into raw rows; `want_faces` also reads the face element.
-RawPoints read_ply_raw(const std::string& path, const std::string& content, bool want_faces,
+RawPoints read_ply_raw(const std::string& path, std::string_view content, bool want_faces,
                        std::string& format);
 /// Reads XYZ / PTS text.
-RawPoints read_xyz_raw(const std::string& path, const std::string& content);
+RawPoints read_xyz_raw(const std::string& path, std::string_view content);
 /// Reads OBJ (v, vn, f).
-RawPoints read_obj_raw(const std::string& path, const std::string& content, bool want_faces);
+RawPoints read_obj_raw(const std::string& path, std::string_view content, bool want_faces);
 
 /// PLY writer for clouds and meshes. `faces` may be null.
 void write_ply(const std::string& path, const std::vector<Vec3f>& positions, const Vec3d& origin,

@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# Scaling (issue 5): vdbrecon's time and peak memory against the number of points, at
+# --threads 1 and 2. Inputs: the bunny scans subsampled to 10, 25, 50 and 100 %, and a synthetic
+# 5-million-point scan (48 noisy virtual range scans of the bunny's reference mesh, made once by
+# bench/synth.py and kept in bench/out). All at --voxel 0.0005, so the surface and the mesh stay
+# about the same while the points grow; each mesh is scored against the bunny reference.
+# Prints one markdown table for bench/RESULTS.md.
+#   BIN=build/vdbrecon bench/scaling.sh    (QUICK=1: a 1M-point synthetic scan, 200k samples)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT=bench/out/scaling
+source bench/harness.sh
+ensure_packages time python3-open3d
+if [ "$QUICK" = 1 ]; then SYNTH_POINTS=${SYNTH_POINTS:-1000000}; fi
+SYNTH_POINTS=${SYNTH_POINTS:-5000000}
+VOXEL=0.0005
+
+START=$(date +%s)
+LOAD_START=$(load_line)
+inputs=()
+for pct in 10 25 50; do
+  f=$OUT/bunny-$pct.ply
+  [ -s "$f" ] || $PY bench/synth.py subsample "$BUNNY" "$f" "$(awk -v p=$pct 'BEGIN {print p / 100}')"
+  inputs+=("bunny $pct %|$f")
+done
+inputs+=("bunny 100 %|$BUNNY")
+synth=$OUT/synthetic-$SYNTH_POINTS.ply
+if [ ! -s "$synth" ]; then
+  echo "bench: generating $synth" >&2
+  timed "$OUT/synthetic.log" $PY bench/synth.py scans "$GT" "$synth" --points "$SYNTH_POINTS"
+  [ "$RC" -eq 0 ] || { cat "$OUT/synthetic.log" >&2; exit 1; }
+  echo "bench: generated in ${WALL} s" >&2
+fi
+inputs+=("synthetic|$synth")
+
+identical=yes
+for entry in "${inputs[@]}"; do
+  IFS='|' read -r label input <<<"$entry"
+  points=$(grep -a -m1 '^element vertex' "$input" | cut -d' ' -f3)
+  slug=$(echo "$label" | tr -d ' %')
+  for threads in 2 1; do
+    mesh=$OUT/$slug.t$threads.ply
+    echo "bench: $label ($points points), $threads threads ..." >&2
+    timed "$OUT/$slug.t$threads.log" "$BIN" "$input" -o "$mesh" --voxel "$VOXEL" --no-vdb \
+      --threads "$threads"
+    json=-
+    if [ "$RC" -eq 0 ]; then
+      json=$OUT/$slug.json
+      [ "$threads" = 1 ] || score "$mesh" "$json" "$GT"
+    fi
+    add_row "$label" "$threads" "voxel 0.5 mm" "$OUT/$slug.t$threads.log" "$json" "$points"
+  done
+  cmp -s "$OUT/$slug.t1.ply" "$OUT/$slug.t2.ply" || identical=no
+done
+
+machine_line
+echo
+$PY bench/table.py scaling "$ROWS"
+echo
+echo "One run each, --voxel 0.0005 --no-vdb; times in seconds (the stage columns from vdbrecon's"
+echo "log); meshes scored against bun_zipper_gt.ply ($SAMPLES samples). Meshes identical for 1"
+echo "and 2 threads: $identical. Synthetic scan: $(grep -a -m1 '^comment' "$synth" | cut -d' ' -f2-)."
+echo
+echo "Load: $LOAD_START at the start, $(load_line) at the end; the whole run took" \
+  "$(( ($(date +%s) - START + 30) / 60 )) min. QUICK=$QUICK."

@@ -7,6 +7,7 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <cctype>
 #include <charconv>
 #include <chrono>
 #include <cmath>
@@ -46,6 +47,37 @@ template <typename E>
 E parse_choice(const std::string& opt, const std::string& value, const Choices<E>& choices) {
     if (const E* e = find_choice(choices, value)) return *e;
     throw UsageError(opt + ": '" + value + "' is not one of " + choice_list(choices, ", "));
+}
+
+/// "8G", "500M", "1.5T", "2048K" or a plain byte count -> bytes.
+std::size_t parse_bytes(const std::string& opt, const std::string& s) {
+    std::string digits = s;
+    double unit = 1.0;
+    if (!digits.empty()) {
+        switch (std::toupper(static_cast<unsigned char>(digits.back()))) {
+            case 'K': unit = 1024.0; break;
+            case 'M': unit = 1024.0 * 1024.0; break;
+            case 'G': unit = 1024.0 * 1024.0 * 1024.0; break;
+            case 'T': unit = 1024.0 * 1024.0 * 1024.0 * 1024.0; break;
+            default: break;
+        }
+        if (unit > 1.0) digits.pop_back();
+    }
+    double v = 0.0;
+    const char* b = digits.c_str();
+    const auto r = std::from_chars(b, b + digits.size(), v);
+    if (digits.empty() || r.ec != std::errc() || r.ptr != b + digits.size() ||
+        !std::isfinite(v) || !(v * unit >= 1.0) || v * unit > 1e18) {
+        throw UsageError(opt + ": '" + s + "' is not a memory size (e.g. 8G, 500M)");
+    }
+    return std::size_t(v * unit);
+}
+
+std::string fmt_bytes(std::size_t bytes) {
+    std::ostringstream s;
+    s.precision(3);
+    s << double(bytes) / (1024.0 * 1024.0 * 1024.0) << "G";
+    return s.str();
 }
 
 void print_help() {
@@ -106,6 +138,9 @@ void print_help() {
         << d.clean.smooth_iterations << "]\n"
         << "  --ascii                write ascii PLY [binary little endian]\n"
         << "  --threads N            worker threads, 0 = all cores [" << d.threads << "]\n"
+        << "  --max-memory SIZE      refuse runs whose volume would need more, e.g. 8G, 500M\n"
+        << "                         [half the physical memory: " << fmt_bytes(memory_budget(d.splat))
+        << "]\n"
         << "  --no-vdb               do not write the .vdb volume\n"
         << "  --preview PATH         write a shaded picture of the mesh: .png, or .exr with a\n"
         << "                         depth channel Z [none]\n"
@@ -291,6 +326,8 @@ int run_reconstruct(Args& args) {
         } else if (a == "--threads") {
             o.threads = parse_int(a, args.value(a));
             if (o.threads < 0) throw UsageError("--threads must be >= 0");
+        } else if (a == "--max-memory") {
+            o.splat.max_memory = parse_bytes(a, args.value(a));
         } else if (a == "--preview") {
             o.preview_path = args.value(a);
         } else if (a == "--no-vdb") {

@@ -295,6 +295,43 @@ AtomicFile::~AtomicFile() {
     unregister_temp_file(temp_);
 }
 
+StagedOutputs::~StagedOutputs() {
+    for (const Entry& e : files_) {
+        if (!e.committed) std::remove(e.temp.c_str());
+        unregister_temp_file(e.temp);
+    }
+}
+
+std::string StagedOutputs::stage(const std::string& final_path) {
+    static std::atomic<unsigned> counter{0};
+    const std::size_t slash = final_path.find_last_of('/');
+    const std::string dir = slash == std::string::npos ? "" : final_path.substr(0, slash + 1);
+    const std::string base = slash == std::string::npos ? final_path : final_path.substr(slash + 1);
+    if (base.empty()) throw IoError(where(final_path, "output path names a directory"));
+    const std::size_t dot = base.find_last_of('.');
+    const std::string stem = dot == std::string::npos ? base : base.substr(0, dot);
+    const std::string ext = dot == std::string::npos ? "" : base.substr(dot);
+    Entry e;
+    e.final = final_path;
+    e.temp = dir + "." + stem + ".staged-" + std::to_string(::getpid()) + "-" +
+             std::to_string(counter++) + ext;
+    register_temp_file(e.temp);
+    files_.push_back(e);
+    return files_.back().temp;
+}
+
+void StagedOutputs::commit_all() {
+    for (Entry& e : files_) {
+        struct stat st {};
+        if (::stat(e.temp.c_str(), &st) != 0) continue;  // not written (e.g. an empty preview)
+        if (std::rename(e.temp.c_str(), e.final.c_str()) != 0) {
+            throw IoError(where(e.final, std::string("cannot rename the temporary file into "
+                                                     "place: ") + std::strerror(errno)));
+        }
+        e.committed = true;
+    }
+}
+
 void AtomicFile::create() {
     stream();
     std::fclose(file_);

@@ -110,6 +110,19 @@ std::string basename_stem(const std::string& path) {
     return base;
 }
 
+/// Rethrows `e` as the same kind of error with "input: " in front, unless it names it already
+/// (the readers' errors do).
+[[noreturn]] void rethrow_naming(const std::string& input, const Error& e) {
+    const std::string what = e.what();
+    if (what.rfind(input + ": ", 0) == 0) throw;
+    const std::string m = input + ": " + what;
+    if (dynamic_cast<const IoError*>(&e)) throw IoError(m);
+    if (dynamic_cast<const FormatError*>(&e)) throw FormatError(m);
+    if (dynamic_cast<const InvalidArgument*>(&e)) throw InvalidArgument(m);
+    if (dynamic_cast<const NumericalError*>(&e)) throw NumericalError(m);
+    throw Error(m);
+}
+
 bool same_file(const std::string& a, const std::string& b) {
     struct stat sa {}, sb {};
     if (::stat(a.c_str(), &sa) != 0 || ::stat(b.c_str(), &sb) != 0) return false;
@@ -145,6 +158,11 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
             r.voxel_chosen = true;
         }
         r.voxel_size = splat_options.voxel_size;
+        if (!(bounding_box(cloud.positions).diagonal() > 0.0)) {
+            // A single oriented sample would give a disc the size of its kernel: not a surface.
+            throw NumericalError("reconstruct: all " + std::to_string(cloud.size()) +
+                                 " points coincide; no surface can be reconstructed");
+        }
         {
             StageClock clock(r.timings, on_stage, "splat");
             r.splat = splat(cloud, splat_options);
@@ -225,6 +243,9 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         detail::check_writable(options.preview_path);
     }
 
+    // Every output is written under a temporary name and renamed into place only when the
+    // whole run has succeeded: a failure at any stage leaves earlier outputs untouched.
+    detail::StagedOutputs staged;
     std::vector<StageTiming> timings;
     PointCloud cloud;
     {
@@ -237,17 +258,36 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     double vdb_seconds = 0.0;
     std::mutex vdb_mutex;  // the two volumes may be written at the same time
     VolumeCallback write_vdb;
+    std::string vdb_temp, closed_vdb_temp;
     if (options.write_vdb) {
+        vdb_temp = staged.stage(out.vdb_path);
+        if (!out.closed_vdb_path.empty()) closed_vdb_temp = staged.stage(out.closed_vdb_path);
         write_vdb = [&](const std::string& stage, const Volume& v) {
             const auto start = std::chrono::steady_clock::now();
-            write_volume(stage == "closed" ? out.closed_vdb_path : out.vdb_path, v);
+            write_volume(stage == "closed" ? closed_vdb_temp : vdb_temp, v);
             const double s =
                 std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
             std::lock_guard<std::mutex> lock(vdb_mutex);
             vdb_seconds += s;
         };
     }
-    out.result = reconstruct(cloud, options, on_stage, write_vdb);
+    // Errors of the computing stages name the input they are about ("scan.ply: splat: ...").
+    try {
+        out.result = reconstruct(cloud, options, on_stage, write_vdb);
+        if (out.result.mesh.faces.empty()) {
+            std::ostringstream s;
+            s << "no surface: no valid cell crosses zero at voxel " << out.result.voxel_size
+              << " (" << cloud.size() << " points). Hint: a larger --voxel, or more points";
+            throw NumericalError(s.str());
+        }
+    } catch (const Error& e) {
+        rethrow_naming(input, e);
+    } catch (const std::bad_alloc&) {
+        throw NumericalError(input + ": out of memory. Hint: a larger --voxel, or a smaller "
+                                     "--max-memory so that the estimate refuses such runs");
+    } catch (const std::exception& e) {  // OpenVDB's and the standard library's
+        throw NumericalError(input + ": " + e.what());
+    }
     cloud = PointCloud{};
     timings.insert(timings.end(), out.result.timings.begin(), out.result.timings.end());
     {
@@ -256,12 +296,15 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         std::ostringstream c;
         c << "vdbrecon " << version() << " from " << input << ", voxel " << out.result.voxel_size;
         w.comments.insert(w.comments.begin(), c.str());
-        in_arena(options.threads, [&] { write_mesh(out.mesh_path, out.result.mesh, w); });
+        const std::string mesh_temp = staged.stage(out.mesh_path);
+        in_arena(options.threads, [&] { write_mesh(mesh_temp, out.result.mesh, w); });
     }
-    if (!options.preview_path.empty() && !out.result.mesh.faces.empty()) {
+    if (!options.preview_path.empty()) {
         StageClock clock(timings, on_stage, "preview");
-        write_image(options.preview_path, render_preview(out.result.mesh, options.preview));
+        write_image(staged.stage(options.preview_path),
+                    render_preview(out.result.mesh, options.preview));
     }
+    staged.commit_all();
     if (options.write_vdb) timings.push_back({"vdb (in the background)", vdb_seconds, peak_rss_mb()});
     out.result.timings = std::move(timings);
     return out;

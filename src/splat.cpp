@@ -22,9 +22,49 @@
 #include <numeric>
 #include <sstream>
 
+#include <unistd.h>
+
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
+
+std::size_t memory_budget(const SplatOptions& options) {
+    if (options.max_memory > 0) return options.max_memory;
+    const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGE_SIZE);
+    if (pages <= 0 || page <= 0) return std::size_t(8) << 30;  // unknown: assume 16 GB
+    return std::size_t(pages) / 2 * std::size_t(page);
+}
+
+namespace {
+
+/// "12.3 GB" / "456 MB".
+std::string human_bytes(double bytes) {
+    std::ostringstream s;
+    s.precision(3);
+    if (bytes >= 1e9) {
+        s << bytes / 1e9 << " GB";
+    } else {
+        s << std::max(1.0, std::round(bytes / 1e6)) << " MB";
+    }
+    return s.str();
+}
+
+/// Refuses a run whose estimate exceeds the budget, before the big allocations. The volume
+/// (and the mesh) grow with the surface area in voxels, i.e. about 1/voxel^2: the hint scales
+/// the voxel by sqrt(need / budget) and a margin.
+void check_memory(double need, const SplatOptions& options, const char* what) {
+    const double budget = double(memory_budget(options));
+    if (need <= budget) return;
+    const double voxel = options.voxel_size * std::sqrt(need / budget) * 1.25;
+    std::ostringstream s;
+    s.precision(2);
+    s << "splat: voxel size " << options.voxel_size << " needs about " << human_bytes(need)
+      << " of memory (" << what << "), more than the budget of " << human_bytes(budget)
+      << ". Hint: --voxel " << voxel << " or larger, or raise --max-memory";
+    throw InvalidArgument(s.str());
+}
+
+}  // namespace
 
 void SplatOptions::validate() const {
     auto positive = [](double v, const char* name) {
@@ -309,6 +349,13 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
           << kMaxIndex << "). Hint: use a larger --voxel";
         throw InvalidArgument(s.str());
     }
+    if (voxel < SplatOptions::kMinVoxelSize) {
+        std::ostringstream s;
+        s << "splat: voxel size " << voxel << " is below " << SplatOptions::kMinVoxelSize
+          << " world units, the smallest OpenVDB's transforms accept. Hint: express the scan in "
+             "smaller units (e.g. millimetres instead of metres)";
+        throw InvalidArgument(s.str());
+    }
 
     // Sigma statistics (world units).
     {
@@ -341,6 +388,10 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
         }
     });
     std::partial_sum(first_pair.begin(), first_pair.end(), first_pair.begin());
+    // Memory budget, first on the (leaf, point) index, then (below) on the distinct leaves.
+    const double point_bytes = double(n) * (sizeof(Kernel) + 64.0);  // the cloud and its kernels
+    check_memory(point_bytes + double(first_pair[n]) * sizeof(Pair), options,
+                 "for the index of the leaves its kernels touch");
     std::vector<Pair> pairs(first_pair[n]);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
@@ -367,6 +418,12 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     }
     leaf_begin.push_back(pairs.size());
     const std::size_t num_leaves = leaf_begin.size() - 1;
+    {
+        std::ostringstream what;
+        what << num_leaves << " leaves of 8^3 voxels";
+        check_memory(point_bytes + double(num_leaves) * double(SplatOptions::kBytesPerLeaf),
+                     options, what.str().c_str());
+    }
 
     // Narrow-band half width: no |sdf| can exceed the largest support radius.
     const double half_width = std::max(3.0, std::ceil(double(max_r)));

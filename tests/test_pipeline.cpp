@@ -41,6 +41,34 @@ TEST_CASE("file-to-file run is byte-identical for 1 and 2 threads", "[pipeline]"
     REQUIRE(v.sdf->activeVoxelCount() == a.result.volume.sdf->activeVoxelCount());
 }
 
+TEST_CASE("every mesher and closing mode is byte-identical for 1 and 2 threads", "[pipeline]") {
+    // Issue 6 point 6: the mesh file, the splatted and the closed volume do not depend on the
+    // thread count, whatever the mesher (vdb, mc, dc) and closing (none, hole, solid, both).
+    TempDir dir;
+    write_points(dir.file("in.ply"), sample_sphere(20000, 1.0));
+    for (const Mesher method : {Mesher::vdb, Mesher::mc, Mesher::dc}) {
+        for (const auto& [hole, solid] : {std::pair{0, 0}, {3, 0}, {0, 2}, {3, 2}}) {
+            PipelineOptions o;
+            o.splat.voxel_size = 0.05;
+            o.mesh.method = method;
+            o.close.hole_radius = hole;
+            o.close.solid_radius = solid;
+            INFO("mesher " << int(method) << ", hole " << hole << ", solid " << solid);
+            o.threads = 1;
+            const RunResult a = run(dir.file("in.ply"), dir.file("a.ply"), o);
+            o.threads = 2;
+            const RunResult b = run(dir.file("in.ply"), dir.file("b.ply"), o);
+            REQUIRE(a.result.mesh.faces.size() > 1000);
+            REQUIRE(read_bytes(dir.file("a.ply")) == read_bytes(dir.file("b.ply")));
+            REQUIRE(read_bytes(dir.file("a.splat.vdb")) == read_bytes(dir.file("b.splat.vdb")));
+            REQUIRE(a.closed_vdb_path.empty() == (hole == 0 && solid == 0));
+            if (!a.closed_vdb_path.empty()) {
+                REQUIRE(read_bytes(a.closed_vdb_path) == read_bytes(b.closed_vdb_path));
+            }
+        }
+    }
+}
+
 TEST_CASE("automatic voxel follows the spacing; --no-vdb writes only the mesh", "[pipeline]") {
     TempDir dir;
     write_points(dir.file("s.ply"), sample_sphere(20000, 1.0));

@@ -53,10 +53,25 @@ struct SplatOptions {
     /// Voxels with summed weight below this are invalid (inactive); dimensionless. A uniformly
     /// sampled surface has weight about pi (sigma/h)^2 >= pi on it (h = spacing).
     double min_weight = 0.05;
+    /// Memory budget of the run, bytes; 0 = half the physical memory. Before it allocates the
+    /// grids, splat() counts the 8^3 leaves the kernels touch and refuses (InvalidArgument, with
+    /// a voxel size that would fit) when about kBytesPerLeaf per leaf plus the points exceed it.
+    std::size_t max_memory = 0;
+
+    /// Smallest voxel splat() accepts: OpenVDB's linear transforms refuse voxel^3 < 3e-15.
+    static constexpr double kMinVoxelSize = 1.5e-5;
+    /// Memory of the whole run per 8^3 leaf of the splatted volume, bytes: the grids (sdf,
+    /// weight, nearest, colour), the mesher's and the volume writer's copies and the mesh of the
+    /// surface crossing the leaf. Measured: 269 MB peak for 7,202 leaves and 362k points on the
+    /// Stanford bunny at 0.5 mm, about 29 kB per leaf once the points are taken off.
+    static constexpr std::size_t kBytesPerLeaf = 32 * 1024;
 
     /// Throws InvalidArgument naming the field when out of range.
     void validate() const;
 };
+
+/// The memory budget `max_memory` stands for, bytes (half the physical memory when it is 0).
+std::size_t memory_budget(const SplatOptions& options);
 
 struct SplatResult {
     Volume volume;

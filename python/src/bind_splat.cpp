@@ -23,7 +23,11 @@ void bind_splat(py::module_& m) {
                "Support radius of the kernel, sigmas (CLI --support).")
         .field("min_weight", &SplatOptions::min_weight,
                "Voxels with less summed weight are invalid (inactive), dimensionless (CLI "
-               "--min-weight).");
+               "--min-weight).")
+        .field("max_memory", &SplatOptions::max_memory,
+               "Memory budget of the run, bytes; 0 = half the physical memory. splat() refuses "
+               "with a suggested voxel size, before allocating the grids, when its estimate "
+               "exceeds it (CLI --max-memory).");
     o.finish();
 
     py::class_<SplatResult>(m, "SplatResult", "The volume and statistics of a splat.")

@@ -149,3 +149,11 @@ def test_shared_bunny_scans_match_the_reference(shared_data):
     e = vdbrecon.evaluate(mesh, gt, samples=200000, taus=[0.0005])
     assert e.fscores[0].fscore > 0.99
     assert e.chamfer_l1 < 0.0001
+
+
+def test_memory_budget_refuses_before_the_grids():
+    points, normals = sphere(5000)
+    with pytest.raises(ValueError, match=r"needs about .* Hint: --voxel"):
+        vdbrecon.reconstruct(points, normals, voxel=0.005, max_memory=20 << 20)
+    mesh = vdbrecon.reconstruct(points, normals, voxel=0.05, max_memory=20 << 20)
+    assert len(mesh.faces) > 1000

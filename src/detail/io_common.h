@@ -76,6 +76,31 @@ private:
     bool committed_ = false;
 };
 
+/// The outputs of one run as a unit: each is written under a temporary name in its target
+/// directory (same extension, so writers that pick the format by extension work on it), and
+/// commit_all() renames them all into place once the whole run has succeeded. What was not
+/// committed is removed by the destructor, or by remove_temp_files_now() on SIGINT / SIGTERM:
+/// a run that fails at any stage leaves the earlier outputs untouched.
+class StagedOutputs {
+public:
+    StagedOutputs() = default;
+    ~StagedOutputs();
+    StagedOutputs(const StagedOutputs&) = delete;
+    StagedOutputs& operator=(const StagedOutputs&) = delete;
+
+    /// The temporary path to write `final_path` to.
+    std::string stage(const std::string& final_path);
+    /// Renames every staged file that was written onto its final path. Throws IoError.
+    void commit_all();
+
+private:
+    struct Entry {
+        std::string temp, final;
+        bool committed = false;
+    };
+    std::vector<Entry> files_;
+};
+
 /// Buffered writer on an AtomicFile's stream; errors surface at commit.
 class ByteWriter {
 public:

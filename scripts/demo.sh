@@ -6,7 +6,8 @@ cd "$(dirname "$0")/.."
 mkdir -p out
 echo
 echo "demo: reconstructing data/bunny_sample.ply (72,455 points of the Stanford bunny scans)"
-./build/vdbrecon data/bunny_sample.ply -o out/bunny_sample.ply
+./build/vdbrecon data/bunny_sample.ply -o out/bunny_sample.ply --preview out/bunny_sample.png
 echo
 echo "demo: the mesh is out/bunny_sample.ply and the volume (sdf, weight, density, nearest grids)"
 echo "      is out/bunny_sample.splat.vdb; open either in Blender, Houdini or MeshLab."
+echo "      out/bunny_sample.png is a shaded picture of the mesh."

@@ -92,4 +92,65 @@ KnnResult KnnIndex::self_neighbours(int k) const {
     return out;
 }
 
+KnnResult KnnResult::subset(const std::vector<char>& keep, int k_sub,
+                            std::vector<std::size_t>& incomplete) const {
+    incomplete.clear();
+    const std::size_t n = keep.size();
+    KnnResult out;
+    if (k_sub <= 0 || k_sub > k || indices.size() != n * std::size_t(k)) return out;
+    std::vector<int> renumber(n, -1);
+    std::size_t m = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+        if (keep[i]) renumber[i] = int(m++);
+    }
+    out.k = k_sub;
+    out.indices.resize(m * std::size_t(k_sub));
+    out.sq_distances.resize(out.indices.size());
+    std::vector<char> short_row(m, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            if (!keep[i]) continue;
+            const std::size_t row = std::size_t(renumber[i]) * std::size_t(k_sub);
+            int o = 0;
+            for (int j = 0; j < k && o < k_sub; ++j) {
+                const int nb = renumber[std::size_t(neighbours(i)[j])];
+                if (nb < 0) continue;
+                out.indices[row + std::size_t(o)] = nb;
+                out.sq_distances[row + std::size_t(o)] = sq_dists(i)[j];
+                ++o;
+            }
+            if (o < k_sub) short_row[std::size_t(renumber[i])] = 1;
+        }
+    });
+    for (std::size_t j = 0; j < m; ++j) {
+        if (short_row[j]) incomplete.push_back(j);
+    }
+    return out;
+}
+
+void KnnIndex::fill_rows(KnnResult& r, const std::vector<std::size_t>& rows) const {
+    if (rows.empty() || r.k == 0) return;
+    std::vector<Vec3f> queries(rows.size());
+    for (std::size_t j = 0; j < rows.size(); ++j) queries[j] = impl_->points[rows[j]];
+    const int kq = r.k + 1;
+    const KnnResult q = query(queries, kq);
+    for (std::size_t j = 0; j < rows.size(); ++j) {
+        // As in self_neighbours: drop the point itself (or, when absent, the farthest entry).
+        int self = q.k - 1;
+        for (int t = 0; t < q.k; ++t) {
+            if (std::size_t(q.neighbours(j)[t]) == rows[j]) {
+                self = t;
+                break;
+            }
+        }
+        for (int t = 0, o = 0; t < q.k && o < r.k; ++t) {
+            if (t == self) continue;
+            r.indices[rows[j] * std::size_t(r.k) + std::size_t(o)] = q.neighbours(j)[t];
+            r.sq_distances[rows[j] * std::size_t(r.k) + std::size_t(o)] = q.sq_dists(j)[t];
+            ++o;
+        }
+    }
+}
+
 }  // namespace vdbrecon

@@ -157,7 +157,10 @@ std::size_t orient_mst(const std::vector<Vec3f>& pts, std::vector<Vec3f>& normal
 
 }  // namespace
 
-NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options) {
+namespace {
+
+NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions& options,
+                                   const KnnResult* known) {
     options.validate();
     const std::size_t n = cloud.size();
     NormalResult result;
@@ -208,8 +211,14 @@ NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& opti
                              " point(s) are too few to estimate normals or spacing");
     }
 
-    const KnnIndex index(cloud.positions);
-    const KnnResult knn = index.self_neighbours(options.k);
+    // The k nearest neighbours: given, or from a kd-tree built here.
+    KnnResult own;
+    const int want = std::min<int>(options.k, int(n) - 1);
+    if (!(known && known->k == want && known->indices.size() == n * std::size_t(want))) {
+        own = KnnIndex(cloud.positions).self_neighbours(options.k);
+        known = &own;
+    }
+    const KnnResult& knn = *known;
     const int k = knn.k;
 
     // PCA normals where needed.
@@ -290,6 +299,17 @@ NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& opti
         result.median_scale = s[s.size() / 2];
     }
     return result;
+}
+
+}  // namespace
+
+NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options) {
+    return estimate_normals_with(cloud, options, nullptr);
+}
+
+NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options,
+                              const KnnResult& known_neighbours) {
+    return estimate_normals_with(cloud, options, &known_neighbours);
 }
 
 }  // namespace vdbrecon

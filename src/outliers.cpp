@@ -54,8 +54,8 @@ OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& opt
     r.cloud = cloud;
     if (!options.enabled || n < std::size_t(options.k) + 1) return r;
 
-    const KnnIndex index(cloud.positions);
-    const KnnResult knn = index.self_neighbours(options.k);
+    r.neighbours = KnnIndex(cloud.positions).self_neighbours(options.k);
+    const KnnResult& knn = r.neighbours;
     const int k = knn.k;
     std::vector<double> spacing(n);  // d_i
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),

@@ -137,16 +137,27 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
     if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
     PipelineResult r;
     in_arena(options.threads, [&] {
+        KnnResult neighbours;  // the outlier stage's, reused by the normal stage
         if (options.outliers.enabled) {
             StageClock clock(r.timings, on_stage, "outliers");
             r.outliers = remove_outliers(cloud, options.outliers);
             cloud = std::move(r.outliers.cloud);
             r.outliers.cloud = PointCloud{};
             if (cloud.empty()) throw InvalidArgument("reconstruct: every point was an outlier");
+            std::vector<char> keep(r.outliers.removed.size());
+            for (std::size_t i = 0; i < keep.size(); ++i) keep[i] = !r.outliers.removed[i];
+            const int k = std::min<int>(options.normals.k, int(cloud.size()) - 1);
+            std::vector<std::size_t> incomplete;
+            neighbours = r.outliers.neighbours.subset(keep, k, incomplete);
+            r.outliers.neighbours = KnnResult{};
+            // Rows next to removed points may lack neighbours: those few are queried anew.
+            if (!incomplete.empty() && neighbours.k > 0) {
+                KnnIndex(cloud.positions).fill_rows(neighbours, incomplete);
+            }
         }
         {
             StageClock clock(r.timings, on_stage, "normals");
-            r.normals = estimate_normals(cloud, options.normals);
+            r.normals = estimate_normals(cloud, options.normals, neighbours);
             cloud.normals = std::move(r.normals.normals);
             cloud.scales = std::move(r.normals.scales);
             r.normals.normals.clear();

@@ -39,6 +39,28 @@ TEST_CASE("kNN: exact neighbours, self excluded even among duplicates", "[normal
     REQUIRE(q.neighbours(0)[0] == 1);
 }
 
+TEST_CASE("kNN: the neighbours of a subset come from those of the whole set", "[normals]") {
+    // What the pipeline does after outlier removal: the normal stage's neighbours are taken
+    // from the outlier stage's lists, and the few incomplete rows are queried anew.
+    const PointCloud c = sample_sphere(3000, 1.0);
+    std::vector<char> keep(c.size(), 1);
+    std::vector<Vec3f> kept;
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        keep[i] = (i % 7 != 3 && !(c.positions[i][2] > 0.9f)) ? 1 : 0;  // a hole and a sprinkle
+        if (keep[i]) kept.push_back(c.positions[i]);
+    }
+    const KnnResult all = KnnIndex(c.positions).self_neighbours(16);
+    std::vector<std::size_t> incomplete;
+    KnnResult sub = all.subset(keep, 10, incomplete);
+    REQUIRE(sub.k == 10);
+    REQUIRE(sub.indices.size() == kept.size() * 10);
+    REQUIRE(incomplete.size() < kept.size() / 10);
+    const KnnIndex kept_index(kept);
+    kept_index.fill_rows(sub, incomplete);
+    const KnnResult fresh = kept_index.self_neighbours(10);
+    REQUIRE(sub.sq_distances == fresh.sq_distances);  // the same neighbours at the same distances
+}
+
 TEST_CASE("PCA normals on a sphere are radial and MST orients them all outwards", "[normals]") {
     const Vec3d c{0.3, -0.1, 2.0};
     const double r = 0.5;

@@ -14,6 +14,7 @@
 #include <optional>
 #include <vector>
 
+#include "vdbrecon/knn.h"
 #include "vdbrecon/types.h"
 
 namespace vdbrecon {
@@ -57,5 +58,12 @@ struct NormalResult {
 
 /// Estimates (or checks) normals and per-point scale. Deterministic for any thread count.
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options = {});
+
+/// The same, with the cloud's self-neighbours already known (e.g. from remove_outliers, via
+/// KnnResult::subset): used when they hold at least options.k neighbours per point, else
+/// computed as above. The result is the same either way (up to the order of neighbours at
+/// exactly equal distances).
+NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options,
+                              const KnnResult& known_neighbours);
 
 }  // namespace vdbrecon

@@ -21,6 +21,7 @@
 #include <cstddef>
 #include <vector>
 
+#include "vdbrecon/knn.h"
 #include "vdbrecon/types.h"
 
 namespace vdbrecon {
@@ -49,6 +50,10 @@ struct OutlierResult {
     std::size_t statistical = 0;     ///< removed by the statistical rule
     std::size_t planarity = 0;       ///< removed by the planarity rule (and not the first)
     std::vector<char> removed;       ///< #P flags of the input points, 1 = removed
+    /// The k nearest neighbours of every point of the input, computed for the rules (empty
+    /// when the removal did not run): the normal stage takes its own from them
+    /// (KnnResult::subset) instead of building a second kd-tree.
+    KnnResult neighbours;
 };
 
 /// Removes outliers (see above). With fewer than k + 1 points nothing is removed.

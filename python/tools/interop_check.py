@@ -1,12 +1,14 @@
 """Interop check with the real clients, run before resolving a change to the .vdb files:
 
-  1. the CLI reconstructs a coloured sphere (and data/bunny_sample.ply) and writes <out>.splat.vdb;
-  2. vdb_print -l lists every grid with its class;
-  3. pyopenvdb reads every grid with the right name, class and values;
-  4. Blender (headless) imports the file, renders the `density` grid with Cycles to a PNG and
-     meshes the `sdf` grid with a VOLUME_TO_MESH modifier: that mesh must have as many
-     triangles as vdbrecon's own mesh (the sphere is closed, so nothing is trimmed) and the same
-     bounding box up to Blender's half-voxel shift.
+  1. the CLI reconstructs a coloured sphere twice, writing ball.splat.vdb, and with `--close 2`
+     ball_closed.closed.vdb (the splat grids plus `fill`), and data/bunny_sample.ply;
+  2. vdb_print -l lists every grid of both sphere files with its class;
+  3. pyopenvdb reads every grid of both with the right name, class, active voxels and values;
+  4. Blender (headless) imports each sphere file, renders the `density` grid with Cycles to a PNG
+     and meshes the `sdf` grid with a VOLUME_TO_MESH modifier: that mesh must have as many
+     triangles as the mesh vdbrecon wrote in the same run (the sphere is closed, so nothing is
+     trimmed, and closing fills nothing) and the same bounding box up to Blender's half-voxel
+     shift.
 
     PYTHONPATH=build-py/python /usr/bin/python3 python/tools/interop_check.py \
         --cli build-py/vdbrecon --out out/interop
@@ -28,9 +30,15 @@ import vdbrecon
 
 HERE = pathlib.Path(__file__).resolve().parent
 SOURCE_DIR = HERE.parents[1]
-GRIDS = {"sdf": ("FloatGrid", "level set"), "weight": ("FloatGrid", "unknown"),
-         "nearest": ("Vec3SGrid", "unknown"), "density": ("FloatGrid", "fog volume"),
-         "color": ("Vec3SGrid", "unknown")}
+VOXEL = 0.02
+# Grid name -> (pyopenvdb class, grid class) in a coloured <out>.splat.vdb and <out>.closed.vdb.
+SPLAT_GRIDS = {"sdf": ("FloatGrid", "level set"), "weight": ("FloatGrid", "unknown"),
+               "nearest": ("Vec3SGrid", "unknown"), "density": ("FloatGrid", "fog volume"),
+               "color": ("Vec3SGrid", "unknown")}
+CLOSED_GRIDS = {**SPLAT_GRIDS, "fill": ("FloatGrid", "unknown")}
+# The sphere runs: output stem, CLI options, volume file checked, its grids.
+SPHERE_RUNS = [("ball", [], "ball.splat.vdb", SPLAT_GRIDS),
+               ("ball_closed", ["--close", "2"], "ball_closed.closed.vdb", CLOSED_GRIDS)]
 failures = []
 
 
@@ -49,33 +57,39 @@ def sphere(n, radius):
     return (radius * normals).astype(np.float32), normals.astype(np.float32)
 
 
-def vdb_print(path):
+def vdb_print(path, grids):
+    """`vdb_print -l path` lists exactly `grids`, one level set and one fog volume."""
     out = subprocess.run(["vdb_print", "-l", str(path)], capture_output=True, text=True,
                          check=True).stdout
     print("\n".join(l for l in out.splitlines()
                     if l.startswith(("Name:", "  Type:", "  Number of active voxels", "  class:",
                                      "  file_compression", "creator"))))
-    for name, (_, grid_class) in GRIDS.items():
-        check(f"Name: {name}\n" in out, f"vdb_print lists '{name}'")
+    names = [l[len("Name: "):] for l in out.splitlines() if l.startswith("Name: ")]
+    check(sorted(names) == sorted(grids), f"vdb_print lists {names}")
     check(out.count("class: level set") == 1, "vdb_print: sdf is a level set")
     check(out.count("class: fog volume") == 1, "vdb_print: density is a fog volume")
 
 
-def pyopenvdb_check(path):
+def pyopenvdb_check(path, grids):
+    """pyopenvdb reads exactly `grids` from `path`, each with its class and the active voxels
+    and values vdbrecon reads."""
     import pyopenvdb
-    grids, meta = pyopenvdb.readAll(str(path))
+    read, meta = pyopenvdb.readAll(str(path))
     ours = vdbrecon.read_volume(path)
-    check(sorted(g.name for g in grids) == sorted(GRIDS),
-          f"pyopenvdb grid names {[g.name for g in grids]}")
-    for g in grids:
-        cls, grid_class = GRIDS[g.name]
+    check(sorted(g.name for g in read) == sorted(grids),
+          f"pyopenvdb grid names {[g.name for g in read]}")
+    for g in read:
+        cls, grid_class = grids.get(g.name, (None, None))
         coords, values = ours.to_arrays(g.name)
         acc = g.getConstAccessor()
-        got = np.array([acc.getValue(tuple(int(x) for x in c)) for c in coords])
+        probed = [acc.probeValue(tuple(int(x) for x in c)) for c in coords]
+        got = np.array([value for value, _ in probed])
+        # As many active voxels, all of ours active: the same active coordinates.
         check(type(g).__name__ == cls and g.gridClass == grid_class and
-              g.activeVoxelCount() == len(coords) and np.array_equal(got, values),
+              g.activeVoxelCount() == len(coords) and all(on for _, on in probed) and
+              np.array_equal(got, values),
               f"pyopenvdb {g.name}: {type(g).__name__}, '{g.gridClass}', "
-              f"{g.activeVoxelCount()} active voxels, every value equal")
+              f"{g.activeVoxelCount()} active voxels, same coordinates, every value equal")
     print(f"  file metadata: creator={meta.get('creator')!r}")
 
 
@@ -96,6 +110,28 @@ def blender(path, png, samples):
     return info
 
 
+def blender_sphere(path, png, samples, grids, mesh):
+    """Blender imports every grid of a sphere's volume `path` and renders it to `png`; its
+    VOLUME_TO_MESH mesh of `sdf` has the triangle count and bounding box of vdbrecon's `mesh`."""
+    info = blender(path, png, samples)
+    if not info:
+        return
+    names = {g["name"]: g for g in info["grids"]}
+    check(set(names) == set(grids), f"blender sees grids {sorted(names)}")
+    check(names.get("density", {}).get("data_type") == "FLOAT", "density is FLOAT")
+    b = info["mesh"]
+    check(b["triangles"] == len(mesh.faces),
+          f"VOLUME_TO_MESH: {b['polygons']} polygons = {b['triangles']} triangles, "
+          f"vdbrecon: {len(mesh.faces)} triangles")
+    half = 0.5 * VOXEL  # Blender's cell-centred voxels shift its mesh by +voxel/2
+    lo = np.array(b["bbox_min"]) - half
+    hi = np.array(b["bbox_max"]) - half
+    vlo, vhi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    err = max(np.abs(lo - vlo).max(), np.abs(hi - vhi).max())
+    check(err < 1e-4, f"bounding boxes agree within {err:.2e} (blender {lo.round(4)}.."
+          f"{hi.round(4)}, vdbrecon {vlo.round(4)}..{vhi.round(4)})")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cli", required=True)
@@ -106,40 +142,31 @@ def main():
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    # A coloured sphere, radius 0.5, voxel 0.02: closed, so vdbrecon trims nothing.
+    # A coloured sphere, radius 0.5: closed, so vdbrecon trims nothing and closing fills nothing.
     points, normals = sphere(40000, 0.5)
     colors = (0.5 + 0.5 * normals).astype(np.float32)
     src = out / "ball_points.ply"
     vdbrecon.write_points(src, vdbrecon.PointCloud(points, normals, colors))
-    subprocess.run([args.cli, src, "-o", out / "ball.ply", "--voxel", "0.02", "-q"], check=True)
-    vdb = out / "ball.splat.vdb"
-    mesh = vdbrecon.read_mesh(out / "ball.ply")
-    print(f"vdbrecon: {vdb}, mesh {len(mesh.vertices)} vertices, {len(mesh.faces)} triangles")
+    meshes = {}
+    for stem, options, vdb, _ in SPHERE_RUNS:
+        subprocess.run([args.cli, src, "-o", out / f"{stem}.ply", "--voxel", str(VOXEL), "-q",
+                        *options], check=True)
+        meshes[stem] = vdbrecon.read_mesh(out / f"{stem}.ply")
+        print(f"vdbrecon {' '.join(options) or '(no closing)'}: {out / vdb}, mesh "
+              f"{len(meshes[stem].vertices)} vertices, {len(meshes[stem].faces)} triangles")
 
-    print("\n== vdb_print -l")
-    vdb_print(vdb)
-    print("== pyopenvdb")
-    pyopenvdb_check(vdb)
+    for _, _, vdb, grids in SPHERE_RUNS:
+        print(f"\n== vdb_print -l {vdb}")
+        vdb_print(out / vdb, grids)
+        print(f"== pyopenvdb {vdb}")
+        pyopenvdb_check(out / vdb, grids)
     if args.no_blender or shutil.which("blender") is None:
         print("== blender: skipped")
     else:
-        print("== blender")
-        info = blender(vdb, (out / "ball_density.png").resolve(), args.samples)
-        if info:
-            names = {g["name"]: g for g in info["grids"]}
-            check(set(names) == set(GRIDS), f"blender sees grids {sorted(names)}")
-            check(names.get("density", {}).get("data_type") == "FLOAT", "density is FLOAT")
-            b = info["mesh"]
-            check(b["triangles"] == len(mesh.faces),
-                  f"VOLUME_TO_MESH: {b['polygons']} polygons = {b['triangles']} triangles, "
-                  f"vdbrecon: {len(mesh.faces)} triangles")
-            half = 0.5 * 0.02  # Blender's cell-centred voxels shift its mesh by +voxel/2
-            lo = np.array(b["bbox_min"]) - half
-            hi = np.array(b["bbox_max"]) - half
-            vlo, vhi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
-            err = max(np.abs(lo - vlo).max(), np.abs(hi - vhi).max())
-            check(err < 1e-4, f"bounding boxes agree within {err:.2e} (blender {lo.round(4)}.."
-                  f"{hi.round(4)}, vdbrecon {vlo.round(4)}..{vhi.round(4)})")
+        for stem, _, vdb, grids in SPHERE_RUNS:
+            print(f"== blender {vdb}")
+            blender_sphere(out / vdb, (out / f"{stem}_density.png").resolve(), args.samples,
+                           grids, meshes[stem])
 
         # The bunny sample, for a recognisable picture (open scan: vdbrecon trims its mesh
         # where the data ends, Blender's modifier does not, so only the render is checked).

@@ -763,7 +763,8 @@ TEST_CASE("bad input: output in a missing or read-only directory", "[cli][bad_in
 
 TEST_CASE("bad input: an interrupted run removes its temporary files", "[cli][bad_input]") {
     // Issue 6 point 3. The run is interrupted once its first output (the .vdb, written while the
-    // mesh is extracted) is on disk under a temporary name; the earlier outputs must survive.
+    // mesh is extracted) is on disk under a temporary name (waiting up to 60 s: a sanitizer
+    // build is ~10x slower); the earlier outputs must survive.
     Workspace w;
     const std::string in = w.input("big.ply", sample_sphere(200000, 1.0));
     const auto before = snapshot(w.dir.path());
@@ -771,7 +772,7 @@ TEST_CASE("bad input: an interrupted run removes its temporary files", "[cli][ba
         TempDir capture;
         const std::string script =
             std::string(VDBRECON_CLI) + " '" + in + "' -o '" + w.out + "' -q --voxel 0.004 & " +
-            "pid=$!; seen=no; for i in $(seq 600); do " +
+            "pid=$!; seen=no; for i in $(seq 6000); do " +
             "if ls -a '" + w.dir.path() + "' | grep -q staged; then seen=yes; break; fi; " +
             "sleep 0.01; done; kill -" + sig + " $pid; wait $pid; echo \"$? $seen\"\n";
         write_bytes(capture.file("interrupt.sh"), script);

@@ -13,6 +13,7 @@
 #include <mutex>
 #include <set>
 #include <sstream>
+#include <utility>
 
 #include "detail/io_common.h"
 #include "detail/temp_files.h"
@@ -278,12 +279,23 @@ Mesh finalize_mesh(RawPoints&& raw, const std::string& path) {
 // ---------------------------------------------------------------------------------------------
 // Atomic files
 
+namespace {
+
+/// A path's directory (with its trailing '/', or "") and file name; an output path must name a
+/// file.
+std::pair<std::string, std::string> split_output_path(const std::string& path) {
+    const std::size_t slash = path.find_last_of('/');
+    std::string dir = slash == std::string::npos ? "" : path.substr(0, slash + 1);
+    std::string base = slash == std::string::npos ? path : path.substr(slash + 1);
+    if (base.empty()) throw IoError(where(path, "output path names a directory"));
+    return {std::move(dir), std::move(base)};
+}
+
+}  // namespace
+
 AtomicFile::AtomicFile(const std::string& final_path) : final_(final_path) {
     static std::atomic<unsigned> counter{0};
-    const std::size_t slash = final_path.find_last_of('/');
-    const std::string dir = slash == std::string::npos ? "" : final_path.substr(0, slash + 1);
-    const std::string base = slash == std::string::npos ? final_path : final_path.substr(slash + 1);
-    if (base.empty()) throw IoError(where(final_path, "output path names a directory"));
+    const auto [dir, base] = split_output_path(final_path);
     temp_ = dir + "." + base + ".tmp." + std::to_string(::getpid()) + "." +
             std::to_string(counter++);
     register_temp_file(temp_);
@@ -304,10 +316,7 @@ StagedOutputs::~StagedOutputs() {
 
 std::string StagedOutputs::stage(const std::string& final_path) {
     static std::atomic<unsigned> counter{0};
-    const std::size_t slash = final_path.find_last_of('/');
-    const std::string dir = slash == std::string::npos ? "" : final_path.substr(0, slash + 1);
-    const std::string base = slash == std::string::npos ? final_path : final_path.substr(slash + 1);
-    if (base.empty()) throw IoError(where(final_path, "output path names a directory"));
+    const auto [dir, base] = split_output_path(final_path);
     const std::size_t dot = base.find_last_of('.');
     const std::string stem = dot == std::string::npos ? base : base.substr(0, dot);
     const std::string ext = dot == std::string::npos ? "" : base.substr(dot);

@@ -12,6 +12,30 @@
 
 namespace vdbrecon {
 
+namespace {
+
+/// Where point `self` stands in its own list of `kq` neighbours (it may not come first among
+/// exact duplicates); when it is missing, the last (farthest) entry, which is dropped instead.
+int self_position(const int* list, int kq, std::size_t self) {
+    for (int j = 0; j < kq; ++j) {
+        if (std::size_t(list[j]) == self) return j;
+    }
+    return kq - 1;
+}
+
+/// Copies the kq - 1 entries of a list other than the one at `skip`.
+void copy_without(const int* idx, const float* dist, int kq, int skip, int* out_idx,
+                  float* out_dist) {
+    for (int j = 0, o = 0; j < kq; ++j) {
+        if (j == skip) continue;
+        out_idx[o] = idx[j];
+        out_dist[o] = dist[j];
+        ++o;
+    }
+}
+
+}  // namespace
+
 struct KnnIndex::Impl {
     std::vector<Vec3f> points;
     std::unique_ptr<flann::Index<flann::L2_Simple<float>>> index;
@@ -70,38 +94,26 @@ KnnResult KnnIndex::self_neighbours(int k) const {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             const int* src = &idx[i * std::size_t(kq)];
             const float* sd = &dist[i * std::size_t(kq)];
-            // Drop the point itself (it may not come first among exact duplicates); when it is
-            // missing from the list, drop the farthest entry instead.
-            int self = kq - 1;
-            for (int j = 0; j < kq; ++j) {
-                if (src[j] == int(i)) {
-                    self = j;
-                    break;
-                }
-            }
-            int* dst = &out.indices[i * std::size_t(out.k)];
-            float* dd = &out.sq_distances[i * std::size_t(out.k)];
-            for (int j = 0, o = 0; j < kq; ++j) {
-                if (j == self) continue;
-                dst[o] = src[j];
-                dd[o] = sd[j];
-                ++o;
-            }
+            const int self = self_position(src, kq, i);
+            copy_without(src, sd, kq, self, &out.indices[i * std::size_t(out.k)],
+                         &out.sq_distances[i * std::size_t(out.k)]);
         }
     });
     return out;
 }
 
-KnnResult KnnResult::subset(const std::vector<char>& keep, int k_sub,
-                            std::vector<std::size_t>& incomplete) const {
-    incomplete.clear();
-    const std::size_t n = keep.size();
+KnnResult KnnResult::subset(const std::vector<char>& removed,
+                            const std::vector<Vec3f>& kept_points, int k_sub,
+                            std::size_t* requeried) const {
+    if (requeried) *requeried = 0;
+    const std::size_t n = removed.size();
     KnnResult out;
     if (k_sub <= 0 || k_sub > k || indices.size() != n * std::size_t(k)) return out;
+    if (kept_points.empty() || std::size_t(k_sub) >= kept_points.size()) return out;
     std::vector<int> renumber(n, -1);
     std::size_t m = 0;
     for (std::size_t i = 0; i < n; ++i) {
-        if (keep[i]) renumber[i] = int(m++);
+        if (!removed[i]) renumber[i] = int(m++);
     }
     out.k = k_sub;
     out.indices.resize(m * std::size_t(k_sub));
@@ -110,7 +122,7 @@ KnnResult KnnResult::subset(const std::vector<char>& keep, int k_sub,
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
-            if (!keep[i]) continue;
+            if (removed[i]) continue;
             const std::size_t row = std::size_t(renumber[i]) * std::size_t(k_sub);
             int o = 0;
             for (int j = 0; j < k && o < k_sub; ++j) {
@@ -123,9 +135,13 @@ KnnResult KnnResult::subset(const std::vector<char>& keep, int k_sub,
             if (o < k_sub) short_row[std::size_t(renumber[i])] = 1;
         }
     });
+    std::vector<std::size_t> incomplete;
     for (std::size_t j = 0; j < m; ++j) {
         if (short_row[j]) incomplete.push_back(j);
     }
+    if (m != kept_points.size()) throw InvalidArgument("kNN subset: kept point count mismatch");
+    if (!incomplete.empty()) KnnIndex(kept_points).fill_rows(out, incomplete);
+    if (requeried) *requeried = incomplete.size();
     return out;
 }
 
@@ -133,23 +149,14 @@ void KnnIndex::fill_rows(KnnResult& r, const std::vector<std::size_t>& rows) con
     if (rows.empty() || r.k == 0) return;
     std::vector<Vec3f> queries(rows.size());
     for (std::size_t j = 0; j < rows.size(); ++j) queries[j] = impl_->points[rows[j]];
-    const int kq = r.k + 1;
+    const int kq = r.k + 1;  // <= size(): r.k is at most size() - 1
     const KnnResult q = query(queries, kq);
     for (std::size_t j = 0; j < rows.size(); ++j) {
         // As in self_neighbours: drop the point itself (or, when absent, the farthest entry).
-        int self = q.k - 1;
-        for (int t = 0; t < q.k; ++t) {
-            if (std::size_t(q.neighbours(j)[t]) == rows[j]) {
-                self = t;
-                break;
-            }
-        }
-        for (int t = 0, o = 0; t < q.k && o < r.k; ++t) {
-            if (t == self) continue;
-            r.indices[rows[j] * std::size_t(r.k) + std::size_t(o)] = q.neighbours(j)[t];
-            r.sq_distances[rows[j] * std::size_t(r.k) + std::size_t(o)] = q.sq_dists(j)[t];
-            ++o;
-        }
+        copy_without(q.neighbours(j), q.sq_dists(j), kq,
+                     self_position(q.neighbours(j), kq, rows[j]),
+                     &r.indices[rows[j] * std::size_t(r.k)],
+                     &r.sq_distances[rows[j] * std::size_t(r.k)]);
     }
 }
 

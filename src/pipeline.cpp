@@ -144,16 +144,9 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
             cloud = std::move(r.outliers.cloud);
             r.outliers.cloud = PointCloud{};
             if (cloud.empty()) throw InvalidArgument("reconstruct: every point was an outlier");
-            std::vector<char> keep(r.outliers.removed.size());
-            for (std::size_t i = 0; i < keep.size(); ++i) keep[i] = !r.outliers.removed[i];
             const int k = std::min<int>(options.normals.k, int(cloud.size()) - 1);
-            std::vector<std::size_t> incomplete;
-            neighbours = r.outliers.neighbours.subset(keep, k, incomplete);
+            neighbours = r.outliers.neighbours.subset(r.outliers.removed, cloud.positions, k);
             r.outliers.neighbours = KnnResult{};
-            // Rows next to removed points may lack neighbours: those few are queried anew.
-            if (!incomplete.empty() && neighbours.k > 0) {
-                KnnIndex(cloud.positions).fill_rows(neighbours, incomplete);
-            }
         }
         {
             StageClock clock(r.timings, on_stage, "normals");

@@ -17,13 +17,13 @@ struct KnnResult {
 
     const int* neighbours(std::size_t q) const { return indices.data() + q * std::size_t(k); }
     const float* sq_dists(std::size_t q) const { return sq_distances.data() + q * std::size_t(k); }
-    /// The self-neighbours of a subset of the points (those with keep[i] != 0, renumbered in
-    /// order), k_sub each, from these self-neighbours of all of them: a kept point's nearest
-    /// kept points are the first kept ones of its list, which is exact wherever the list holds
-    /// at least k_sub kept points. The rows where it does not are listed in `incomplete` (and
-    /// left to the caller, see KnnIndex::fill_rows).
-    KnnResult subset(const std::vector<char>& keep, int k_sub,
-                     std::vector<std::size_t>& incomplete) const;
+    /// The self-neighbours of the points left after removing those with removed[i] != 0
+    /// (renumbered in order), k_sub each, from these self-neighbours of all of them: a kept
+    /// point's nearest kept points are the first kept ones of its list, which is exact wherever
+    /// the list holds at least k_sub kept points. The rows where it does not are queried anew
+    /// on a kd-tree of `kept_points` (built only then); their count goes to *requeried.
+    KnnResult subset(const std::vector<char>& removed, const std::vector<Vec3f>& kept_points,
+                     int k_sub, std::size_t* requeried = nullptr) const;
 };
 
 /// An exact kd-tree over points; build once, query many times from any number of threads.
@@ -45,8 +45,7 @@ public:
     /// The k nearest indexed points of arbitrary query points, in parallel.
     KnnResult query(const std::vector<Vec3f>& queries, int k) const;
 
-    /// Recomputes the given rows of self-neighbours `r` (r.k per row) of the indexed points,
-    /// e.g. the incomplete rows of KnnResult::subset.
+    /// Recomputes the given rows of self-neighbours `r` (r.k per row) of the indexed points.
     void fill_rows(KnnResult& r, const std::vector<std::size_t>& rows) const;
 
 private:

@@ -239,11 +239,7 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     if (!out.vdb_path.empty()) detail::check_writable(out.vdb_path);
     if (!out.closed_vdb_path.empty()) detail::check_writable(out.closed_vdb_path);
     if (!options.preview_path.empty()) {
-        const std::string pext = file_extension(options.preview_path);
-        if (pext != "png" && pext != "exr") {
-            throw InvalidArgument("preview '" + options.preview_path +
-                                  "': unknown image extension (use .png or .exr)");
-        }
+        check_image_path(options.preview_path);
         detail::check_writable(options.preview_path);
     }
 

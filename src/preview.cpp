@@ -301,14 +301,19 @@ void write_exr(const std::string& path, const Image& img) {
 
 }  // namespace
 
-void write_image(const std::string& path, const Image& image) {
+void check_image_path(const std::string& path) {
     const std::string ext = file_extension(path);
-    if (ext == "png") {
-        write_png(path, image);
-    } else if (ext == "exr") {
-        write_exr(path, image);
-    } else {
+    if (ext != "png" && ext != "exr") {
         throw InvalidArgument("preview '" + path + "': unknown image extension (use .png or .exr)");
+    }
+}
+
+void write_image(const std::string& path, const Image& image) {
+    check_image_path(path);
+    if (file_extension(path) == "png") {
+        write_png(path, image);
+    } else {
+        write_exr(path, image);
     }
 }
 

@@ -43,6 +43,9 @@ struct Image {
 /// Renders the mesh (see above). Throws InvalidArgument for an empty mesh.
 Image render_preview(const Mesh& mesh, const PreviewOptions& options = {});
 
+/// Throws InvalidArgument unless the path ends in .png or .exr (what write_image writes).
+void check_image_path(const std::string& path);
+
 /// Writes the image as .png or .exr (by extension), atomically. Throws IoError, InvalidArgument
 /// for another extension.
 void write_image(const std::string& path, const Image& image);

@@ -257,7 +257,7 @@ int run_eval(Args& args) {
     const Mesh ref = read_mesh(files[1]);
     if (!mask_path.empty()) {
         PointCloud mask = read_points(mask_path).cloud;
-        options.mask_points = std::move(mask.positions);
+        options.mask_points = mask.positions.release_vector();
         options.mask_origin = mask.origin;
     }
     std::cout << to_json(evaluate(recon, ref, options));

@@ -33,7 +33,7 @@ double BBox::diagonal() const {
     return std::sqrt(s);
 }
 
-BBox bounding_box(const std::vector<Vec3f>& positions) {
+BBox bounding_box(Span<Vec3f> positions) {
     BBox b;
     if (positions.empty()) return b;
     b.min = b.max = positions[0];
@@ -178,7 +178,7 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
     // coordinates, converts the others and compacts every attribute in place.
     PointCloud& cloud = result.cloud;
     cloud.origin = options.local_frame ? choose_origin(raw.xyz.data(), rows) : Vec3d{0, 0, 0};
-    cloud.positions.resize(rows);
+    std::vector<Vec3f> positions(rows);
     std::size_t kept = 0, first_bad = rows;
     for (std::size_t i = 0; i < rows; ++i) {
         const double* p = &raw.xyz[3 * i];
@@ -190,7 +190,7 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
             if (first_bad == rows) first_bad = i;
             continue;
         }
-        cloud.positions[kept] = local_point(p, cloud.origin, path, "row", i);
+        positions[kept] = local_point(p, cloud.origin, path, "row", i);
         if (kept != i) {
             for (auto* v : {&raw.normals, &raw.colors}) {
                 if (!v->empty()) std::copy_n(v->data() + 3 * i, 3, v->data() + 3 * kept);
@@ -202,7 +202,8 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         ++kept;
     }
     raw.xyz = {};
-    cloud.positions.resize(kept);
+    positions.resize(kept);
+    cloud.positions = std::move(positions);
     result.dropped_nonfinite = rows - kept;
     if (result.dropped_nonfinite > 0) {
         if (kept == 0) {
@@ -215,23 +216,19 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
                                     std::to_string(first_bad) + ")"));
     }
 
-    auto to_vec3 = [kept](std::vector<float>& src, std::vector<Vec3f>& dst) {
-        if (src.empty()) return;
-        dst.resize(kept);
-        std::memcpy(dst.data(), src.data(), kept * sizeof(Vec3f));
+    auto to_vec3 = [kept](std::vector<float>& src) {
+        std::vector<Vec3f> dst(src.empty() ? 0 : kept);
+        if (!dst.empty()) std::memcpy(dst.data(), src.data(), kept * sizeof(Vec3f));
         src = {};
+        return dst;
     };
-    to_vec3(raw.normals, cloud.normals);
-    to_vec3(raw.colors, cloud.colors);
-    if (!raw.scales.empty()) {
-        raw.scales.resize(kept);
-        cloud.scales = std::move(raw.scales);
-    }
+    std::vector<Vec3f> normals = to_vec3(raw.normals);
+    cloud.colors = to_vec3(raw.colors);
     if (!raw.confidences.empty()) {
         raw.confidences.resize(kept);
         cloud.confidences = std::move(raw.confidences);
     }
-    for (Vec3f& n : cloud.normals) {
+    for (Vec3f& n : normals) {
         const double len = std::sqrt(double(n[0]) * n[0] + double(n[1]) * n[1] + double(n[2]) * n[2]);
         if (!std::isfinite(len) || len < 1e-12) {
             n = {0.0f, 0.0f, 0.0f};
@@ -244,8 +241,13 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         log_warning(where(path, std::to_string(result.invalid_normals) +
                                     " normals are zero or NaN; they will be re-estimated"));
     }
-    for (float& s : cloud.scales) {
-        if (!std::isfinite(s) || s < 0.0f) s = 0.0f;  // 0 = unknown; the normals stage fills it
+    cloud.normals = std::move(normals);
+    if (!raw.scales.empty()) {
+        raw.scales.resize(kept);
+        for (float& s : raw.scales) {
+            if (!std::isfinite(s) || s < 0.0f) s = 0.0f;  // 0 = unknown; the normals stage fills it
+        }
+        cloud.scales = std::move(raw.scales);
     }
     return result;
 }
@@ -577,8 +579,8 @@ void write_mesh(const std::string& path, const Mesh& mesh, const WriteOptions& o
     if (ext == "ply") {
         const bool n = !mesh.normals.empty() && mesh.normals.size() == mesh.vertices.size();
         const bool c = !mesh.colors.empty() && mesh.colors.size() == mesh.vertices.size();
-        detail::write_ply(path, mesh.vertices, mesh.origin, n ? &mesh.normals : nullptr,
-                          c ? &mesh.colors : nullptr, nullptr, nullptr, &mesh.faces, options);
+        detail::write_ply(path, mesh.vertices, mesh.origin, n ? mesh.normals : Span<Vec3f>(),
+                          c ? mesh.colors : Span<Vec3f>(), {}, {}, &mesh.faces, options);
     } else if (ext == "obj") {
         write_obj(path, mesh, options);
     } else {
@@ -590,12 +592,8 @@ void write_mesh(const std::string& path, const Mesh& mesh, const WriteOptions& o
 void write_points(const std::string& path, const PointCloud& cloud, const WriteOptions& options) {
     const std::string ext = file_extension(path);
     if (ext == "ply") {
-        detail::write_ply(path, cloud.positions, cloud.origin,
-                          cloud.has_normals() ? &cloud.normals : nullptr,
-                          cloud.has_colors() ? &cloud.colors : nullptr,
-                          cloud.has_scales() ? &cloud.scales : nullptr,
-                          cloud.has_confidences() ? &cloud.confidences : nullptr, nullptr,
-                          options);
+        detail::write_ply(path, cloud.positions, cloud.origin, cloud.normals, cloud.colors,
+                          cloud.scales, cloud.confidences, nullptr, options);
     } else if (ext == "xyz") {
         write_xyz(path, cloud);
     } else {

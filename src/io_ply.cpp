@@ -586,10 +586,10 @@ std::uint8_t to_byte(float c) {
 
 }  // namespace
 
-void write_ply(const std::string& path, const std::vector<Vec3f>& positions, const Vec3d& origin,
-               const std::vector<Vec3f>* normals, const std::vector<Vec3f>* colors,
-               const std::vector<float>* scales, const std::vector<float>* confidences,
-               const std::vector<Triangle>* faces, const WriteOptions& options) {
+void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& origin,
+               Span<Vec3f> normals, Span<Vec3f> colors, Span<float> scales,
+               Span<float> confidences, const std::vector<Triangle>* faces,
+               const WriteOptions& options) {
     const bool far = origin != Vec3d{0, 0, 0};
     const bool ascii = options.encoding == PlyEncoding::ascii;
     const bool big = options.encoding == PlyEncoding::binary_big_endian;
@@ -607,10 +607,10 @@ void write_ply(const std::string& path, const std::vector<Vec3f>& positions, con
     header += "element vertex " + std::to_string(positions.size()) + "\n";
     const char* coord = far ? "double" : "float";
     for (const char* a : {"x", "y", "z"}) header += std::string("property ") + coord + " " + a + "\n";
-    if (normals) header += "property float nx\nproperty float ny\nproperty float nz\n";
-    if (colors) header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
-    if (scales) header += "property float value\n";
-    if (confidences) header += "property float confidence\n";
+    if (!normals.empty()) header += "property float nx\nproperty float ny\nproperty float nz\n";
+    if (!colors.empty()) header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+    if (!scales.empty()) header += "property float value\n";
+    if (!confidences.empty()) header += "property float confidence\n";
     if (faces) {
         header += "element face " + std::to_string(faces->size()) + "\n";
         header += "property list uchar int vertex_indices\n";
@@ -629,14 +629,14 @@ void write_ply(const std::string& path, const std::vector<Vec3f>& positions, con
                 rec += far ? format_number(origin[a] + double(positions[i][a]))
                            : format_number(positions[i][a]);
             }
-            if (normals) {
-                for (float v : (*normals)[i]) rec += ' ' + format_number(v);
+            if (!normals.empty()) {
+                for (float v : normals[i]) rec += ' ' + format_number(v);
             }
-            if (colors) {
-                for (float v : (*colors)[i]) rec += ' ' + std::to_string(int(to_byte(v)));
+            if (!colors.empty()) {
+                for (float v : colors[i]) rec += ' ' + std::to_string(int(to_byte(v)));
             }
-            if (scales) rec += ' ' + format_number((*scales)[i]);
-            if (confidences) rec += ' ' + format_number((*confidences)[i]);
+            if (!scales.empty()) rec += ' ' + format_number(scales[i]);
+            if (!confidences.empty()) rec += ' ' + format_number(confidences[i]);
             rec += '\n';
         } else {
             for (int a = 0; a < 3; ++a) {
@@ -646,14 +646,14 @@ void write_ply(const std::string& path, const std::vector<Vec3f>& positions, con
                     put_binary(rec, positions[i][a], big);
                 }
             }
-            if (normals) {
-                for (float v : (*normals)[i]) put_binary(rec, v, big);
+            if (!normals.empty()) {
+                for (float v : normals[i]) put_binary(rec, v, big);
             }
-            if (colors) {
-                for (float v : (*colors)[i]) put_binary(rec, to_byte(v), big);
+            if (!colors.empty()) {
+                for (float v : colors[i]) put_binary(rec, to_byte(v), big);
             }
-            if (scales) put_binary(rec, (*scales)[i], big);
-            if (confidences) put_binary(rec, (*confidences)[i], big);
+            if (!scales.empty()) put_binary(rec, scales[i], big);
+            if (!confidences.empty()) put_binary(rec, confidences[i], big);
         }
         out.write(rec.data(), rec.size());
     }

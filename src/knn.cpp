@@ -37,7 +37,7 @@ void copy_without(const int* idx, const float* dist, int kq, int skip, int* out_
 }  // namespace
 
 struct KnnIndex::Impl {
-    std::vector<Vec3f> points;
+    Span<Vec3f> points;
     std::unique_ptr<flann::Index<flann::L2_Simple<float>>> index;
 
     void search(const Vec3f* queries, std::size_t count, int k, int* idx, float* dist) const {
@@ -55,10 +55,12 @@ struct KnnIndex::Impl {
     }
 };
 
-KnnIndex::KnnIndex(const std::vector<Vec3f>& points) : impl_(std::make_unique<Impl>()) {
+KnnIndex::KnnIndex(Span<Vec3f> points) : impl_(std::make_unique<Impl>()) {
     if (points.empty()) throw InvalidArgument("kNN index: no points");
     impl_->points = points;
-    flann::Matrix<float> data(impl_->points[0].data(), impl_->points.size(), 3);
+    // FLANN only reads the points (with `reorder` it keeps its own reordered copy for the
+    // queries; ours are needed only while building and for fill_rows).
+    flann::Matrix<float> data(const_cast<float*>(points[0].data()), points.size(), 3);
     impl_->index = std::make_unique<flann::Index<flann::L2_Simple<float>>>(
         data, flann::KDTreeSingleIndexParams(15));
     impl_->index->buildIndex();
@@ -68,7 +70,7 @@ KnnIndex::~KnnIndex() = default;
 
 std::size_t KnnIndex::size() const { return impl_->points.size(); }
 
-KnnResult KnnIndex::query(const std::vector<Vec3f>& queries, int k) const {
+KnnResult KnnIndex::query(Span<Vec3f> queries, int k) const {
     KnnResult r;
     r.k = std::max(0, std::min<int>(k, int(size())));
     if (r.k == 0 || queries.empty()) return r;
@@ -103,7 +105,7 @@ KnnResult KnnIndex::self_neighbours(int k) const {
 }
 
 KnnResult KnnResult::subset(const std::vector<char>& removed,
-                            const std::vector<Vec3f>& kept_points, int k_sub,
+                            Span<Vec3f> kept_points, int k_sub,
                             std::size_t* requeried) const {
     if (requeried) *requeried = 0;
     const std::size_t n = removed.size();

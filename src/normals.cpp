@@ -37,7 +37,7 @@ void flip(Vec3f& n) {
 }
 
 /// PCA normal of point i and its neighbours.
-bool neighbourhood_normal(const std::vector<Vec3f>& pts, std::size_t i, const int* nb, int k,
+bool neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
                           Vec3f& normal) {
     Eigen::Vector3d ev, n;
     if (!detail::neighbourhood_pca(pts, i, nb, k, ev, n)) return false;
@@ -53,7 +53,7 @@ bool neighbourhood_normal(const std::vector<Vec3f>& pts, std::size_t i, const in
 /// kFree are re-oriented; kFixed points (already oriented) seed their neighbourhoods; kExcluded
 /// points (no normal) take no part. Returns the number of components seeded at a free point.
 enum : char { kExcluded = 0, kFree = 1, kFixed = 2 };
-std::size_t orient_mst(const std::vector<Vec3f>& pts, std::vector<Vec3f>& normals,
+std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
                        const KnnResult& knn, const std::vector<char>& state,
                        std::size_t& flipped) {
     const std::size_t n = pts.size();
@@ -195,15 +195,22 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
                                  [](float s) { return !(s > 0.0f); });
     }
 
-    result.normals = estimate_all ? std::vector<Vec3f>(n, Vec3f{0, 0, 0}) : cloud.normals;
+    // Kept arrays are Column copies: a borrowed input is shared, not copied, until written.
+    if (estimate_all) {
+        result.normals = std::vector<Vec3f>(n, Vec3f{0, 0, 0});
+    } else {
+        result.normals = cloud.normals;
+    }
     if (options.scale != ScaleMode::none && cloud.has_scales()) result.scales = cloud.scales;
+    auto median_scale = [&result] {
+        if (result.scales.empty()) return;
+        std::vector<float> s = result.scales.to_vector();
+        std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
+        result.median_scale = s[s.size() / 2];
+    };
 
     if (needed == 0 && !need_scale) {
-        if (!result.scales.empty()) {
-            std::vector<float> s = result.scales;
-            std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
-            result.median_scale = s[s.size() / 2];
-        }
+        median_scale();
         return result;
     }
     if (n < 2) {
@@ -224,13 +231,14 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     // PCA normals where needed.
     std::vector<char> degenerate(n, 0);
     if (needed > 0) {
+        std::vector<Vec3f>& normals = result.normals.edit();
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t i = r.begin(); i < r.end(); ++i) {
                 if (!needs[i]) continue;
                 Vec3f nrm;
                 if (k >= 2 && neighbourhood_normal(cloud.positions, i, knn.neighbours(i), k, nrm)) {
-                    result.normals[i] = nrm;
+                    normals[i] = nrm;
                 } else {
                     degenerate[i] = 1;
                 }
@@ -240,7 +248,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
         for (std::size_t i = 0; i < n; ++i) {
             if (degenerate[i]) {
                 ++bad;
-                result.normals[i] = {0.0f, 0.0f, 0.0f};  // left unsplatted
+                normals[i] = {0.0f, 0.0f, 0.0f};  // left unsplatted
             }
         }
         if (bad > 0) {
@@ -265,8 +273,8 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
                 const Vec3f to_view = {float(v[0] - cloud.origin[0] - p[0]),
                                        float(v[1] - cloud.origin[1] - p[1]),
                                        float(v[2] - cloud.origin[2] - p[2])};
-                if (dot(result.normals[i], to_view) < 0.0f) {
-                    flip(result.normals[i]);
+                if (dot(normals[i], to_view) < 0.0f) {
+                    flip(normals[i]);
                     ++result.flipped;
                 }
             }
@@ -276,28 +284,25 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
                 state[i] = degenerate[i] ? kExcluded : needs[i] ? kFree : kFixed;
             }
             result.components =
-                orient_mst(cloud.positions, result.normals, knn, state, result.flipped);
+                orient_mst(cloud.positions, normals, knn, state, result.flipped);
         }
     }
 
     if (need_scale) {
         if (result.scales.empty()) result.scales.assign(n, 0.0f);
+        std::vector<float>& scales = result.scales.edit();
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                if (options.scale == ScaleMode::automatic && result.scales[i] > 0.0f) continue;
+                if (options.scale == ScaleMode::automatic && scales[i] > 0.0f) continue;
                 const float* d = knn.sq_dists(i);
                 double s = 0.0;
                 for (int j = 0; j < k; ++j) s += std::sqrt(double(d[j]));
-                result.scales[i] = float(s / double(k));
+                scales[i] = float(s / double(k));
             }
         });
     }
-    if (!result.scales.empty()) {
-        std::vector<float> s = result.scales;
-        std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
-        result.median_scale = s[s.size() / 2];
-    }
+    median_scale();
     return result;
 }
 

@@ -34,14 +34,16 @@ void OutlierOptions::validate() const {
 
 namespace {
 
+/// The rows of `v` not removed, as a new array (v may borrow memory it must not write to).
 template <typename T>
-void keep_rows(std::vector<T>& v, const std::vector<char>& removed) {
-    if (v.empty()) return;
-    std::size_t w = 0;
+Column<T> keep_rows(const Column<T>& v, const std::vector<char>& removed, std::size_t kept) {
+    std::vector<T> out;
+    if (v.empty()) return out;
+    out.reserve(kept);
     for (std::size_t i = 0; i < v.size(); ++i) {
-        if (!removed[i]) v[w++] = v[i];
+        if (!removed[i]) out.push_back(v[i]);
     }
-    v.resize(w);
+    return out;
 }
 
 }  // namespace
@@ -51,8 +53,11 @@ OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& opt
     OutlierResult r;
     const std::size_t n = cloud.size();
     r.removed.assign(n, 0);
-    r.cloud = cloud;
-    if (!options.enabled || n < std::size_t(options.k) + 1) return r;
+    r.cloud.origin = cloud.origin;
+    if (!options.enabled || n < std::size_t(options.k) + 1) {
+        r.cloud = cloud;  // copies owned arrays, shares borrowed ones
+        return r;
+    }
 
     r.neighbours = KnnIndex(cloud.positions).self_neighbours(options.k);
     const KnnResult& knn = r.neighbours;
@@ -100,11 +105,12 @@ OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& opt
         if (rule[i] == 2) ++r.planarity;
         r.removed[i] = rule[i] != 0;
     }
-    keep_rows(r.cloud.positions, r.removed);
-    keep_rows(r.cloud.normals, r.removed);
-    keep_rows(r.cloud.colors, r.removed);
-    keep_rows(r.cloud.scales, r.removed);
-    keep_rows(r.cloud.confidences, r.removed);
+    const std::size_t kept = n - r.statistical - r.planarity;
+    r.cloud.positions = keep_rows(cloud.positions, r.removed, kept);
+    r.cloud.normals = keep_rows(cloud.normals, r.removed, kept);
+    r.cloud.colors = keep_rows(cloud.colors, r.removed, kept);
+    r.cloud.scales = keep_rows(cloud.scales, r.removed, kept);
+    r.cloud.confidences = keep_rows(cloud.confidences, r.removed, kept);
     return r;
 }
 

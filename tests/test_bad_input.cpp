@@ -533,9 +533,10 @@ TEST_CASE("bad input: zero-length and NaN normals are re-estimated", "[cli][bad_
     Workspace w;
     PointCloud c = sample_sphere(2000, 1.0);
     const Success clean = run_ok(w.input("clean.ply", c), w.dir.file("clean.out.ply"));
-    c.normals[10] = {0, 0, 0};
-    c.normals[20] = {std::numeric_limits<float>::quiet_NaN(), 0, 1};
-    c.normals[1500] = {0, 0, 0};
+    std::vector<Vec3f>& normals = c.normals.edit();
+    normals[10] = {0, 0, 0};
+    normals[20] = {std::numeric_limits<float>::quiet_NaN(), 0, 1};
+    normals[1500] = {0, 0, 0};
     const std::string in = w.input("some.ply", c);
     const Success s = run_ok(in, w.dir.file("some.out.ply"));
     REQUIRE(s.warnings == std::vector<std::string>{
@@ -545,7 +546,7 @@ TEST_CASE("bad input: zero-length and NaN normals are re-estimated", "[cli][bad_
     REQUIRE(double(s.mesh.vertices.size()) ==
             Approx(double(clean.mesh.vertices.size())).epsilon(0.01));
 
-    for (Vec3f& n : c.normals) n = {0, 0, 0};
+    for (Vec3f& n : normals) n = {0, 0, 0};
     const std::string none = w.input("none.ply", c);
     const Success all = run_ok(none, w.dir.file("none.out.ply"));
     REQUIRE(all.warnings ==

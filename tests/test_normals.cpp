@@ -35,7 +35,7 @@ TEST_CASE("kNN: exact neighbours, self excluded even among duplicates", "[normal
     REQUIRE(r.sq_dists(0)[1] == 1.0f);
     REQUIRE(r.neighbours(4)[0] == 0);
     REQUIRE(r.neighbours(3)[0] != 3);
-    const KnnResult q = index.query({{0.9f, 0, 0}}, 1);
+    const KnnResult q = index.query(std::vector<Vec3f>{{0.9f, 0, 0}}, 1);
     REQUIRE(q.neighbours(0)[0] == 1);
 }
 
@@ -124,7 +124,7 @@ TEST_CASE("per-point scale is the mean kNN spacing", "[normals]") {
 TEST_CASE("zero normals from the file are re-estimated and follow their neighbours",
           "[normals]") {
     PointCloud s = sample_sphere(4000, 1.0);
-    for (std::size_t i = 0; i < s.size(); i += 10) s.normals[i] = {0, 0, 0};
+    for (std::size_t i = 0; i < s.size(); i += 10) s.normals.edit()[i] = {0, 0, 0};
     const NormalResult n = estimate_normals(s, {});
     REQUIRE(n.repaired == 400);
     for (std::size_t i = 0; i < s.size(); i += 10) {
@@ -163,7 +163,7 @@ TEST_CASE("bunny scans: estimated normals agree with the scanner's", "[normals][
     const std::string path = shared_data("stanford_bunny/bun_scans_aligned.ply");
     if (path.empty()) return;
     PointCloud c = read_points(path).cloud;
-    const std::vector<Vec3f> truth = c.normals;
+    const std::vector<Vec3f> truth = c.normals.to_vector();
     c.normals.clear();
     const NormalResult n = estimate_normals(c, {});
     std::size_t agree = 0;

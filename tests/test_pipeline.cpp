@@ -5,6 +5,7 @@
 #include "vdbrecon/eval.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/knn.h"
+#include "vdbrecon/normals.h"
 #include "vdbrecon/pipeline.h"
 
 using namespace vdbrecon;
@@ -15,7 +16,7 @@ TEST_CASE("file-to-file run is byte-identical for 1 and 2 threads", "[pipeline]"
     PointCloud c = sample_sphere(30000, 1.0);
     std::mt19937 rng(5);
     std::normal_distribution<float> noise(0.0f, 0.003f);
-    for (Vec3f& p : c.positions) {
+    for (Vec3f& p : c.positions.edit()) {
         for (float& v : p) v += noise(rng);
     }
     c.normals.clear();  // exercise normal estimation and MST orientation too
@@ -67,6 +68,59 @@ TEST_CASE("every mesher and closing mode is byte-identical for 1 and 2 threads",
             }
         }
     }
+}
+
+TEST_CASE("Column: borrowed memory is read in place, shared by copies, never written",
+          "[pipeline]") {
+    const std::vector<float> buffer = {1, 2, 3};
+    auto keeper = std::make_shared<int>(0);
+    Column<float> c = Column<float>::borrow(buffer.data(), buffer.size(), keeper);
+    REQUIRE(c.borrowed());
+    REQUIRE(c.data() == buffer.data());
+    REQUIRE(keeper.use_count() == 2);
+    const Column<float> copy = c;  // shares the reference
+    REQUIRE(copy.data() == buffer.data());
+    REQUIRE(keeper.use_count() == 3);
+    c.edit()[1] = 20;  // copy on write: the buffer stays as it was
+    REQUIRE(!c.borrowed());
+    REQUIRE(c.data() != buffer.data());
+    REQUIRE(buffer == std::vector<float>{1, 2, 3});
+    REQUIRE(c.to_vector() == std::vector<float>{1, 20, 3});
+    REQUIRE(keeper.use_count() == 2);
+    REQUIRE(copy == Column<float>(std::vector<float>{1, 2, 3}));
+    c = std::vector<float>{5};  // assignment replaces
+    REQUIRE(c.size() == 1);
+    REQUIRE(c[0] == 5);
+    Column<float> empty = Column<float>::borrow(nullptr, 0);
+    REQUIRE(empty.empty());
+    REQUIRE(empty.begin() == empty.end());
+}
+
+TEST_CASE("a cloud borrowing the caller's arrays reconstructs like an owned one, untouched",
+          "[pipeline]") {
+    PointCloud owned = sample_sphere(20000, 1.0);
+    owned.normals = std::vector<Vec3f>();  // normals are estimated: the stage must not write here
+    const std::vector<Vec3f> positions = owned.positions.to_vector();
+    PointCloud borrowed;
+    borrowed.positions = Column<Vec3f>::borrow(positions.data(), positions.size());
+    PipelineOptions o;
+    o.splat.voxel_size = 0.05;
+    PointCloud a = owned, b = borrowed;
+    const PipelineResult ra = reconstruct(a, o);
+    const PipelineResult rb = reconstruct(b, o);
+    REQUIRE(ra.mesh.faces.size() > 1000);
+    REQUIRE(ra.mesh.vertices == rb.mesh.vertices);
+    REQUIRE(ra.mesh.faces == rb.mesh.faces);
+    REQUIRE(positions == owned.positions.to_vector());
+    REQUIRE(borrowed.positions.data() == positions.data());
+    // Valid input normals pass through the normal stage without a copy.
+    const std::vector<Vec3f> normals = sample_sphere(20000, 1.0).normals.to_vector();
+    borrowed.normals = Column<Vec3f>::borrow(normals.data(), normals.size());
+    NormalOptions no;
+    no.scale = ScaleMode::none;
+    const NormalResult n = estimate_normals(borrowed, no);
+    REQUIRE(n.estimated == 0);
+    REQUIRE(n.normals.data() == normals.data());
 }
 
 TEST_CASE("automatic voxel follows the spacing; --no-vdb writes only the mesh", "[pipeline]") {
@@ -150,7 +204,7 @@ TEST_CASE("Kinect frame: every vertex lies within 2 voxels of an input point", "
     const std::string path = shared_data("pcl_kinect/capture0001.ply");
     if (path.empty()) return;
     PointCloud c = read_points(path).cloud;
-    const std::vector<Vec3f> points = c.positions;
+    const std::vector<Vec3f> points = c.positions.to_vector();
     PipelineOptions o;
     o.normals.viewpoint = Vec3d{0, 0, 0};
     const PipelineResult r = reconstruct(c, o);

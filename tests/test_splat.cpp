@@ -18,7 +18,7 @@ PointCloud noisy_sphere(std::size_t n, double r, unsigned seed) {
     std::normal_distribution<float> noise(0.0f, float(0.002 * r));
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
     for (std::size_t i = 0; i < c.size(); ++i) {
-        for (float& v : c.positions[i]) v += noise(rng);
+        for (float& v : c.positions.edit()[i]) v += noise(rng);
         c.scales.push_back(float(r) * 0.02f * (0.8f + 0.4f * u(rng)));
         c.colors.push_back({u(rng), u(rng), u(rng)});
     }
@@ -157,6 +157,6 @@ TEST_CASE("splat rejects bad input clearly", "[splat]") {
     REQUIRE_THROWS_WITH(splat(zero, o), Catch::Contains("usable"));
     // Half the normals zero: those points are skipped, not splatted as garbage.
     PointCloud half = s;
-    for (std::size_t i = 0; i < half.size(); i += 2) half.normals[i] = {0, 0, 0};
+    for (std::size_t i = 0; i < half.size(); i += 2) half.normals.edit()[i] = {0, 0, 0};
     REQUIRE(splat(half, o).skipped_points == 50);
 }

@@ -22,15 +22,15 @@ struct KnnResult {
     /// point's nearest kept points are the first kept ones of its list, which is exact wherever
     /// the list holds at least k_sub kept points. The rows where it does not are queried anew
     /// on a kd-tree of `kept_points` (built only then); their count goes to *requeried.
-    KnnResult subset(const std::vector<char>& removed, const std::vector<Vec3f>& kept_points,
+    KnnResult subset(const std::vector<char>& removed, Span<Vec3f> kept_points,
                      int k_sub, std::size_t* requeried = nullptr) const;
 };
 
 /// An exact kd-tree over points; build once, query many times from any number of threads.
 class KnnIndex {
 public:
-    /// Builds the tree. `points` is copied (the caller's vector may go away).
-    explicit KnnIndex(const std::vector<Vec3f>& points);
+    /// Builds the tree over `points`, which are not copied: they must outlive the index.
+    explicit KnnIndex(Span<Vec3f> points);
     ~KnnIndex();
     KnnIndex(const KnnIndex&) = delete;
     KnnIndex& operator=(const KnnIndex&) = delete;
@@ -43,7 +43,7 @@ public:
     KnnResult self_neighbours(int k) const;
 
     /// The k nearest indexed points of arbitrary query points, in parallel.
-    KnnResult query(const std::vector<Vec3f>& queries, int k) const;
+    KnnResult query(Span<Vec3f> queries, int k) const;
 
     /// Recomputes the given rows of self-neighbours `r` (r.k per row) of the indexed points.
     void fill_rows(KnnResult& r, const std::vector<std::size_t>& rows) const;

@@ -46,8 +46,10 @@ struct NormalOptions {
 };
 
 struct NormalResult {
-    std::vector<Vec3f> normals;  ///< #P unit normals (the kept ones, or estimated)
-    std::vector<float> scales;   ///< #P per-point scale in world units, or empty (ScaleMode::none)
+    /// #P unit normals: estimated, or the input's (the same borrowed memory when the input
+    /// borrows it and none had to be re-estimated)
+    Column<Vec3f> normals;
+    Column<float> scales;  ///< #P per-point scale in world units, or empty (ScaleMode::none)
     std::size_t estimated = 0;   ///< points whose normal was estimated here
     std::size_t repaired = 0;    ///< kept normals that were zero/NaN and were re-estimated
     std::size_t flipped = 0;     ///< estimated normals flipped by the orientation step

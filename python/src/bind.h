@@ -42,19 +42,24 @@ std::vector<Vec3f> to_rows(const py::handle& array, const char* name, py::ssize_
 /// Same for a C-contiguous float32 (N,) array.
 std::vector<float> to_column(const py::handle& array, const char* name, py::ssize_t rows = -1);
 
+/// Like to_rows and to_column, but without a copy: the column borrows the array's memory and
+/// keeps the array alive (released under the GIL) for as long as the column or a copy lives.
+Column<Vec3f> borrow_rows(const py::handle& array, const char* name, py::ssize_t rows = -1);
+Column<float> borrow_column(const py::handle& array, const char* name, py::ssize_t rows = -1);
+
 /// Same for a C-contiguous int32 (F, 3) array of vertex indices, each in 0..vertices-1.
 std::vector<Triangle> to_faces(const py::handle& array, const char* name, std::size_t vertices);
 
 /// A (N, 3) float32 numpy view of `v` (no copy) that keeps `owner` (the Python object owning
 /// the vector) alive. The vector must never be resized while the owner lives.
-py::array view_rows(const std::vector<Vec3f>& v, py::handle owner);
+py::array view_rows(Span<Vec3f> v, py::handle owner);
 /// A (F, 3) int32 view of faces.
 py::array view_faces(const std::vector<Triangle>& v, py::handle owner);
 /// A (N,) float32 view.
-py::array view_column(const std::vector<float>& v, py::handle owner);
+py::array view_column(Span<float> v, py::handle owner);
 /// A view, or None when `v` is empty (optional attributes).
-template <typename T>
-py::object view_or_none(const std::vector<T>& v, py::handle owner);
+py::object view_or_none(Span<Vec3f> v, py::handle owner);
+py::object view_or_none(Span<float> v, py::handle owner);
 
 /// Moves a vector onto the heap and returns a numpy array owning it (no copy), shape
 /// (size, cols) or (size,) when cols == 0.
@@ -208,16 +213,6 @@ void bind_eval(py::module_& m);      // evaluate, mesh_topology
 void bind_pipeline(py::module_& m);  // PipelineOptions, reconstruct, run
 
 // ---- template definitions --------------------------------------------------------------------
-
-template <typename T>
-py::object view_or_none(const std::vector<T>& v, py::handle owner) {
-    if (v.empty()) return py::none();
-    if constexpr (std::is_same_v<T, Vec3f>) {
-        return view_rows(v, owner);
-    } else {
-        return view_column(v, owner);
-    }
-}
 
 template <typename Row>
 py::array adopt(std::vector<Row>&& v, py::ssize_t cols) {

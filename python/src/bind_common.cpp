@@ -63,6 +63,32 @@ std::vector<float> to_column(const py::handle& array, const char* name, py::ssiz
     return v;
 }
 
+namespace {
+
+/// A shared owner holding a reference to `o`, dropped under the GIL whichever thread lets go.
+std::shared_ptr<const void> keep_alive(py::object o) {
+    return std::shared_ptr<const void>(new py::object(std::move(o)), [](const void* p) {
+        py::gil_scoped_acquire gil;
+        delete static_cast<const py::object*>(p);
+    });
+}
+
+}  // namespace
+
+Column<Vec3f> borrow_rows(const py::handle& array, const char* name, py::ssize_t rows) {
+    auto a = checked<float>(array, name, 3, rows, "a C-contiguous float32 array of shape (N, 3)");
+    const auto* data = reinterpret_cast<const Vec3f*>(a.data());
+    const auto n = std::size_t(a.shape(0));  // before `a` is moved from
+    return Column<Vec3f>::borrow(data, n, keep_alive(std::move(a)));
+}
+
+Column<float> borrow_column(const py::handle& array, const char* name, py::ssize_t rows) {
+    auto a = checked<float>(array, name, 0, rows, "a C-contiguous float32 array of shape (N,)");
+    const float* data = a.data();
+    const auto n = std::size_t(a.shape(0));
+    return Column<float>::borrow(data, n, keep_alive(std::move(a)));
+}
+
 std::vector<Triangle> to_faces(const py::handle& array, const char* name, std::size_t vertices) {
     auto a =
         checked<std::int32_t>(array, name, 3, -1, "a C-contiguous int32 array of shape (F, 3)");
@@ -98,7 +124,7 @@ py::array view(const Scalar* data, py::ssize_t rows, py::ssize_t cols, py::handl
 
 }  // namespace
 
-py::array view_rows(const std::vector<Vec3f>& v, py::handle owner) {
+py::array view_rows(Span<Vec3f> v, py::handle owner) {
     return view(reinterpret_cast<const float*>(v.data()), py::ssize_t(v.size()), 3, owner);
 }
 
@@ -106,8 +132,18 @@ py::array view_faces(const std::vector<Triangle>& v, py::handle owner) {
     return view(reinterpret_cast<const std::int32_t*>(v.data()), py::ssize_t(v.size()), 3, owner);
 }
 
-py::array view_column(const std::vector<float>& v, py::handle owner) {
+py::array view_column(Span<float> v, py::handle owner) {
     return view(v.data(), py::ssize_t(v.size()), 0, owner);
+}
+
+py::object view_or_none(Span<Vec3f> v, py::handle owner) {
+    if (v.empty()) return py::none();
+    return view_rows(v, owner);
+}
+
+py::object view_or_none(Span<float> v, py::handle owner) {
+    if (v.empty()) return py::none();
+    return view_column(v, owner);
 }
 
 py::tuple to_tuple(const Vec3d& v) { return py::make_tuple(v[0], v[1], v[2]); }

@@ -6,33 +6,12 @@ namespace vdbrecon::python {
 
 namespace {
 
-/// reconstruct() fills normals and scales into the cloud it is given, and with outlier removal
-/// replaces all of its arrays by the kept points (freeing the old ones). The Python PointCloud
-/// must not change under its numpy views, so the call works on a cloud that borrows the
-/// untouched arrays (vector swaps keep the buffers, hence the views, valid) and copies the two
-/// it replaces -- or, with outlier removal, on a copy (the outlier stage copies the cloud
-/// anyway; this one is freed when that stage ends).
-PipelineResult reconstruct_borrowed(PointCloud& cloud, const PipelineOptions& options) {
-    if (options.outliers.enabled) {
-        PointCloud copy = cloud;
-        return reconstruct(copy, options);
-    }
-    PointCloud work;
-    work.positions.swap(cloud.positions);
-    work.colors.swap(cloud.colors);
-    work.confidences.swap(cloud.confidences);
-    work.normals = cloud.normals;
-    work.scales = cloud.scales;
-    work.origin = cloud.origin;
-    struct Restore {
-        PointCloud& cloud;
-        PointCloud& work;
-        ~Restore() {
-            cloud.positions.swap(work.positions);
-            cloud.colors.swap(work.colors);
-            cloud.confidences.swap(work.confidences);
-        }
-    } restore{cloud, work};
+/// reconstruct() replaces the arrays of the cloud it is given (normals, scales, and all of them
+/// with outlier removal). The Python PointCloud must not change under its numpy views, so the
+/// call works on a cloud that borrows every array of it (PointCloud::view, no copy); the Python
+/// object holds the arrays for the duration of the call.
+PipelineResult reconstruct_borrowed(const PointCloud& cloud, const PipelineOptions& options) {
+    PointCloud work = cloud.view();
     return reconstruct(work, options);
 }
 

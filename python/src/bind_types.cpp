@@ -1,6 +1,7 @@
-// PointCloud and Mesh (vdbrecon/types.h). Their arrays are numpy views of the C++ vectors (no
-// copy); the views keep the owning object alive. The vectors are never resized after
-// construction, so the views stay valid: to change an attribute, build a new object.
+// PointCloud and Mesh (vdbrecon/types.h). Their arrays are numpy views of the C++ arrays (no
+// copy); the views keep the owning object alive. The arrays are never resized after
+// construction, so the views stay valid: to change an attribute, build a new object. A
+// PointCloud built from numpy arrays borrows them (Column::borrow): no copy either way.
 #include "bind.h"
 
 namespace vdbrecon::python {
@@ -27,13 +28,13 @@ void bind_types(py::module_& m) {
                          const py::object& colors, const py::object& scales,
                          const py::object& confidences, const py::object& origin) {
                  PointCloud c;
-                 c.positions = to_rows(positions, "positions");
+                 c.positions = borrow_rows(positions, "positions");
                  const auto n = py::ssize_t(c.positions.size());
-                 if (!normals.is_none()) c.normals = to_rows(normals, "normals", n);
-                 if (!colors.is_none()) c.colors = to_rows(colors, "colors", n);
-                 if (!scales.is_none()) c.scales = to_column(scales, "scales", n);
+                 if (!normals.is_none()) c.normals = borrow_rows(normals, "normals", n);
+                 if (!colors.is_none()) c.colors = borrow_rows(colors, "colors", n);
+                 if (!scales.is_none()) c.scales = borrow_column(scales, "scales", n);
                  if (!confidences.is_none()) {
-                     c.confidences = to_column(confidences, "confidences", n);
+                     c.confidences = borrow_column(confidences, "confidences", n);
                  }
                  c.origin = to_vec3d(origin, "origin");
                  return c;
@@ -41,9 +42,11 @@ void bind_types(py::module_& m) {
              py::arg("positions"), py::arg("normals") = py::none(), py::arg("colors") = py::none(),
              py::arg("scales") = py::none(), py::arg("confidences") = py::none(),
              py::arg("origin") = py::make_tuple(0.0, 0.0, 0.0),
-             "Copies C-contiguous float32 arrays: positions (N, 3) world units relative to "
-             "origin; normals (N, 3) unit, outward; colors (N, 3) linear 0..1 RGB; scales (N,) "
-             "sample footprint in world units; confidences (N,).")
+             "Borrows C-contiguous float32 arrays without copying them (the cloud keeps them "
+             "alive; change them only when no call is using the cloud): positions (N, 3) world "
+             "units relative to origin; normals (N, 3) unit, outward; colors (N, 3) linear 0..1 "
+             "RGB; scales (N,) sample footprint in world units; confidences (N,). Other dtypes "
+             "and layouts raise TypeError here; the vdbrecon functions convert them once.")
         .def_property_readonly(
             "positions",
             [](py::object self) { return view_rows(self.cast<PointCloud&>().positions, self); },

@@ -73,12 +73,12 @@ Volume from_arrays(const py::object& coords_obj, const py::object& sdf_obj, doub
     }
     const auto coords = to_coords(coords_obj, "coords");
     const auto n = py::ssize_t(coords.size());
-    const std::vector<float> sdf = to_column(sdf_obj, "sdf", n);
-    std::vector<float> weight;
-    std::vector<Vec3f> nearest, color;
-    if (!weight_obj.is_none()) weight = to_column(weight_obj, "weight", n);
-    if (!nearest_obj.is_none()) nearest = to_rows(nearest_obj, "nearest", n);
-    if (!color_obj.is_none()) color = to_rows(color_obj, "color", n);
+    const Column<float> sdf = borrow_column(sdf_obj, "sdf", n);
+    Column<float> weight;
+    Column<Vec3f> nearest, color;
+    if (!weight_obj.is_none()) weight = borrow_column(weight_obj, "weight", n);
+    if (!nearest_obj.is_none()) nearest = borrow_rows(nearest_obj, "nearest", n);
+    if (!color_obj.is_none()) color = borrow_rows(color_obj, "color", n);
     double background = 3.0 * voxel_size;
     if (!background_obj.is_none()) {
         background = background_obj.cast<double>();
@@ -117,7 +117,7 @@ Volume from_arrays(const py::object& coords_obj, const py::object& sdf_obj, doub
             acc.setValueOn(openvdb::Coord(coords[i][0], coords[i][1], coords[i][2]), weight[i]);
         }
     }
-    const auto vec_grid = [&](const std::vector<Vec3f>& values, const char* name) {
+    const auto vec_grid = [&](Span<Vec3f> values, const char* name) {
         auto g = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
         g->setName(name);
         g->setTransform(xform->copy());

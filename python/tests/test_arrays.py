@@ -1,6 +1,7 @@
 """numpy in and out: no copies where none are needed, one conversion where one is, clear errors
 for what cannot work."""
 import gc
+import sys
 
 import numpy as np
 import pytest
@@ -49,17 +50,39 @@ def test_output_arrays_are_views_of_the_library_mesh():
     assert faces.shape[1] == 3 and faces.max() > 0  # the view keeps its mesh alive
 
 
-def test_point_cloud_views_survive_reconstruct_unchanged():
+def test_float32_c_contiguous_input_is_used_without_a_copy():
     points, normals = sphere(4000)
-    cloud = vdbrecon.PointCloud(points)  # one copy into the library
+    refs = sys.getrefcount(points)
+    cloud = vdbrecon.PointCloud(points, normals)  # borrows both arrays
+    assert address(cloud.positions) == address(points)
+    assert address(cloud.normals) == address(normals)
+    assert sys.getrefcount(points) == refs + 1  # the cloud keeps the array alive
+    # The normal stage keeps valid input normals as they are: the result is the input's memory.
+    n = vdbrecon.estimate_normals(cloud, scale="none")
+    assert n.estimated == 0 and address(n.normals) == address(normals)
+    # Converted inputs are converted once, then borrowed.
+    c64 = vdbrecon._cloud(points.astype(np.float64))
+    assert c64.positions.base is not None and address(c64.positions) != address(points)
+    del cloud, n
+    gc.collect()
+    assert sys.getrefcount(points) == refs  # released with the cloud
+
+
+def test_borrowed_arrays_outlive_their_python_name_and_survive_reconstruct_unchanged():
+    points, normals = sphere(4000)
+    expected = points.copy()
+    cloud = vdbrecon.PointCloud(points)
     view = cloud.positions
-    before = address(view)
-    np.testing.assert_array_equal(view, points)
-    assert not np.shares_memory(view, points)
-    mesh = vdbrecon.reconstruct(cloud, voxel=0.1)  # estimates normals internally
+    del points
+    gc.collect()  # the cloud still holds the array
+    np.testing.assert_array_equal(cloud.positions, expected)
+    mesh = vdbrecon.reconstruct(cloud, voxel=0.1)  # estimates normals, removes outliers
     assert len(mesh.faces) > 0
-    assert address(cloud.positions) == before and cloud.normals is None  # cloud untouched
-    np.testing.assert_array_equal(view, points)
+    assert address(cloud.positions) == address(view) and cloud.normals is None  # untouched
+    np.testing.assert_array_equal(view, expected)
+    with_outliers_off = vdbrecon.reconstruct(cloud, voxel=0.1, outliers_enabled=False)
+    assert len(with_outliers_off.faces) > 0
+    np.testing.assert_array_equal(cloud.positions, expected)
 
 
 def test_array_outputs_of_other_stages():

@@ -133,10 +133,10 @@ RawPoints read_xyz_raw(const std::string& path, std::string_view content);
 /// Reads OBJ (v, vn, f).
 RawPoints read_obj_raw(const std::string& path, std::string_view content, bool want_faces);
 
-/// PLY writer for clouds and meshes. `faces` may be null.
-void write_ply(const std::string& path, const std::vector<Vec3f>& positions, const Vec3d& origin,
-               const std::vector<Vec3f>* normals, const std::vector<Vec3f>* colors,
-               const std::vector<float>* scales, const std::vector<float>* confidences,
-               const std::vector<Triangle>* faces, const WriteOptions& options);
+/// PLY writer for clouds and meshes. Empty attributes are left out; `faces` may be null.
+void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& origin,
+               Span<Vec3f> normals, Span<Vec3f> colors, Span<float> scales,
+               Span<float> confidences, const std::vector<Triangle>* faces,
+               const WriteOptions& options);
 
 }  // namespace vdbrecon::detail

@@ -13,7 +13,7 @@ namespace vdbrecon::detail {
 /// Covariance of point i and its k neighbours `nb` (coordinates relative to point i, so far-away
 /// frames keep their precision): eigenvalues ascending, and the eigenvector of the smallest.
 /// False when the solver fails.
-inline bool neighbourhood_pca(const std::vector<Vec3f>& pts, std::size_t i, const int* nb, int k,
+inline bool neighbourhood_pca(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
                               Eigen::Vector3d& eigenvalues, Eigen::Vector3d& smallest) {
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     const Vec3f& c = pts[i];

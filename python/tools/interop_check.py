@@ -1,14 +1,16 @@
 """Interop check with the real clients, run before resolving a change to the .vdb files:
 
-  1. the CLI reconstructs a coloured sphere twice, writing ball.splat.vdb, and with `--close 2`
-     ball_closed.closed.vdb (the splat grids plus `fill`), and data/bunny_sample.ply;
+  1. the CLI reconstructs a coloured sphere, writing ball.splat.vdb, the same sphere with its top
+     cap cut away with `--close 4`, writing ball_closed.closed.vdb (the splat grids plus `fill`,
+     which must be non-empty: closing patched the hole), and data/bunny_sample.ply;
   2. vdb_print -l lists every grid of both sphere files with its class;
   3. pyopenvdb reads every grid of both with the right name, class, active voxels and values;
   4. Blender (headless) imports each sphere file, renders the `density` grid with Cycles to a PNG
      and meshes the `sdf` grid with a VOLUME_TO_MESH modifier: that mesh must have as many
-     triangles as the mesh vdbrecon wrote in the same run (the sphere is closed, so nothing is
-     trimmed, and closing fills nothing) and the same bounding box up to Blender's half-voxel
-     shift.
+     triangles as the mesh vdbrecon wrote in the same run plus the ones vdbrecon's mesher
+     dropped (cells with an invalid corner, low weight: its log counts them; the modifier meshes
+     every active voxel), and the same bounding box up to Blender's half-voxel shift (for the
+     capped sphere, whose dropped faces lie outside: a box holding vdbrecon's).
 
     PYTHONPATH=build-py/python /usr/bin/python3 python/tools/interop_check.py \
         --cli build-py/vdbrecon --out out/interop
@@ -19,6 +21,7 @@ import argparse
 import json
 import math
 import pathlib
+import re
 import shutil
 import subprocess
 import sys
@@ -36,9 +39,11 @@ SPLAT_GRIDS = {"sdf": ("FloatGrid", "level set"), "weight": ("FloatGrid", "unkno
                "nearest": ("Vec3SGrid", "unknown"), "density": ("FloatGrid", "fog volume"),
                "color": ("Vec3SGrid", "unknown")}
 CLOSED_GRIDS = {**SPLAT_GRIDS, "fill": ("FloatGrid", "unknown")}
-# The sphere runs: output stem, CLI options, volume file checked, its grids.
-SPHERE_RUNS = [("ball", [], "ball.splat.vdb", SPLAT_GRIDS),
-               ("ball_closed", ["--close", "2"], "ball_closed.closed.vdb", CLOSED_GRIDS)]
+# The sphere runs: output stem, input points, CLI options, volume file checked, its grids.
+SPHERE_RUNS = [("ball", "ball_points.ply", [], "ball.splat.vdb", SPLAT_GRIDS),
+               ("ball_closed", "capped_points.ply", ["--close", "4"], "ball_closed.closed.vdb",
+                CLOSED_GRIDS)]
+CAP_Y = 0.495  # the capped sphere has no points above this height: a hole 0.14 (7 voxels) wide
 failures = []
 
 
@@ -72,9 +77,13 @@ def vdb_print(path, grids):
 
 def pyopenvdb_check(path, grids):
     """pyopenvdb reads exactly `grids` from `path`, each with its class and the active voxels
-    and values vdbrecon reads."""
+    and values vdbrecon reads; a `fill` grid must have active voxels (closing filled the hole)."""
     import pyopenvdb
     read, meta = pyopenvdb.readAll(str(path))
+    if "fill" in grids:
+        fill = [g for g in read if g.name == "fill"]
+        count = fill[0].activeVoxelCount() if fill else 0
+        check(count > 0, f"pyopenvdb: `fill` marks {count} voxels (the closed set)")
     ours = vdbrecon.read_volume(path)
     check(sorted(g.name for g in read) == sorted(grids),
           f"pyopenvdb grid names {[g.name for g in read]}")
@@ -110,9 +119,10 @@ def blender(path, png, samples):
     return info
 
 
-def blender_sphere(path, png, samples, grids, mesh):
+def blender_sphere(path, png, samples, grids, mesh, dropped):
     """Blender imports every grid of a sphere's volume `path` and renders it to `png`; its
-    VOLUME_TO_MESH mesh of `sdf` has the triangle count and bounding box of vdbrecon's `mesh`."""
+    VOLUME_TO_MESH mesh of `sdf` has the triangle count of vdbrecon's `mesh` plus the `dropped`
+    triangles vdbrecon's mesher left out, and when none were, the same bounding box."""
     info = blender(path, png, samples)
     if not info:
         return
@@ -120,13 +130,18 @@ def blender_sphere(path, png, samples, grids, mesh):
     check(set(names) == set(grids), f"blender sees grids {sorted(names)}")
     check(names.get("density", {}).get("data_type") == "FLOAT", "density is FLOAT")
     b = info["mesh"]
-    check(b["triangles"] == len(mesh.faces),
+    check(b["triangles"] == len(mesh.faces) + dropped,
           f"VOLUME_TO_MESH: {b['polygons']} polygons = {b['triangles']} triangles, "
-          f"vdbrecon: {len(mesh.faces)} triangles")
+          f"vdbrecon: {len(mesh.faces)} triangles + {dropped} dropped")
     half = 0.5 * VOXEL  # Blender's cell-centred voxels shift its mesh by +voxel/2
     lo = np.array(b["bbox_min"]) - half
     hi = np.array(b["bbox_max"]) - half
     vlo, vhi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    if dropped:  # Blender's mesh has vdbrecon's and the dropped faces: its box holds vdbrecon's
+        check(bool((lo <= vlo + 1e-4).all() and (hi >= vhi - 1e-4).all()),
+              f"blender's box {lo.round(4)}..{hi.round(4)} holds vdbrecon's {vlo.round(4)}.."
+              f"{vhi.round(4)}")
+        return
     err = max(np.abs(lo - vlo).max(), np.abs(hi - vhi).max())
     check(err < 1e-4, f"bounding boxes agree within {err:.2e} (blender {lo.round(4)}.."
           f"{hi.round(4)}, vdbrecon {vlo.round(4)}..{vhi.round(4)})")
@@ -142,20 +157,29 @@ def main():
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    # A coloured sphere, radius 0.5: closed, so vdbrecon trims nothing and closing fills nothing.
+    # A coloured sphere, radius 0.5, and the same with its top cap cut away (closed by --close).
     points, normals = sphere(40000, 0.5)
     colors = (0.5 + 0.5 * normals).astype(np.float32)
-    src = out / "ball_points.ply"
-    vdbrecon.write_points(src, vdbrecon.PointCloud(points, normals, colors))
-    meshes = {}
-    for stem, options, vdb, _ in SPHERE_RUNS:
-        subprocess.run([args.cli, src, "-o", out / f"{stem}.ply", "--voxel", str(VOXEL), "-q",
-                        *options], check=True)
+    vdbrecon.write_points(out / "ball_points.ply", vdbrecon.PointCloud(points, normals, colors))
+    keep = points[:, 1] < CAP_Y
+    vdbrecon.write_points(out / "capped_points.ply",
+                          vdbrecon.PointCloud(points[keep], normals[keep], colors[keep]))
+    meshes, dropped = {}, {}
+    for stem, src, options, vdb, _ in SPHERE_RUNS:
+        log = subprocess.run([args.cli, out / src, "-o", out / f"{stem}.ply", "--voxel",
+                              str(VOXEL), *options], check=True, capture_output=True,
+                             text=True)
+        counts = re.search(r"\((\d+) dropped outside valid cells, (\d+) trimmed for low weight\)",
+                           log.stdout + log.stderr)
+        check(counts is not None, f"{stem}: the CLI's log counts the faces its mesher dropped")
+        dropped[stem] = int(counts[1]) + int(counts[2]) if counts else 0
         meshes[stem] = vdbrecon.read_mesh(out / f"{stem}.ply")
-        print(f"vdbrecon {' '.join(options) or '(no closing)'}: {out / vdb}, mesh "
+        print(f"vdbrecon {src} {' '.join(options) or '(no closing)'}: {out / vdb}, mesh "
               f"{len(meshes[stem].vertices)} vertices, {len(meshes[stem].faces)} triangles")
+        top = meshes[stem].vertices[:, 1].max()
+        check(abs(top - 0.5) < 0.5 * VOXEL, f"{stem}: mesh reaches the pole (top y = {top:.4f})")
 
-    for _, _, vdb, grids in SPHERE_RUNS:
+    for _, _, _, vdb, grids in SPHERE_RUNS:
         print(f"\n== vdb_print -l {vdb}")
         vdb_print(out / vdb, grids)
         print(f"== pyopenvdb {vdb}")
@@ -163,10 +187,10 @@ def main():
     if args.no_blender or shutil.which("blender") is None:
         print("== blender: skipped")
     else:
-        for stem, _, vdb, grids in SPHERE_RUNS:
+        for stem, _, _, vdb, grids in SPHERE_RUNS:
             print(f"== blender {vdb}")
             blender_sphere(out / vdb, (out / f"{stem}_density.png").resolve(), args.samples,
-                           grids, meshes[stem])
+                           grids, meshes[stem], dropped[stem])
 
         # The bunny sample, for a recognisable picture (open scan: vdbrecon trims its mesh
         # where the data ends, Blender's modifier does not, so only the render is checked).

@@ -80,6 +80,15 @@ std::string fmt_bytes(std::size_t bytes) {
     return s.str();
 }
 
+/// Bytes in MB of 2^20 bytes, like the peak memory lines (getrusage's KiB / 1024), one decimal.
+std::string fmt_megabytes(std::size_t bytes) {
+    std::ostringstream s;
+    s << std::fixed;
+    s.precision(1);
+    s << double(bytes) / (1024.0 * 1024.0) << " MB";
+    return s.str();
+}
+
 void print_help() {
     const PipelineOptions d;
     const EvalOptions e;
@@ -358,7 +367,8 @@ int run_reconstruct(Args& args) {
     const PipelineResult& p = r.result;
     if (!quiet) {
         std::ostringstream s;
-        s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << ")";
+        s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << "), "
+          << fmt_megabytes(r.read.bytes) << " in memory";
         if (r.read.dropped_nonfinite) s << ", dropped " << r.read.dropped_nonfinite << " NaN/inf";
         s << "\n";
         if (o.outliers.enabled) {
@@ -384,7 +394,7 @@ int run_reconstruct(Args& args) {
         s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max
           << " (median " << p.splat.sigma_median << "), " << p.splat.active_voxels
           << " valid voxels in " << p.splat.leaves << " leaves, " << p.splat.updates
-          << " kernel updates";
+          << " kernel updates, grids " << fmt_megabytes(p.volume.memory_bytes()) << " in memory";
         if (p.splat.skipped_points) s << ", " << p.splat.skipped_points << " points without normal";
         s << "\n";
         if (o.close.hole_radius > 0) {

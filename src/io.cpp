@@ -249,6 +249,7 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         }
         cloud.scales = std::move(raw.scales);
     }
+    result.bytes = result.cloud.memory_bytes();
     return result;
 }
 

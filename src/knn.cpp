@@ -40,18 +40,23 @@ struct KnnIndex::Impl {
     Span<Vec3f> points;
     std::unique_ptr<flann::Index<flann::L2_Simple<float>>> index;
 
+    static constexpr std::size_t kChunk = 2048;
+
+    /// The k nearest of queries [begin, begin + m), into idx/dist (m x k, row-major).
+    void search_chunk(const Vec3f* queries, std::size_t m, int k, int* idx, float* dist) const {
+        flann::Matrix<float> q(const_cast<float*>(queries[0].data()), m, 3);
+        flann::Matrix<int> mi(idx, m, std::size_t(k));
+        flann::Matrix<float> md(dist, m, std::size_t(k));
+        flann::SearchParams params(flann::FLANN_CHECKS_UNLIMITED, 0.0f, true);
+        index->knnSearch(q, mi, md, std::size_t(k), params);
+    }
+
     void search(const Vec3f* queries, std::size_t count, int k, int* idx, float* dist) const {
-        constexpr std::size_t kChunk = 2048;
-        tbb::parallel_for(
-            tbb::blocked_range<std::size_t>(0, count, kChunk),
-            [&](const tbb::blocked_range<std::size_t>& r) {
-                const std::size_t m = r.size();
-                flann::Matrix<float> q(const_cast<float*>(queries[r.begin()].data()), m, 3);
-                flann::Matrix<int> mi(idx + r.begin() * std::size_t(k), m, std::size_t(k));
-                flann::Matrix<float> md(dist + r.begin() * std::size_t(k), m, std::size_t(k));
-                flann::SearchParams params(flann::FLANN_CHECKS_UNLIMITED, 0.0f, true);
-                index->knnSearch(q, mi, md, std::size_t(k), params);
-            });
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, kChunk),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            const std::size_t at = r.begin() * std::size_t(k);
+            search_chunk(queries + r.begin(), r.size(), k, idx + at, dist + at);
+        });
     }
 };
 
@@ -86,18 +91,20 @@ KnnResult KnnIndex::self_neighbours(int k) const {
     out.k = std::max(0, std::min<int>(k, int(n) - 1));
     if (out.k == 0) return out;
     const int kq = out.k + 1;
-    std::vector<int> idx(n * std::size_t(kq));
-    std::vector<float> dist(idx.size());
-    impl_->search(impl_->points.data(), n, kq, idx.data(), dist.data());
     out.indices.resize(n * std::size_t(out.k));
     out.sq_distances.resize(out.indices.size());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+    // k + 1 neighbours per chunk into a chunk-sized buffer, then each list without the point
+    // itself into the result: no #P x (k + 1) temporary.
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, Impl::kChunk),
                       [&](const tbb::blocked_range<std::size_t>& r) {
+        std::vector<int> idx(r.size() * std::size_t(kq));
+        std::vector<float> dist(idx.size());
+        impl_->search_chunk(impl_->points.data() + r.begin(), r.size(), kq, idx.data(),
+                            dist.data());
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
-            const int* src = &idx[i * std::size_t(kq)];
-            const float* sd = &dist[i * std::size_t(kq)];
-            const int self = self_position(src, kq, i);
-            copy_without(src, sd, kq, self, &out.indices[i * std::size_t(out.k)],
+            const std::size_t row = (i - r.begin()) * std::size_t(kq);
+            const int self = self_position(&idx[row], kq, i);
+            copy_without(&idx[row], &dist[row], kq, self, &out.indices[i * std::size_t(out.k)],
                          &out.sq_distances[i * std::size_t(out.k)]);
         }
     });

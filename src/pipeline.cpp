@@ -151,6 +151,7 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
         {
             StageClock clock(r.timings, on_stage, "normals");
             r.normals = estimate_normals(cloud, options.normals, neighbours);
+            neighbours = KnnResult{};  // #P x k lists: not kept through the splat
             cloud.normals = std::move(r.normals.normals);
             cloud.scales = std::move(r.normals.scales);
             r.normals.normals.clear();

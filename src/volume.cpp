@@ -16,6 +16,17 @@
 
 namespace vdbrecon {
 
+std::size_t Volume::memory_bytes() const {
+    std::size_t bytes = 0;
+    for (const openvdb::GridBase* g :
+         {static_cast<const openvdb::GridBase*>(sdf.get()), static_cast<const openvdb::GridBase*>(weight.get()),
+          static_cast<const openvdb::GridBase*>(nearest.get()), static_cast<const openvdb::GridBase*>(color.get()),
+          static_cast<const openvdb::GridBase*>(fill.get())}) {
+        if (g) bytes += std::size_t(g->memUsage());
+    }
+    return bytes;
+}
+
 void initialize_openvdb() {
     static std::once_flag once;
     std::call_once(once, [] { openvdb::initialize(); });
@@ -56,35 +67,44 @@ void make_uuid_deterministic(const std::string& file) {
     constexpr std::size_t kLen = 36;
     std::FILE* f = std::fopen(file.c_str(), "r+b");
     if (!f) throw IoError(detail::where(file, "cannot reopen the temporary .vdb file"));
-    std::string content;
-    char chunk[1 << 16];
-    std::size_t n;
-    while ((n = std::fread(chunk, 1, sizeof(chunk), f)) > 0) content.append(chunk, n);
-    auto is_uuid = [&] {
-        if (content.size() < kOffset + kLen) return false;
-        for (std::size_t i = 0; i < kLen; ++i) {
-            const char c = content[kOffset + i];
-            const bool dash = i == 8 || i == 13 || i == 18 || i == 23;
-            if (dash ? c != '-' : !std::isxdigit(static_cast<unsigned char>(c))) return false;
-        }
-        return true;
-    };
-    if (!is_uuid()) {  // an unexpected layout: leave the file as OpenVDB wrote it
+    // The file is hashed in 64 kB chunks as it is read (not held in memory: it is as large as the
+    // grids); `tail` carries the bytes of a word split between chunks.
+    char head[kOffset + kLen];
+    bool uuid = std::fread(head, 1, sizeof(head), f) == sizeof(head);
+    for (std::size_t i = 0; uuid && i < kLen; ++i) {
+        const char c = head[kOffset + i];
+        const bool dash = i == 8 || i == 13 || i == 18 || i == 23;
+        uuid = dash ? c == '-' : std::isxdigit(static_cast<unsigned char>(c)) != 0;
+    }
+    if (!uuid) {  // an unexpected layout: leave the file as OpenVDB wrote it
         std::fclose(f);
         return;
     }
-    // Two FNV-1a style lanes over 8-byte words (byte-wise hashing of a 100 MB file is slow).
+    // Two FNV-1a style lanes over 8-byte words (byte-wise hashing of a 100 MB file is slow),
+    // then the last bytes one by one.
     std::uint64_t h[2] = {0xcbf29ce484222325ULL, 0x84222325cbf29ce4ULL};
-    std::size_t i = kOffset + kLen;
-    for (; i + 8 <= content.size(); i += 8) {
-        std::uint64_t word;
-        std::memcpy(&word, content.data() + i, 8);
-        h[0] = (h[0] ^ word) * 0x100000001b3ULL;
-        h[1] = (h[1] ^ (word >> 32 | word << 32)) * 0x100000001b3ULL;
+    std::vector<char> chunk(std::size_t(1) << 16);
+    char tail[8];
+    std::size_t tail_size = 0, n;
+    auto word = [&h](const char* p) {
+        std::uint64_t w;
+        std::memcpy(&w, p, 8);
+        h[0] = (h[0] ^ w) * 0x100000001b3ULL;
+        h[1] = (h[1] ^ (w >> 32 | w << 32)) * 0x100000001b3ULL;
         h[1] ^= h[1] >> 29;
+    };
+    while ((n = std::fread(chunk.data(), 1, chunk.size(), f)) > 0) {
+        std::size_t i = 0;
+        while (tail_size > 0 && tail_size < 8 && i < n) tail[tail_size++] = chunk[i++];
+        if (tail_size == 8) {
+            word(tail);
+            tail_size = 0;
+        }
+        for (; i + 8 <= n; i += 8) word(chunk.data() + i);
+        for (; i < n; ++i) tail[tail_size++] = chunk[i];
     }
-    for (; i < content.size(); ++i) {
-        for (std::uint64_t& x : h) x = (x ^ static_cast<unsigned char>(content[i])) * 0x100000001b3ULL;
+    for (std::size_t i = 0; i < tail_size; ++i) {
+        for (std::uint64_t& x : h) x = (x ^ static_cast<unsigned char>(tail[i])) * 0x100000001b3ULL;
     }
     unsigned char b[16];
     for (int i = 0; i < 8; ++i) {

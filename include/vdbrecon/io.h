@@ -37,6 +37,7 @@ struct ReadResult {
     std::size_t rows = 0;               ///< rows in the file (before dropping)
     std::size_t dropped_nonfinite = 0;  ///< rows dropped for NaN/inf coordinates
     std::size_t invalid_normals = 0;    ///< normals that were zero or NaN (set to 0,0,0)
+    std::size_t bytes = 0;              ///< memory of the cloud as read (its arrays)
 };
 
 /// Reads a point cloud; the format comes from the extension (.ply .xyz .pts .txt .obj), or from

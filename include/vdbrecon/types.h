@@ -151,6 +151,11 @@ struct PointCloud {
     bool has_colors() const { return !colors.empty(); }
     bool has_scales() const { return !scales.empty(); }
     bool has_confidences() const { return !confidences.empty(); }
+    /// Bytes of its arrays (owned or borrowed).
+    std::size_t memory_bytes() const {
+        return (positions.size() + normals.size() + colors.size()) * sizeof(Vec3f) +
+               (scales.size() + confidences.size()) * sizeof(float);
+    }
     /// A cloud borrowing every array of this one (no copies); valid while this one is alive and
     /// unchanged.
     PointCloud view() const {

@@ -39,6 +39,8 @@ struct Volume {
     std::map<std::string, std::string> metadata;
 
     bool empty() const { return !sdf || sdf->activeVoxelCount() == 0; }
+    /// Memory of its grids (Grid::memUsage: tree nodes, values, masks), bytes.
+    std::size_t memory_bytes() const;
 };
 
 /// Calls openvdb::initialize() once (thread-safe); every entry point that touches grids does.

@@ -3,8 +3,11 @@
 # --threads 1 and 2. Inputs: the bunny scans subsampled to 10, 25, 50 and 100 %, and a synthetic
 # 5-million-point scan (48 noisy virtual range scans of the bunny's reference mesh, made once by
 # bench/synth.py and kept in bench/out). All at --voxel 0.0005, so the surface and the mesh stay
-# about the same while the points grow; each mesh is scored against the bunny reference.
-# Prints one markdown table for bench/RESULTS.md.
+# about the same while the points grow; each mesh is scored against the bunny reference. Then the
+# bunny subsamples once more at 2 threads with the automatic voxel (2 x the median spacing, the
+# default without --voxel), where the volume follows the sampling density: the linear-cost case.
+# Prints one markdown table for bench/RESULTS.md; "grids MB" and "points MB" are the memory of the
+# splatted grids and of the cloud as read, from vdbrecon's log (the .vdb is written: the default).
 #   BIN=build/vdbrecon bench/scaling.sh    (QUICK=1: a 1M-point synthetic scan, 200k samples)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -41,7 +44,7 @@ for entry in "${inputs[@]}"; do
   for threads in 2 1; do
     mesh=$OUT/$slug.t$threads.ply
     echo "bench: $label ($points points), $threads threads ..." >&2
-    timed "$OUT/$slug.t$threads.log" "$BIN" "$input" -o "$mesh" --voxel "$VOXEL" --no-vdb \
+    timed "$OUT/$slug.t$threads.log" "$BIN" "$input" -o "$mesh" --voxel "$VOXEL" \
       --threads "$threads"
     json=-
     if [ "$RC" -eq 0 ]; then
@@ -52,12 +55,23 @@ for entry in "${inputs[@]}"; do
   done
   cmp -s "$OUT/$slug.t1.ply" "$OUT/$slug.t2.ply" || identical=no
 done
+for entry in "${inputs[@]}"; do
+  IFS='|' read -r label input <<<"$entry"
+  [ "$label" = synthetic ] && continue
+  points=$(grep -a -m1 '^element vertex' "$input" | cut -d' ' -f3)
+  slug=$(echo "$label" | tr -d ' %')-auto
+  echo "bench: $label ($points points), automatic voxel ..." >&2
+  timed "$OUT/$slug.log" "$BIN" "$input" -o "$OUT/$slug.ply" --threads 2
+  json=-
+  if [ "$RC" -eq 0 ]; then json=$OUT/$slug.json; score "$OUT/$slug.ply" "$json" "$GT"; fi
+  add_row "$label" "2, auto voxel" "auto" "$OUT/$slug.log" "$json" "$points"
+done
 
 machine_line
 echo
 $PY bench/table.py scaling "$ROWS"
 echo
-echo "One run each, --voxel 0.0005 --no-vdb; times in seconds (the stage columns from vdbrecon's"
+echo "One run each, --voxel 0.0005 (or the automatic voxel), .vdb written; times in seconds (the stage columns from vdbrecon's"
 echo "log); meshes scored against bun_zipper_gt.ply ($SAMPLES samples). Meshes identical for 1"
 echo "and 2 threads: $identical. Synthetic scan: $(grep -a -m1 '^comment' "$synth" | cut -d' ' -f2-)."
 echo

@@ -73,6 +73,18 @@ def stage_times(log, names):
     return [t.get(n, "–") for n in names]
 
 
+def log_memory(log):
+    """(voxel, points MB, grids MB) from vdbrecon's log, None where missing."""
+    try:
+        text = open(log).read()
+    except OSError:
+        return None, None, None
+    voxel = re.search(r"vdbrecon: voxel ([0-9.e+-]+)", text)
+    points = re.search(r"rows \([^)]*\), ([0-9.]+) MB in memory", text)
+    grids = re.search(r"grids ([0-9.]+) MB in memory", text)
+    return tuple(float(m[1]) if m else None for m in (voxel, points, grids))
+
+
 def scaling(rows):
     wall = {(r["dataset"], r["method"]): r["wall"] for r in rows if r["status"] == "ok"}
     lines = []
@@ -80,9 +92,13 @@ def scaling(rows):
         points = int(r["extra"])
         one = wall.get((r["dataset"], "1"))
         speedup = "%.2f" % (one / r["wall"]) if one and r["status"] == "ok" else "–"
-        head = [r["dataset"], "{:,}".format(points), r["method"], "%.2f" % r["wall"],
-                "%.2f" % r["cpu"], r["rss"]]
-        head += stage_times(r["log"], ["read", "normals", "splat", "mesh"])
+        voxel, points_mb, grids_mb = log_memory(r["log"])
+        ratio = "%.2f" % (r["rss"] / (points_mb + grids_mb)) if points_mb and grids_mb else "–"
+        head = [r["dataset"], "{:,}".format(points), r["method"],
+                "%.3g" % (voxel * 1e3) if voxel else "–", "%.2f" % r["wall"],
+                "%.2f" % r["cpu"], r["rss"], "%.1f" % grids_mb if grids_mb else "–",
+                "%.1f" % points_mb if points_mb else "–", ratio]
+        head += stage_times(r["log"], ["read", "outliers", "normals", "splat", "mesh"])
         head += ["%.2f" % (r["wall"] / points * 1e6), speedup]
         if r["eval"] is None:
             lines.append(head + [r["status"], "–", "–"])
@@ -90,7 +106,8 @@ def scaling(rows):
             e = r["eval"]
             lines.append(head + [e["recon"]["faces"], "%.4f" % e["fscore"][0]["fscore"],
                                  "%.1f" % (e["chamfer_l1"] * 1e6)])
-    print(table(["input", "points", "threads", "wall s", "CPU s", "peak RSS MB", "read",
+    print(table(["input", "points", "threads", "voxel mm", "wall s", "CPU s", "peak RSS MB",
+                 "grids MB", "points MB", "peak / (grids + points)", "read", "outliers",
                  "normals", "splat", "mesh", "wall us/point", "speed-up vs 1 thread", "faces",
                  "F@0.5mm", "Chamfer um"], lines))
 

@@ -91,15 +91,20 @@ def scaling(rows):
     for r in rows:
         points = int(r["extra"])
         one = wall.get((r["dataset"], "1"))
-        speedup = "%.2f" % (one / r["wall"]) if one and r["status"] == "ok" else "–"
+        fixed = r["method"] in ("1", "2")  # the thread rows at the fixed voxel
+        speedup = "%.2f" % (one / r["wall"]) if one and fixed and r["status"] == "ok" else "–"
         voxel, points_mb, grids_mb = log_memory(r["log"])
         ratio = "%.2f" % (r["rss"] / (points_mb + grids_mb)) if points_mb and grids_mb else "–"
         head = [r["dataset"], "{:,}".format(points), r["method"],
                 "%.3g" % (voxel * 1e3) if voxel else "–", "%.2f" % r["wall"],
                 "%.2f" % r["cpu"], r["rss"], "%.1f" % grids_mb if grids_mb else "–",
                 "%.1f" % points_mb if points_mb else "–", ratio]
-        head += stage_times(r["log"], ["read", "outliers", "normals", "splat", "mesh"])
-        head += ["%.2f" % (r["wall"] / points * 1e6), speedup]
+        stages = stage_times(r["log"], ["read", "outliers", "normals", "splat", "mesh"])
+        head += stages
+        per_point = "–"
+        if "–" not in stages:
+            per_point = "%.2f" % (sum(float(t) for t in stages) / points * 1e6)
+        head += ["%.2f" % (r["wall"] / points * 1e6), per_point, speedup]
         if r["eval"] is None:
             lines.append(head + [r["status"], "–", "–"])
         else:
@@ -108,8 +113,8 @@ def scaling(rows):
                                  "%.1f" % (e["chamfer_l1"] * 1e6)])
     print(table(["input", "points", "threads", "voxel mm", "wall s", "CPU s", "peak RSS MB",
                  "grids MB", "points MB", "peak / (grids + points)", "read", "outliers",
-                 "normals", "splat", "mesh", "wall us/point", "speed-up vs 1 thread", "faces",
-                 "F@0.5mm", "Chamfer um"], lines))
+                 "normals", "splat", "mesh", "wall us/point", "stages us/point",
+                 "speed-up vs 1 thread", "faces", "F@0.5mm", "Chamfer um"], lines))
 
 
 if __name__ == "__main__":

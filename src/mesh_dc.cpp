@@ -274,8 +274,10 @@ void repair_hermite(const Crossings& crossings, Field& values, double voxel, flo
                 for (int dx = -kReach; dx <= kReach; ++dx) {
                     for (int dy = -kReach; dy <= kReach; ++dy) {
                         for (int dz = -kReach; dz <= kReach; ++dz) {
+                            std::int64_t id[3];
+                            if (!crossing_ids(ids, s.offsetBy(dx, dy, dz), id)) continue;
                             for (int a = 0; a < 3; ++a) {
-                                const std::int64_t j = crossing_id(ids, s.offsetBy(dx, dy, dz), a);
+                                const std::int64_t j = id[a];
                                 if (j < 0 || !(old_weights[std::size_t(j)] >= kReliable)) continue;
                                 reliable.push_back(std::size_t(j));
                                 const openvdb::Vec3d nj(old_normals[std::size_t(j)]);
@@ -733,10 +735,6 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                                                       3.0;
                         return std::fabs(sdf_at(acc, centre) - double(iso));
                     };
-                    const double along02 =
-                        off_surface(v[0], v[1], v[2]) + off_surface(v[0], v[2], v[3]);
-                    const double along13 =
-                        off_surface(v[0], v[1], v[3]) + off_surface(v[1], v[2], v[3]);
                     // Next to a sharp edge the diagonal must run along it, between the two
                     // vertices whose patch normals agree, not across it (which cuts the edge
                     // off). The trilinear field cannot tell: it is rounded at the edge. Where the
@@ -746,8 +744,11 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                             patch_normal[std::size_t(v[b])]));
                     };
                     const double agree02 = nd(0, 2), agree13 = nd(1, 3);
-                    const bool use02 = std::fabs(agree02 - agree13) > 0.05 ? agree02 > agree13
-                                                                           : along02 <= along13;
+                    bool use02 = agree02 > agree13;
+                    if (std::fabs(agree02 - agree13) <= 0.05) {  // only then is the field asked
+                        use02 = off_surface(v[0], v[1], v[2]) + off_surface(v[0], v[2], v[3]) <=
+                                off_surface(v[0], v[1], v[3]) + off_surface(v[1], v[2], v[3]);
+                    }
                     if (use02) {
                         quads[chunk].push_back({v[0], v[1], v[2]});
                         quads[chunk].push_back({v[0], v[2], v[3]});

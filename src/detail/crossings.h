@@ -49,6 +49,18 @@ inline std::int64_t crossing_id(openvdb::tree::ValueAccessor<const openvdb::UInt
     return std::int64_t(value & kIdMask) + std::int64_t((before & 1u) + (before >> 1));
 }
 
+/// The ids of the crossings on the three edges (v, axis 0..2) with one lookup: id[axis] is -1
+/// where that edge does not cross. Returns false when none does.
+inline bool crossing_ids(openvdb::tree::ValueAccessor<const openvdb::UInt32Tree>& acc,
+                         const openvdb::Coord& v, std::int64_t id[3]) {
+    std::uint32_t value;
+    if (!acc.probeValue(v, value) || (value >> kIdBits) == 0) return false;
+    const std::uint32_t mask = value >> kIdBits;
+    std::int64_t next = std::int64_t(value & kIdMask);
+    for (int axis = 0; axis < 3; ++axis) id[axis] = (mask >> axis) & 1u ? next++ : -1;
+    return true;
+}
+
 /// A cell the surface passes through: its minimum voxel, corner values and loops.
 struct SurfaceCell {
     openvdb::Coord origin;

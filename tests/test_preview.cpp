@@ -137,10 +137,11 @@ TEST_CASE("preview: the CLI writes the picture and refuses other extensions earl
           "[preview][cli]") {
     TempDir dir;
     write_points(dir.file("s.ply"), sample_sphere(5000, 1.0));
-    const CliRun ok = run_cli("'" + dir.file("s.ply") + "' --no-vdb -q --preview '" +
-                              dir.file("s.png") + "'");
+    const CliRun ok = run_cli("'" + dir.file("s.ply") + "' -o '" + dir.file("s.recon.ply") +
+                              "' --no-vdb -q --preview '" + dir.file("s.png") + "'");
     REQUIRE(ok.code == 0);
     REQUIRE(file_exists(dir.file("s.png")));
+    REQUIRE(file_exists(dir.file("s.recon.ply")));
     const CliRun bad = run_cli("'" + dir.file("s.ply") + "' -o '" + dir.file("t.ply") +
                                "' --no-vdb --preview '" + dir.file("s.bmp") + "'");
     CHECK(bad.code == 2);

@@ -83,8 +83,9 @@ void taubin(Mesh& m, const CleanOptions& o) {
         step(o.smooth_lambda);
         step(o.smooth_mu);
     }
+    std::vector<Vec3f>& vertices = m.vertices.edit();
     for (std::size_t i = 0; i < nv; ++i) {
-        m.vertices[i] = {float(x[i][0]), float(x[i][1]), float(x[i][2])};
+        vertices[i] = {float(x[i][0]), float(x[i][1]), float(x[i][2])};
     }
     if (!m.normals.empty()) m.normals = vertex_normals(m);
 }
@@ -143,7 +144,7 @@ CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
         if (normals) out.normals.push_back(mesh.normals[i]);
         if (colors) out.colors.push_back(mesh.colors[i]);
     }
-    for (Triangle& t : out.faces) {
+    for (Triangle& t : out.faces.edit()) {
         for (std::int32_t& i : t) i = remap[std::size_t(i)];
     }
     r.removed_vertices = mesh.vertices.size() - out.vertices.size();

@@ -331,7 +331,7 @@ Mesh in_frame(const Mesh& m, const Vec3d& origin) {
     if (m.origin == origin) return m;
     Mesh out = m;
     out.origin = origin;
-    for (Vec3f& v : out.vertices) {
+    for (Vec3f& v : out.vertices.edit()) {
         for (int k = 0; k < 3; ++k) v[k] = float(double(v[k]) + m.origin[k] - origin[k]);
     }
     return out;

@@ -263,18 +263,18 @@ Mesh finalize_mesh(RawPoints&& raw, const std::string& path) {
         }
     }
     mesh.origin = choose_origin(raw.xyz.data(), rows);
-    mesh.vertices.resize(rows);
+    std::vector<Vec3f>& vertices = mesh.vertices.edit();
+    vertices.resize(rows);
     for (std::size_t i = 0; i < rows; ++i) {
-        mesh.vertices[i] = local_point(&raw.xyz[3 * i], mesh.origin, path, "vertex", i);
+        vertices[i] = local_point(&raw.xyz[3 * i], mesh.origin, path, "vertex", i);
     }
-    if (!raw.normals.empty()) {
-        mesh.normals.resize(rows);
-        std::memcpy(mesh.normals.data(), raw.normals.data(), rows * sizeof(Vec3f));
-    }
-    if (!raw.colors.empty()) {
-        mesh.colors.resize(rows);
-        std::memcpy(mesh.colors.data(), raw.colors.data(), rows * sizeof(Vec3f));
-    }
+    auto rows_of = [rows](const std::vector<float>& v) {
+        std::vector<Vec3f> out(v.empty() ? 0 : rows);
+        if (!out.empty()) std::memcpy(out.data(), v.data(), rows * sizeof(Vec3f));
+        return out;
+    };
+    mesh.normals = rows_of(raw.normals);
+    mesh.colors = rows_of(raw.colors);
     mesh.faces = std::move(raw.faces);
     return mesh;
 }

@@ -588,7 +588,7 @@ std::uint8_t to_byte(float c) {
 
 void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& origin,
                Span<Vec3f> normals, Span<Vec3f> colors, Span<float> scales,
-               Span<float> confidences, const std::vector<Triangle>* faces,
+               Span<float> confidences, const Column<Triangle>* faces,
                const WriteOptions& options) {
     const bool far = origin != Vec3d{0, 0, 0};
     const bool ascii = options.encoding == PlyEncoding::ascii;

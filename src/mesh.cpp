@@ -166,7 +166,8 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
     if (options.normals && !mesh.vertices.empty()) {
         // Normalised SDF gradient; area-weighted face normals where it vanishes or disagrees.
         const std::vector<std::array<double, 3>> face_n = face_normal_sums(mesh);
-        mesh.normals.resize(mesh.vertices.size());
+        std::vector<Vec3f>& normals = mesh.normals.edit();
+        normals.resize(mesh.vertices.size());
         for (std::size_t i = 0; i < npoints; ++i) {
             if (remap[i] < 0) continue;
             const std::size_t v = std::size_t(remap[i]);
@@ -175,11 +176,12 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
             if (!(g.length() > 1e-12) || g.dot(fn) < 0.0) g = fn;
             const double len = g.length();
             if (len > 0.0) g /= len;
-            mesh.normals[v] = {float(g[0]), float(g[1]), float(g[2])};
+            normals[v] = {float(g[0]), float(g[1]), float(g[2])};
         }
     }
     if (volume.color && !mesh.vertices.empty()) {
-        mesh.colors.resize(mesh.vertices.size());
+        std::vector<Vec3f>& colors = mesh.colors.edit();
+        colors.resize(mesh.vertices.size());
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 4096),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             Vec3Accessor cacc(volume.color->tree());
@@ -187,7 +189,7 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
                 if (remap[i] < 0) continue;
                 const openvdb::Vec3f c =
                     openvdb::tools::BoxSampler::sample(cacc, openvdb::Vec3d(raw.points[i]));
-                mesh.colors[std::size_t(remap[i])] = {c[0], c[1], c[2]};
+                colors[std::size_t(remap[i])] = {c[0], c[1], c[2]};
             }
         });
     }

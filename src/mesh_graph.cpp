@@ -8,7 +8,7 @@
 
 namespace vdbrecon::detail {
 
-std::vector<EdgeUse> undirected_edges(const std::vector<Triangle>& faces) {
+std::vector<EdgeUse> undirected_edges(Span<Triangle> faces) {
     std::vector<std::uint64_t> keys;
     keys.reserve(3 * faces.size());
     for (const Triangle& t : faces) {
@@ -31,7 +31,7 @@ std::vector<EdgeUse> undirected_edges(const std::vector<Triangle>& faces) {
     return edges;
 }
 
-std::vector<std::int32_t> face_components(const std::vector<Triangle>& faces,
+std::vector<std::int32_t> face_components(Span<Triangle> faces,
                                           std::size_t vertex_count) {
     const std::size_t nf = faces.size();
     // Union-find whose roots are the smallest index, so labels do not depend on union order.

@@ -19,8 +19,10 @@ Mesh sphere_mesh(double radius, double voxel, const openvdb::Vec3f& centre = {0,
 /// Appends `b` to `a` (indices shifted).
 void append(Mesh& a, const Mesh& b) {
     const std::int32_t base = std::int32_t(a.vertices.size());
-    a.vertices.insert(a.vertices.end(), b.vertices.begin(), b.vertices.end());
-    a.normals.insert(a.normals.end(), b.normals.begin(), b.normals.end());
+    std::vector<Vec3f>& vertices = a.vertices.edit();
+    std::vector<Vec3f>& normals = a.normals.edit();
+    vertices.insert(vertices.end(), b.vertices.begin(), b.vertices.end());
+    normals.insert(normals.end(), b.normals.begin(), b.normals.end());
     for (Triangle t : b.faces) a.faces.push_back({t[0] + base, t[1] + base, t[2] + base});
 }
 
@@ -94,7 +96,7 @@ TEST_CASE("clean: Taubin smoothing removes noise and keeps a sphere's size", "[c
     Mesh noisy = clean;
     std::mt19937 rng(5);
     std::normal_distribution<float> noise(0.0f, float(0.2 * voxel));
-    for (Vec3f& v : noisy.vertices) {
+    for (Vec3f& v : noisy.vertices.edit()) {
         for (float& c : v) c += noise(rng);
     }
     CleanOptions o;

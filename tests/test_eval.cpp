@@ -43,8 +43,8 @@ TEST_CASE("topology of a closed cube and of an open one", "[eval]") {
     REQUIRE(t.components == 1);
     REQUIRE(t.area == Approx(6.0));
     REQUIRE(t.signed_volume == Approx(1.0));
-    c.faces.pop_back();
-    c.faces.pop_back();  // remove the +x face
+    c.faces.edit().pop_back();
+    c.faces.edit().pop_back();  // remove the +x face
     t = mesh_topology(c);
     REQUIRE(t.boundary_edges == 4);
     REQUIRE(t.euler == 1);
@@ -124,7 +124,7 @@ TEST_CASE("metrics: identical meshes score perfectly, offset meshes by the offse
     // A shifted copy in another frame is the same mesh in world space.
     Mesh moved = s;
     moved.origin = {100.0, 0.0, 0.0};
-    for (Vec3f& v : moved.vertices) v[0] -= 100.0f;
+    for (Vec3f& v : moved.vertices.edit()) v[0] -= 100.0f;
     REQUIRE(evaluate(moved, s, o).accuracy < 1e-4);
 
     // Half the sphere: precision stays 1, recall halves.

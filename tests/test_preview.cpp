@@ -115,7 +115,8 @@ TEST_CASE("preview: vertex colours show where they are", "[preview]") {
     Mesh m = sphere_mesh(1.0f);
     m.colors.resize(m.vertices.size());
     for (std::size_t i = 0; i < m.vertices.size(); ++i) {
-        m.colors[i] = m.vertices[i][1] > 0.0f ? Vec3f{1.0f, 0.0f, 0.0f} : Vec3f{0.0f, 0.0f, 1.0f};
+        m.colors.edit()[i] =
+            m.vertices[i][1] > 0.0f ? Vec3f{1.0f, 0.0f, 0.0f} : Vec3f{0.0f, 0.0f, 1.0f};
     }
     PreviewOptions o;
     o.width = 200;

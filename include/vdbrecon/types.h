@@ -2,8 +2,8 @@
 //
 // Core data types shared by every stage. Points and meshes are structures of arrays whose
 // per-point attributes are N x 3 row-major float arrays (Vec3f rows), so they map to numpy
-// (N, 3) float32 arrays without copies: a PointCloud's arrays are Columns, which either own a
-// std::vector or borrow someone else's memory (a numpy array, a caller's buffer).
+// (N, 3) float32 arrays without copies: the arrays of PointCloud and Mesh are Columns, which
+// either own a std::vector or borrow someone else's memory (a numpy array, a caller's buffer).
 #pragma once
 
 #include <algorithm>
@@ -170,12 +170,13 @@ struct PointCloud {
     }
 };
 
-/// An indexed triangle mesh. Vertices are relative to `origin`, like PointCloud positions.
+/// An indexed triangle mesh. Vertices are relative to `origin`, like PointCloud positions; its
+/// arrays are Columns too (a mesh built from numpy arrays borrows them).
 struct Mesh {
-    std::vector<Vec3f> vertices;    ///< #V by 3, world units, relative to `origin`
-    std::vector<Vec3f> normals;     ///< #V by 3 or empty; unit outward vertex normals
-    std::vector<Vec3f> colors;      ///< #V by 3 or empty; linear 0..1 RGB
-    std::vector<Triangle> faces;    ///< #F by 3, counter-clockwise seen from outside
+    Column<Vec3f> vertices;    ///< #V by 3, world units, relative to `origin`
+    Column<Vec3f> normals;     ///< #V by 3 or empty; unit outward vertex normals
+    Column<Vec3f> colors;      ///< #V by 3 or empty; linear 0..1 RGB
+    Column<Triangle> faces;    ///< #F by 3, counter-clockwise seen from outside
     Vec3d origin{0.0, 0.0, 0.0};    ///< world position of the local frame's origin
 
     bool empty() const { return faces.empty(); }

@@ -34,32 +34,27 @@ namespace py = pybind11;
 
 // ---- numpy arrays ----------------------------------------------------------------------------
 
-/// Copies a C-contiguous float32 (N, 3) array into Vec3f rows (one memcpy). Anything else raises
-/// TypeError (wrong dtype or layout: vdbrecon/__init__.py converts before calling) or ValueError
-/// (wrong shape, or `rows` given and different). `name` appears in the message.
-std::vector<Vec3f> to_rows(const py::handle& array, const char* name, py::ssize_t rows = -1);
-
-/// Same for a C-contiguous float32 (N,) array.
-std::vector<float> to_column(const py::handle& array, const char* name, py::ssize_t rows = -1);
-
-/// Like to_rows and to_column, but without a copy: the column borrows the array's memory and
-/// keeps the array alive (released under the GIL) for as long as the column or a copy lives.
+/// A column reading a C-contiguous float32 (N, 3) array in place (no copy): it borrows the
+/// array's memory and keeps the array alive (released under the GIL) for as long as the column
+/// or a copy of it lives. Anything else raises TypeError (wrong dtype or layout:
+/// vdbrecon/__init__.py converts before calling) or ValueError (wrong shape, or `rows` given and
+/// different). `name` appears in the message.
 Column<Vec3f> borrow_rows(const py::handle& array, const char* name, py::ssize_t rows = -1);
+/// Same for a C-contiguous float32 (N,) array.
 Column<float> borrow_column(const py::handle& array, const char* name, py::ssize_t rows = -1);
-
 /// Same for a C-contiguous int32 (F, 3) array of vertex indices, each in 0..vertices-1.
-std::vector<Triangle> to_faces(const py::handle& array, const char* name, std::size_t vertices);
+Column<Triangle> borrow_faces(const py::handle& array, const char* name, std::size_t vertices);
 
-/// A (N, 3) float32 numpy view of `v` (no copy) that keeps `owner` (the Python object owning
-/// the vector) alive. The vector must never be resized while the owner lives.
-py::array view_rows(Span<Vec3f> v, py::handle owner);
-/// A (F, 3) int32 view of faces.
-py::array view_faces(const std::vector<Triangle>& v, py::handle owner);
-/// A (N,) float32 view.
-py::array view_column(Span<float> v, py::handle owner);
+/// A numpy view of a column (no copy) that keeps `owner` (the Python object owning the column)
+/// alive: (N, 3) float32 rows, (F, 3) int32 faces, (N,) float32. A column that borrows someone
+/// else's array gives a read-only view (that array may be read-only, and it is not the owner's
+/// to change). The column must never be resized while the owner lives.
+py::array view_rows(const Column<Vec3f>& v, py::handle owner);
+py::array view_faces(const Column<Triangle>& v, py::handle owner);
+py::array view_column(const Column<float>& v, py::handle owner);
 /// A view, or None when `v` is empty (optional attributes).
-py::object view_or_none(Span<Vec3f> v, py::handle owner);
-py::object view_or_none(Span<float> v, py::handle owner);
+py::object view_or_none(const Column<Vec3f>& v, py::handle owner);
+py::object view_or_none(const Column<float>& v, py::handle owner);
 
 /// Moves a vector onto the heap and returns a numpy array owning it (no copy), shape
 /// (size, cols) or (size,) when cols == 0.

@@ -1,5 +1,4 @@
 // numpy conversions and log forwarding (see bind.h).
-#include <cstring>
 #include <mutex>
 
 #include "bind.h"
@@ -49,20 +48,6 @@ py::array_t<Scalar, py::array::c_style> checked(const py::handle& obj, const cha
 
 }  // namespace
 
-std::vector<Vec3f> to_rows(const py::handle& array, const char* name, py::ssize_t rows) {
-    auto a = checked<float>(array, name, 3, rows, "a C-contiguous float32 array of shape (N, 3)");
-    std::vector<Vec3f> v(std::size_t(a.shape(0)));
-    if (!v.empty()) std::memcpy(v.data(), a.data(), v.size() * sizeof(Vec3f));
-    return v;
-}
-
-std::vector<float> to_column(const py::handle& array, const char* name, py::ssize_t rows) {
-    auto a = checked<float>(array, name, 0, rows, "a C-contiguous float32 array of shape (N,)");
-    std::vector<float> v(std::size_t(a.shape(0)));
-    if (!v.empty()) std::memcpy(v.data(), a.data(), v.size() * sizeof(float));
-    return v;
-}
-
 namespace {
 
 /// A shared owner holding a reference to `o`, dropped under the GIL whichever thread lets go.
@@ -89,13 +74,13 @@ Column<float> borrow_column(const py::handle& array, const char* name, py::ssize
     return Column<float>::borrow(data, n, keep_alive(std::move(a)));
 }
 
-std::vector<Triangle> to_faces(const py::handle& array, const char* name, std::size_t vertices) {
+Column<Triangle> borrow_faces(const py::handle& array, const char* name, std::size_t vertices) {
     auto a =
         checked<std::int32_t>(array, name, 3, -1, "a C-contiguous int32 array of shape (F, 3)");
-    std::vector<Triangle> v(std::size_t(a.shape(0)));
-    if (!v.empty()) std::memcpy(v.data(), a.data(), v.size() * sizeof(Triangle));
-    for (std::size_t f = 0; f < v.size(); ++f) {
-        for (const std::int32_t i : v[f]) {
+    const auto* data = reinterpret_cast<const Triangle*>(a.data());
+    const auto n = std::size_t(a.shape(0));
+    for (std::size_t f = 0; f < n; ++f) {
+        for (const std::int32_t i : data[f]) {
             if (i < 0 || std::size_t(i) >= vertices) {
                 throw py::value_error(std::string(name) + ": face " + std::to_string(f) +
                                       " has vertex index " + std::to_string(i) + ", outside 0.." +
@@ -103,7 +88,7 @@ std::vector<Triangle> to_faces(const py::handle& array, const char* name, std::s
             }
         }
     }
-    return v;
+    return Column<Triangle>::borrow(data, n, keep_alive(std::move(a)));
 }
 
 namespace {
@@ -124,24 +109,37 @@ py::array view(const Scalar* data, py::ssize_t rows, py::ssize_t cols, py::handl
 
 }  // namespace
 
-py::array view_rows(Span<Vec3f> v, py::handle owner) {
-    return view(reinterpret_cast<const float*>(v.data()), py::ssize_t(v.size()), 3, owner);
+namespace {
+
+/// `a`, made read-only when the column it shows borrows its memory.
+template <typename T>
+py::array guarded(py::array a, const Column<T>& c) {
+    if (c.borrowed() && a.size() > 0) a.attr("setflags")(py::arg("write") = false);
+    return a;
 }
 
-py::array view_faces(const std::vector<Triangle>& v, py::handle owner) {
-    return view(reinterpret_cast<const std::int32_t*>(v.data()), py::ssize_t(v.size()), 3, owner);
+}  // namespace
+
+py::array view_rows(const Column<Vec3f>& v, py::handle owner) {
+    return guarded(view(reinterpret_cast<const float*>(v.data()), py::ssize_t(v.size()), 3, owner),
+                   v);
 }
 
-py::array view_column(Span<float> v, py::handle owner) {
-    return view(v.data(), py::ssize_t(v.size()), 0, owner);
+py::array view_faces(const Column<Triangle>& v, py::handle owner) {
+    return guarded(
+        view(reinterpret_cast<const std::int32_t*>(v.data()), py::ssize_t(v.size()), 3, owner), v);
 }
 
-py::object view_or_none(Span<Vec3f> v, py::handle owner) {
+py::array view_column(const Column<float>& v, py::handle owner) {
+    return guarded(view(v.data(), py::ssize_t(v.size()), 0, owner), v);
+}
+
+py::object view_or_none(const Column<Vec3f>& v, py::handle owner) {
     if (v.empty()) return py::none();
     return view_rows(v, owner);
 }
 
-py::object view_or_none(Span<float> v, py::handle owner) {
+py::object view_or_none(const Column<float>& v, py::handle owner) {
     if (v.empty()) return py::none();
     return view_column(v, owner);
 }

@@ -93,18 +93,19 @@ void bind_types(py::module_& m) {
                          const py::object& normals, const py::object& colors,
                          const py::object& origin) {
                  Mesh mesh;
-                 mesh.vertices = to_rows(vertices, "vertices");
+                 mesh.vertices = borrow_rows(vertices, "vertices");
                  const auto n = py::ssize_t(mesh.vertices.size());
-                 mesh.faces = to_faces(faces, "faces", mesh.vertices.size());
-                 if (!normals.is_none()) mesh.normals = to_rows(normals, "normals", n);
-                 if (!colors.is_none()) mesh.colors = to_rows(colors, "colors", n);
+                 mesh.faces = borrow_faces(faces, "faces", mesh.vertices.size());
+                 if (!normals.is_none()) mesh.normals = borrow_rows(normals, "normals", n);
+                 if (!colors.is_none()) mesh.colors = borrow_rows(colors, "colors", n);
                  mesh.origin = to_vec3d(origin, "origin");
                  return mesh;
              }),
              py::arg("vertices"), py::arg("faces"), py::arg("normals") = py::none(),
              py::arg("colors") = py::none(), py::arg("origin") = py::make_tuple(0.0, 0.0, 0.0),
-             "Copies vertices (V, 3) float32, faces (F, 3) int32 (indices checked), optional "
-             "normals and colors (V, 3) float32.")
+             "Borrows (no copy; the mesh keeps them alive) vertices (V, 3) float32, faces (F, 3) "
+             "int32 (indices checked), optional normals and colors (V, 3) float32. Views of "
+             "borrowed arrays are read-only.")
         .def_property_readonly(
             "vertices",
             [](py::object self) { return view_rows(self.cast<Mesh&>().vertices, self); },

@@ -136,6 +136,25 @@ def test_raw_module_takes_only_float32_c_arrays():
         _vdbrecon.PointCloud(np.asfortranarray(points))
 
 
+def test_mesh_from_numpy_borrows_its_arrays_read_only():
+    points, normals = sphere(4000)
+    ref = vdbrecon.reconstruct(points, normals, voxel=0.1)
+    v, f = ref.vertices.copy(), ref.faces.copy()
+    refs = sys.getrefcount(v)
+    m = vdbrecon.Mesh(v, f)
+    assert address(m.vertices) == address(v) and address(m.faces) == address(f)
+    assert sys.getrefcount(v) == refs + 1
+    assert not m.vertices.flags.writeable  # v is the caller's: the mesh does not write to it
+    with pytest.raises(ValueError):
+        m.vertices[0, 0] = 1.0
+    t = vdbrecon.mesh_topology(m)
+    assert t.faces == len(f) and t.boundary_edges == 0
+    del v, f
+    gc.collect()
+    np.testing.assert_array_equal(m.faces, ref.faces)  # kept alive by the mesh
+    assert vdbrecon.evaluate(m, ref).hausdorff < 1e-6  # the same surface
+
+
 def test_mesh_construction_checks_indices():
     v = np.zeros((3, 3), np.float32)
     with pytest.raises(ValueError, match="face 1 has vertex index 3"):

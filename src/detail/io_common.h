@@ -136,7 +136,7 @@ RawPoints read_obj_raw(const std::string& path, std::string_view content, bool w
 /// PLY writer for clouds and meshes. Empty attributes are left out; `faces` may be null.
 void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& origin,
                Span<Vec3f> normals, Span<Vec3f> colors, Span<float> scales,
-               Span<float> confidences, const std::vector<Triangle>* faces,
+               Span<float> confidences, const Column<Triangle>* faces,
                const WriteOptions& options);
 
 }  // namespace vdbrecon::detail

@@ -20,11 +20,11 @@ struct EdgeUse {
 };
 
 /// Every undirected edge of the faces, sorted by (a, b); degenerate edges (a == b) are skipped.
-std::vector<EdgeUse> undirected_edges(const std::vector<Triangle>& faces);
+std::vector<EdgeUse> undirected_edges(Span<Triangle> faces);
 
 /// Edge-connected components of the faces (two faces that share an edge belong together): per
 /// face, its component's label, the smallest face index in it. Linear time.
-std::vector<std::int32_t> face_components(const std::vector<Triangle>& faces,
+std::vector<std::int32_t> face_components(Span<Triangle> faces,
                                           std::size_t vertex_count);
 
 /// Per vertex, the sum of the (unnormalised, so area-weighted) normals of the faces around it.

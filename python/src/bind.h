@@ -1,6 +1,6 @@
-// Shared pieces of the pybind11 module `vdbrecon._vdbrecon`: numpy <-> std::vector conversion,
-// option-struct binding (fields with their documentation and defaults), enum choices as strings,
-// and calling the library without the GIL.
+// Shared pieces of the pybind11 module `vdbrecon._vdbrecon`: numpy arrays borrowed as Columns
+// and Columns shown as numpy views, option-struct binding (fields with their documentation and
+// defaults), enum choices as strings, and calling the library without the GIL.
 //
 // One bind_<stage>.cpp per public header. Adding a stage (as bind_close.cpp did): write
 // bind_<stage>.cpp with `void bind_<stage>(py::module_&)`, declare it below, call it from

@@ -71,9 +71,9 @@ machine_line
 echo
 $PY bench/table.py scaling "$ROWS"
 echo
-echo "One run each, --voxel 0.0005 (or the automatic voxel), .vdb written; times in seconds (the stage columns from vdbrecon's"
-echo "log); meshes scored against bun_zipper_gt.ply ($SAMPLES samples). Meshes identical for 1"
-echo "and 2 threads: $identical. Synthetic scan: $(grep -a -m1 '^comment' "$synth" | cut -d' ' -f2-)."
+echo "One run each, --voxel 0.0005 (or the automatic voxel), .vdb written; times in seconds"
+echo "(the stage columns from vdbrecon's log); meshes scored against bun_zipper_gt.ply"
+echo "($SAMPLES samples). Meshes identical for 1 and 2 threads: $identical. Synthetic scan: $(grep -a -m1 '^comment' "$synth" | cut -d' ' -f2-)."
 echo
 echo "Load: $LOAD_START at the start, $(load_line) at the end; the whole run took" \
   "$(( ($(date +%s) - START + 30) / 60 )) min. QUICK=$QUICK."

@@ -608,7 +608,9 @@ void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& orig
     const char* coord = far ? "double" : "float";
     for (const char* a : {"x", "y", "z"}) header += std::string("property ") + coord + " " + a + "\n";
     if (!normals.empty()) header += "property float nx\nproperty float ny\nproperty float nz\n";
-    if (!colors.empty()) header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+    if (!colors.empty()) {
+        header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+    }
     if (!scales.empty()) header += "property float value\n";
     if (!confidences.empty()) header += "property float confidence\n";
     if (faces) {

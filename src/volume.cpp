@@ -18,12 +18,14 @@ namespace vdbrecon {
 
 std::size_t Volume::memory_bytes() const {
     std::size_t bytes = 0;
-    for (const openvdb::GridBase* g :
-         {static_cast<const openvdb::GridBase*>(sdf.get()), static_cast<const openvdb::GridBase*>(weight.get()),
-          static_cast<const openvdb::GridBase*>(nearest.get()), static_cast<const openvdb::GridBase*>(color.get()),
-          static_cast<const openvdb::GridBase*>(fill.get())}) {
+    auto add = [&bytes](const openvdb::GridBase* g) {
         if (g) bytes += std::size_t(g->memUsage());
-    }
+    };
+    add(sdf.get());
+    add(weight.get());
+    add(nearest.get());
+    add(color.get());
+    add(fill.get());
     return bytes;
 }
 

@@ -15,9 +15,9 @@ Stage by stage, with the same option names and defaults as the C++ structs and t
     vdbrecon.write_volume("scan.splat.vdb", volume)
 
 Arrays: (N, 3) C-contiguous float32 inputs are used as they are, without a copy (the point cloud
-borrows them and keeps them alive); other real dtypes and layouts are converted once; anything else raises TypeError
-(wrong kind) or ValueError (wrong shape, non-finite positions). Outputs are numpy views of the
-library's arrays (no copy) that keep their owner alive.
+borrows them and keeps them alive); other real dtypes and layouts are converted once; anything
+else raises TypeError (wrong kind) or ValueError (wrong shape, non-finite positions). Outputs
+are numpy views of the library's arrays (no copy) that keep their owner alive.
 
 Volumes cross as .vdb paths (read_volume / write_volume), as numpy arrays of active voxels
 (Volume.to_arrays / Volume.from_arrays), or, when pyopenvdb is importable, as pyopenvdb grids

@@ -166,6 +166,19 @@ Vec3d choose_origin(const double* xyz, std::size_t rows) {
     return origin;
 }
 
+namespace {
+
+/// The first `rows` xyz triples of a flat attribute array as Vec3f rows (empty when the array
+/// is: the file has no such attribute); the flat array is freed.
+std::vector<Vec3f> take_rows(std::vector<float>&& flat, std::size_t rows) {
+    std::vector<Vec3f> out(flat.empty() ? 0 : rows);
+    if (!out.empty()) std::memcpy(out.data(), flat.data(), rows * sizeof(Vec3f));
+    flat = {};
+    return out;
+}
+
+}  // namespace
+
 ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::string& format,
                            const ReadOptions& options) {
     ReadResult result;
@@ -216,14 +229,8 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
                                     std::to_string(first_bad) + ")"));
     }
 
-    auto to_vec3 = [kept](std::vector<float>& src) {
-        std::vector<Vec3f> dst(src.empty() ? 0 : kept);
-        if (!dst.empty()) std::memcpy(dst.data(), src.data(), kept * sizeof(Vec3f));
-        src = {};
-        return dst;
-    };
-    std::vector<Vec3f> normals = to_vec3(raw.normals);
-    cloud.colors = to_vec3(raw.colors);
+    std::vector<Vec3f> normals = take_rows(std::move(raw.normals), kept);
+    cloud.colors = take_rows(std::move(raw.colors), kept);
     if (!raw.confidences.empty()) {
         raw.confidences.resize(kept);
         cloud.confidences = std::move(raw.confidences);
@@ -268,13 +275,8 @@ Mesh finalize_mesh(RawPoints&& raw, const std::string& path) {
     for (std::size_t i = 0; i < rows; ++i) {
         vertices[i] = local_point(&raw.xyz[3 * i], mesh.origin, path, "vertex", i);
     }
-    auto rows_of = [rows](const std::vector<float>& v) {
-        std::vector<Vec3f> out(v.empty() ? 0 : rows);
-        if (!out.empty()) std::memcpy(out.data(), v.data(), rows * sizeof(Vec3f));
-        return out;
-    };
-    mesh.normals = rows_of(raw.normals);
-    mesh.colors = rows_of(raw.colors);
+    mesh.normals = take_rows(std::move(raw.normals), rows);
+    mesh.colors = take_rows(std::move(raw.colors), rows);
     mesh.faces = std::move(raw.faces);
     return mesh;
 }

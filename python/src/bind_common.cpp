@@ -58,29 +58,32 @@ std::shared_ptr<const void> keep_alive(py::object o) {
     });
 }
 
+/// A column of `Row`s reading the checked array `a` in place and holding it.
+template <typename Row, typename Array>
+Column<Row> borrow_checked(Array a) {
+    const auto* data = reinterpret_cast<const Row*>(a.data());
+    const auto n = std::size_t(a.shape(0));  // before `a` is moved from
+    return Column<Row>::borrow(data, n, keep_alive(std::move(a)));
+}
+
 }  // namespace
 
 Column<Vec3f> borrow_rows(const py::handle& array, const char* name, py::ssize_t rows) {
-    auto a = checked<float>(array, name, 3, rows, "a C-contiguous float32 array of shape (N, 3)");
-    const auto* data = reinterpret_cast<const Vec3f*>(a.data());
-    const auto n = std::size_t(a.shape(0));  // before `a` is moved from
-    return Column<Vec3f>::borrow(data, n, keep_alive(std::move(a)));
+    return borrow_checked<Vec3f>(
+        checked<float>(array, name, 3, rows, "a C-contiguous float32 array of shape (N, 3)"));
 }
 
 Column<float> borrow_column(const py::handle& array, const char* name, py::ssize_t rows) {
-    auto a = checked<float>(array, name, 0, rows, "a C-contiguous float32 array of shape (N,)");
-    const float* data = a.data();
-    const auto n = std::size_t(a.shape(0));
-    return Column<float>::borrow(data, n, keep_alive(std::move(a)));
+    return borrow_checked<float>(
+        checked<float>(array, name, 0, rows, "a C-contiguous float32 array of shape (N,)"));
 }
 
 Column<Triangle> borrow_faces(const py::handle& array, const char* name, std::size_t vertices) {
     auto a =
         checked<std::int32_t>(array, name, 3, -1, "a C-contiguous int32 array of shape (F, 3)");
-    const auto* data = reinterpret_cast<const Triangle*>(a.data());
-    const auto n = std::size_t(a.shape(0));
-    for (std::size_t f = 0; f < n; ++f) {
-        for (const std::int32_t i : data[f]) {
+    const auto* faces = reinterpret_cast<const Triangle*>(a.data());
+    for (std::size_t f = 0; f < std::size_t(a.shape(0)); ++f) {
+        for (const std::int32_t i : faces[f]) {
             if (i < 0 || std::size_t(i) >= vertices) {
                 throw py::value_error(std::string(name) + ": face " + std::to_string(f) +
                                       " has vertex index " + std::to_string(i) + ", outside 0.." +
@@ -88,7 +91,7 @@ Column<Triangle> borrow_faces(const py::handle& array, const char* name, std::si
             }
         }
     }
-    return Column<Triangle>::borrow(data, n, keep_alive(std::move(a)));
+    return borrow_checked<Triangle>(std::move(a));
 }
 
 namespace {

@@ -38,17 +38,6 @@ constexpr std::uint32_t kIdMask = (1u << kIdBits) - 1;
 /// Finds every crossing of the active voxels of `sdf` (index space, iso-value `iso`).
 Crossings find_crossings(const openvdb::FloatTree& sdf, float iso);
 
-/// The id of the crossing on edge (v, axis), or -1 when that edge does not cross.
-inline std::int64_t crossing_id(openvdb::tree::ValueAccessor<const openvdb::UInt32Tree>& acc,
-                                const openvdb::Coord& v, int axis) {
-    std::uint32_t value;
-    if (!acc.probeValue(v, value)) return -1;
-    const std::uint32_t mask = value >> kIdBits;
-    if (!((mask >> axis) & 1u)) return -1;
-    const std::uint32_t before = mask & ((1u << axis) - 1u);
-    return std::int64_t(value & kIdMask) + std::int64_t((before & 1u) + (before >> 1));
-}
-
 /// The ids of the crossings on the three edges (v, axis 0..2) with one lookup: id[axis] is -1
 /// where that edge does not cross. Returns false when none does.
 inline bool crossing_ids(openvdb::tree::ValueAccessor<const openvdb::UInt32Tree>& acc,
@@ -59,6 +48,13 @@ inline bool crossing_ids(openvdb::tree::ValueAccessor<const openvdb::UInt32Tree>
     std::int64_t next = std::int64_t(value & kIdMask);
     for (int axis = 0; axis < 3; ++axis) id[axis] = (mask >> axis) & 1u ? next++ : -1;
     return true;
+}
+
+/// The id of the crossing on edge (v, axis), or -1 when that edge does not cross.
+inline std::int64_t crossing_id(openvdb::tree::ValueAccessor<const openvdb::UInt32Tree>& acc,
+                                const openvdb::Coord& v, int axis) {
+    std::int64_t id[3];
+    return crossing_ids(acc, v, id) ? id[axis] : -1;
 }
 
 /// A cell the surface passes through: its minimum voxel, corner values and loops.

@@ -8,7 +8,6 @@ PACKAGES=(
   cmake g++ make ccache
   libopenvdb-dev libboost-iostreams-dev   # OpenVDB 10; FindOpenVDB needs boost_iostreams
   libtbb-dev libeigen3-dev
-  libflann-dev liblz4-dev                 # FLANN's header API emits LZ4 calls
   libopenexr-dev zlib1g-dev               # --preview pictures: .exr (with depth), .png
   catch2                                  # Catch2 v2 tests
   pybind11-dev python3-dev python3-numpy  # the Python module (built for /usr/bin/python3)

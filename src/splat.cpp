@@ -12,7 +12,6 @@
 #include <openvdb/tools/SignedFloodFill.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <array>
@@ -120,8 +119,53 @@ inline openvdb::Coord leaf_origin(std::uint64_t key) {
 struct Pair {
     std::uint64_t key;
     std::uint32_t point;
-    bool operator<(const Pair& o) const { return key != o.key ? key < o.key : point < o.point; }
 };
+
+/// Sorts the pairs by (key, point) when they arrive in point order: a stable least-significant-
+/// digit radix sort on the key, after each axis's leaf coordinate is shifted to start at 0 and
+/// packed into just the bits its range needs (a scan of a few hundred leaves per axis needs
+/// two 11-bit passes instead of a comparison sort's ~20 over the 63-bit key).
+void sort_pairs(std::vector<Pair>& pairs) {
+    const std::size_t n = pairs.size();
+    if (n < 2) return;
+    const std::uint64_t field = (std::uint64_t(1) << kKeyBits) - 1;
+    std::uint64_t lo[3] = {field, field, field}, hi[3] = {0, 0, 0};
+    for (const Pair& p : pairs) {
+        for (int a = 0; a < 3; ++a) {
+            const std::uint64_t v = (p.key >> (kKeyBits * (2 - a))) & field;
+            lo[a] = std::min(lo[a], v);
+            hi[a] = std::max(hi[a], v);
+        }
+    }
+    int bits[3];
+    for (int a = 0; a < 3; ++a) {
+        bits[a] = 0;
+        while ((hi[a] - lo[a]) >> bits[a]) ++bits[a];
+    }
+    // The packed key: x in the high bits, z in the low ones, as in the full key.
+    auto packed = [&](std::uint64_t key) {
+        std::uint64_t out = 0;
+        for (int a = 0; a < 3; ++a) out = out << bits[a] | (((key >> (kKeyBits * (2 - a))) & field) - lo[a]);
+        return out;
+    };
+    constexpr int kDigit = 11;
+    const int total = bits[0] + bits[1] + bits[2];
+    std::vector<Pair> tmp(n);
+    std::vector<std::size_t> count(std::size_t(1) << kDigit);
+    for (int shift = 0; shift < total; shift += kDigit) {
+        std::fill(count.begin(), count.end(), 0);
+        const std::uint64_t mask = (std::uint64_t(1) << kDigit) - 1;
+        for (const Pair& p : pairs) ++count[(packed(p.key) >> shift) & mask];
+        std::size_t at = 0;
+        for (std::size_t& c : count) {
+            const std::size_t k = c;
+            c = at;
+            at += k;
+        }
+        for (const Pair& p : pairs) tmp[count[(packed(p.key) >> shift) & mask]++] = p;
+        pairs.swap(tmp);
+    }
+}
 
 /// Per-point kernel parameters in index space.
 struct Kernel {
@@ -166,10 +210,12 @@ struct LeafOut {
     std::size_t updates = 0, touched = 0, active = 0;
 };
 
-/// Per-voxel sums: w, the averaging weight u = amp * w, u * phi, and the nearest sample (squared
-/// distance and vector from the voxel, index units; the first sample in point order wins ties).
-struct VoxelSums {
-    double w, u, uphi, d2, ex, ey, ez;
+/// Per-voxel sums of one leaf, as separate arrays: w, the averaging weight u = amp * w, u * phi,
+/// and the nearest sample (squared distance, index units, and its point; the first sample in
+/// point order wins ties).
+struct LeafSums {
+    double w[kLeafVoxels], u[kLeafVoxels], uphi[kLeafVoxels], d2[kLeafVoxels];
+    std::uint32_t nearest[kLeafVoxels];
 };
 struct ColorSums {
     double r, g, b;
@@ -179,10 +225,12 @@ struct ColorSums {
 template <bool kColors>
 void splat_leaf(const openvdb::Coord& o, const Pair* begin, const Pair* end,
                 const std::vector<Kernel>& kernels, const PointCloud& cloud, double voxel,
-                double min_weight, float background, LeafOut& out) {
-    std::array<VoxelSums, kLeafVoxels> sums;
+                double min_weight, float background, LeafSums& sums, LeafOut& out) {
     std::array<ColorSums, kColors ? kLeafVoxels : 1> csums;
-    for (VoxelSums& v : sums) v = {0, 0, 0, std::numeric_limits<double>::infinity(), 0, 0, 0};
+    std::fill(std::begin(sums.w), std::end(sums.w), 0.0);
+    std::fill(std::begin(sums.u), std::end(sums.u), 0.0);
+    std::fill(std::begin(sums.uphi), std::end(sums.uphi), 0.0);
+    std::fill(std::begin(sums.d2), std::end(sums.d2), std::numeric_limits<double>::infinity());
     if (kColors) csums.fill({0, 0, 0});
     double gx[kLeafDim], gy[kLeafDim], gz[kLeafDim];
     double dx2[kLeafDim], dy2[kLeafDim], dz2[kLeafDim];
@@ -220,44 +268,45 @@ void splat_leaf(const openvdb::Coord& o, const Pair* begin, const Pair* end,
         axis(1, k.cy, k.ny, gy, dy2, py);
         axis(2, k.cz, k.nz, gz, dz2, pz);
         const float* col = kColors ? cloud.colors[q->point].data() : nullptr;
+        const std::uint32_t point = q->point;
         for (int x = lo[0]; x <= hi[0]; ++x) {
             for (int y = lo[1]; y <= hi[1]; ++y) {
                 const double dxy2 = dx2[x] + dy2[y];
                 if (dxy2 > r2) continue;
+                // The row's voxels inside the spherical support: one run, as dz^2 is convex.
+                int z0 = lo[2], z1 = hi[2];
+                while (z0 <= z1 && dxy2 + dz2[z0] > r2) ++z0;
+                while (z1 >= z0 && dxy2 + dz2[z1] > r2) --z1;
                 const double wxy = gx[x] * gy[y];
                 const double pxy = px[x] + py[y];
                 const int row = (x << (2 * kLeafLog2)) | (y << kLeafLog2);
-                for (int z = lo[2]; z <= hi[2]; ++z) {
+                for (int z = z0; z <= z1; ++z) {
+                    const int i = row | z;
                     const double d2 = dxy2 + dz2[z];
-                    if (d2 > r2) continue;  // spherical support
                     const double w = wxy * gz[z];
                     const double u = amp * w;
-                    VoxelSums& s = sums[std::size_t(row | z)];
-                    s.w += w;
-                    s.u += u;
-                    s.uphi += u * (pxy + pz[z]);
-                    if (d2 < s.d2) {
-                        s.d2 = d2;
-                        s.ex = double(o[0] + x) - k.cx;
-                        s.ey = double(o[1] + y) - k.cy;
-                        s.ez = double(o[2] + z) - k.cz;
-                    }
+                    sums.w[i] += w;
+                    sums.u[i] += u;
+                    sums.uphi[i] += u * (pxy + pz[z]);
+                    const bool nearer = d2 < sums.d2[i];
+                    sums.d2[i] = nearer ? d2 : sums.d2[i];
+                    sums.nearest[i] = nearer ? point : sums.nearest[i];
                     if (kColors) {
-                        ColorSums& c = csums[std::size_t(row | z)];
+                        ColorSums& c = csums[std::size_t(i)];
                         c.r += u * col[0];
                         c.g += u * col[1];
                         c.b += u * col[2];
                     }
-                    ++updates;
                 }
+                updates += std::size_t(std::max(0, z1 - z0 + 1));
             }
         }
     }
     out.updates = updates;
-    auto valid = [&](const VoxelSums& v) { return v.w > 0.0 && v.w >= min_weight; };
-    for (const VoxelSums& v : sums) {
-        out.touched += v.w > 0.0;
-        out.active += valid(v);
+    auto valid = [&](int i) { return sums.w[i] > 0.0 && sums.w[i] >= min_weight; };
+    for (int i = 0; i < kLeafVoxels; ++i) {
+        out.touched += sums.w[i] > 0.0;
+        out.active += valid(i);
     }
     if (out.active == 0) return;
     out.sdf = std::make_unique<FloatLeaf>(o, background, false);
@@ -265,16 +314,18 @@ void splat_leaf(const openvdb::Coord& o, const Pair* begin, const Pair* end,
     out.nearest = std::make_unique<Vec3Leaf>(o, openvdb::Vec3f(0.0f), false);
     if (kColors) out.color = std::make_unique<Vec3Leaf>(o, openvdb::Vec3f(0.0f), false);
     for (int i = 0; i < kLeafVoxels; ++i) {
-        const VoxelSums& v = sums[std::size_t(i)];
-        if (!valid(v)) continue;
-        const double inv_u = 1.0 / v.u;
+        if (!valid(i)) continue;
+        const double inv_u = 1.0 / sums.u[i];
         const auto idx = openvdb::Index(i);
-        out.sdf->setValueOn(idx, float(std::clamp(v.uphi * inv_u, -double(background),
+        out.sdf->setValueOn(idx, float(std::clamp(sums.uphi[i] * inv_u, -double(background),
                                                   double(background))));
-        out.weight->setValueOn(idx, float(v.w));
+        out.weight->setValueOn(idx, float(sums.w[i]));
         // Stored as the vector from the voxel to the sample, world units.
-        out.nearest->setValueOn(idx, openvdb::Vec3f(float(-v.ex * voxel), float(-v.ey * voxel),
-                                                    float(-v.ez * voxel)));
+        const Kernel& k = kernels[sums.nearest[i]];
+        const openvdb::Coord v = FloatLeaf::offsetToLocalCoord(idx) + o;
+        const double ex = double(v[0]) - k.cx, ey = double(v[1]) - k.cy, ez = double(v[2]) - k.cz;
+        out.nearest->setValueOn(idx, openvdb::Vec3f(float(-ex * voxel), float(-ey * voxel),
+                                                    float(-ez * voxel)));
         if (kColors) {
             const ColorSums& c = csums[std::size_t(i)];
             out.color->setValueOn(
@@ -409,7 +460,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
         }
     });
     first_pair = {};
-    tbb::parallel_sort(pairs.begin(), pairs.end());
+    sort_pairs(pairs);
 
     // Leaf ranges.
     std::vector<std::size_t> leaf_begin;
@@ -434,16 +485,17 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
 
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_leaves, 4),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
+        auto sums = std::make_unique<LeafSums>();
         for (std::size_t L = rg.begin(); L < rg.end(); ++L) {
             const Pair* b = pairs.data() + leaf_begin[L];
             const Pair* e = pairs.data() + leaf_begin[L + 1];
             LeafOut& out = leaves[L];
             if (colors) {
                 splat_leaf<true>(leaf_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
-                                 background, out);
+                                 background, *sums, out);
             } else {
                 splat_leaf<false>(leaf_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
-                                  background, out);
+                                  background, *sums, out);
             }
         }
     });

@@ -1,5 +1,8 @@
 #include <tbb/global_control.h>
 
+#include <algorithm>
+#include <random>
+
 #include "support.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
@@ -37,6 +40,62 @@ TEST_CASE("kNN: exact neighbours, self excluded even among duplicates", "[normal
     REQUIRE(r.neighbours(3)[0] != 3);
     const KnnResult q = index.query(std::vector<Vec3f>{{0.9f, 0, 0}}, 1);
     REQUIRE(q.neighbours(0)[0] == 1);
+}
+
+TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count", "[normals]") {
+    // A dense patch, a sparse shell far around it, exact duplicates and a few very far strays:
+    // the cell grid is sized for the dense part, so the other queries must fall back to
+    // coarser levels and still be exact. Queries outside the points' box too.
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    std::vector<Vec3f> pts;
+    for (int i = 0; i < 4000; ++i) pts.push_back({u(rng) * 0.1f, u(rng) * 0.1f, 0.001f * u(rng)});
+    for (int i = 0; i < 300; ++i) pts.push_back({u(rng) * 5.0f, u(rng) * 5.0f, u(rng) * 5.0f});
+    for (int i = 0; i < 50; ++i) pts.push_back(pts[std::size_t(i) * 7]);
+    pts.push_back({1000.0f, -2000.0f, 50.0f});
+    pts.push_back({-3000.0f, 0.0f, 0.0f});
+    const int k = 12;
+    // Brute force: (squared distance, index) ascending, the point itself excluded.
+    auto brute = [&](const Vec3f& q, long self) {
+        std::vector<std::pair<float, int>> all;
+        for (std::size_t j = 0; j < pts.size(); ++j) {
+            if (long(j) == self) continue;
+            const float dx = pts[j][0] - q[0], dy = pts[j][1] - q[1], dz = pts[j][2] - q[2];
+            all.push_back({dx * dx + dy * dy + dz * dz, int(j)});
+        }
+        std::partial_sort(all.begin(), all.begin() + k, all.end());
+        all.resize(std::size_t(k));
+        return all;
+    };
+    std::vector<Vec3f> queries = {{0.0f, 0.0f, 0.0f}, {50.0f, 50.0f, 50.0f}, {-1e4f, 3.0f, 0.0f},
+                                  {0.05f, -0.02f, 0.3f}};
+    KnnResult one, two;
+    {
+        tbb::global_control c(tbb::global_control::max_allowed_parallelism, 1);
+        one = KnnIndex(pts).self_neighbours(k);
+    }
+    {
+        tbb::global_control c(tbb::global_control::max_allowed_parallelism, 2);
+        two = KnnIndex(pts).self_neighbours(k);
+    }
+    REQUIRE(one.indices == two.indices);
+    std::size_t wrong = 0;
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+        const auto expect = brute(pts[i], long(i));
+        for (int j = 0; j < k; ++j) {
+            wrong += one.neighbours(i)[j] != expect[std::size_t(j)].second ||
+                     one.sq_dists(i)[j] != expect[std::size_t(j)].first;
+        }
+    }
+    REQUIRE(wrong == 0);
+    const KnnResult q = KnnIndex(pts).query(queries, k);
+    for (std::size_t i = 0; i < queries.size(); ++i) {
+        const auto expect = brute(queries[i], -1);
+        for (int j = 0; j < k; ++j) {
+            REQUIRE(q.neighbours(i)[j] == expect[std::size_t(j)].second);
+            REQUIRE(q.sq_dists(i)[j] == expect[std::size_t(j)].first);
+        }
+    }
 }
 
 TEST_CASE("kNN: the neighbours of a subset come from those of the whole set", "[normals]") {

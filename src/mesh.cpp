@@ -60,6 +60,86 @@ bool point_in_valid_cells(FloatAccessor& acc, const openvdb::Vec3d& p) {
     return true;
 }
 
+/// The SDF around one cell, for the gradient at points inside it: the cell's eight corners and
+/// their axis neighbours outside the cell (32 voxels), read once instead of seven reads per
+/// corner. gradient() is the trilinear blend of the corners' central differences (one-sided next
+/// to inactive voxels; zero at an inactive corner), as gradient_at() computes it.
+class CellStencil {
+public:
+    void load(FloatAccessor& acc, const openvdb::Coord& c) {
+        for (int x = 0; x < 4; ++x) {
+            for (int y = 0; y < 4; ++y) {
+                for (int z = 0; z < 4; ++z) {
+                    if ((x % 3 == 0) + (y % 3 == 0) + (z % 3 == 0) > 1) continue;  // not read
+                    on_[x][y][z] = acc.probeValue(c.offsetBy(x - 1, y - 1, z - 1), f_[x][y][z]);
+                }
+            }
+        }
+    }
+
+    /// Whether the cell's eight corners are active.
+    bool valid() const {
+        for (int x = 1; x <= 2; ++x) {
+            for (int y = 1; y <= 2; ++y) {
+                for (int z = 1; z <= 2; ++z) {
+                    if (!on_[x][y][z]) return false;
+                }
+            }
+        }
+        return true;
+    }
+
+    /// The gradient at the point with cell-local coordinates t (index units).
+    openvdb::Vec3d gradient(const openvdb::Vec3d& t) const {
+        openvdb::Vec3d g(0.0);
+        for (int dx = 0; dx <= 1; ++dx) {
+            for (int dy = 0; dy <= 1; ++dy) {
+                for (int dz = 0; dz <= 1; ++dz) {
+                    const double w = (dx ? t[0] : 1.0 - t[0]) * (dy ? t[1] : 1.0 - t[1]) *
+                                     (dz ? t[2] : 1.0 - t[2]);
+                    if (w != 0.0) g += w * corner_gradient(dx + 1, dy + 1, dz + 1);
+                }
+            }
+        }
+        return g;
+    }
+
+private:
+    openvdb::Vec3d corner_gradient(int x, int y, int z) const {
+        openvdb::Vec3d g(0.0);
+        if (!on_[x][y][z]) return g;
+        const double f0 = double(f_[x][y][z]);
+        const int at[3] = {x, y, z};
+        for (int a = 0; a < 3; ++a) {
+            int lo[3] = {x, y, z}, hi[3] = {x, y, z};
+            lo[a] = at[a] - 1;
+            hi[a] = at[a] + 1;
+            const bool l = on_[lo[0]][lo[1]][lo[2]], h = on_[hi[0]][hi[1]][hi[2]];
+            const double fl = double(f_[lo[0]][lo[1]][lo[2]]), fh = double(f_[hi[0]][hi[1]][hi[2]]);
+            if (l && h) {
+                g[a] = 0.5 * (fh - fl);
+            } else if (h) {
+                g[a] = fh - f0;
+            } else if (l) {
+                g[a] = f0 - fl;
+            }
+        }
+        return g;
+    }
+
+    float f_[4][4][4];
+    bool on_[4][4][4];
+};
+
+/// Whether the index-space point p lies in one cell only (not within eps of a cell face).
+bool in_one_cell(const openvdb::Vec3d& p) {
+    constexpr double eps = 1e-4;  // as point_in_valid_cells
+    for (int a = 0; a < 3; ++a) {
+        if (std::floor(p[a] - eps) != std::floor(p[a] + eps)) return false;
+    }
+    return true;
+}
+
 /// Distance (world units) from the index-space point p to the nearest of the samples recorded at
 /// the eight corners of its cell: an upper bound of the distance to the data that is exact
 /// whenever p's nearest sample is some corner's nearest sample (the usual case).
@@ -110,12 +190,19 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
         if (trim_gap) nacc = std::make_unique<Vec3Accessor>(volume.nearest->tree());
         std::unique_ptr<FloatAccessor> facc;
         if (volume.fill) facc = std::make_unique<FloatAccessor>(volume.fill->tree());
+        CellStencil stencil;
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             if (!used[i]) continue;
             const openvdb::Vec3d p(raw.points[i]);
-            if (raw.check_cells && !point_in_valid_cells(acc, p)) continue;
+            const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])),
+                                   int(std::floor(p[2])));
+            stencil.load(acc, c);
+            if (raw.check_cells &&
+                !(in_one_cell(p) ? stencil.valid() : point_in_valid_cells(acc, p))) {
+                continue;
+            }
             point_ok[i] = 1;
-            grad[i] = openvdb::Vec3f(gradient_at(acc, p));
+            grad[i] = openvdb::Vec3f(stencil.gradient(p - c.asVec3d()));
             if (facc && point_in_valid_cells(*facc, p)) continue;  // a closing vouches for it
             if (trim_weight &&
                 openvdb::tools::BoxSampler::sample(*wacc, p) < options.min_surface_weight) {

@@ -4,6 +4,7 @@
 //   vdbrecon eval RECON REF [options]   compare a mesh with a reference, print JSON
 //
 // Exit codes: 0 ok, 2 usage or invalid argument, 3 I/O or file format, 4 anything else.
+#include <malloc.h>
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -442,7 +443,16 @@ int run_reconstruct(Args& args) {
 
 }  // namespace
 
+/// Keeps freed memory in the heap for the next stage: each stage allocates and frees arrays of
+/// tens of MB, which glibc would otherwise map afresh and page-fault in every time (9 % of the
+/// CPU time on the bunny). Costs a few MB of peak memory (210 -> 217 MB on the bunny).
+void keep_freed_memory() {
+    mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's largest: bigger blocks are still mapped
+    mallopt(M_TRIM_THRESHOLD, 1 << 30);
+}
+
 int main(int argc, char** argv) {
+    keep_freed_memory();
     Args args;
     args.argv.assign(argv + 1, argv + argc);
     install_signal_handlers();

@@ -1,11 +1,7 @@
 // Mesh connectivity helpers (see detail/mesh_graph.h).
 #include "detail/mesh_graph.h"
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
-
-#include <atomic>
 
 #include <algorithm>
 #include <numeric>
@@ -38,94 +34,46 @@ std::vector<EdgeUse> undirected_edges(Span<Triangle> faces) {
 std::vector<std::int32_t> face_components(Span<Triangle> faces,
                                           std::size_t vertex_count) {
     const std::size_t nf = faces.size();
-    // Concurrent union-find whose roots are the smallest index of their set: a union links the
-    // larger root below the smaller one by compare-and-swap, retrying when another thread moved
-    // either root first (R. J. Anderson and H. Woll, "Wait-free parallel algorithms for the
-    // union-find problem", STOC 1991). The final labels (each face's smallest-index face of its
-    // component) do not depend on the order of the unions, so not on the thread count.
-    std::vector<std::atomic<std::int32_t>> parent(nf);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 16384),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t f = r.begin(); f < r.end(); ++f) {
-            parent[f].store(std::int32_t(f), std::memory_order_relaxed);
-        }
-    });
+    // Union-find whose roots are the smallest index, so labels do not depend on union order.
+    std::vector<std::int32_t> parent(nf);
+    std::iota(parent.begin(), parent.end(), std::int32_t(0));
     auto find = [&](std::int32_t x) {
-        for (;;) {
-            const std::int32_t p = parent[std::size_t(x)].load(std::memory_order_relaxed);
-            if (p == x) return x;
-            const std::int32_t g = parent[std::size_t(p)].load(std::memory_order_relaxed);
-            if (g != p) {  // path halving: an ancestor is always a valid parent
-                std::int32_t expect = p;
-                parent[std::size_t(x)].compare_exchange_weak(expect, g, std::memory_order_relaxed);
-            }
-            x = g;
+        while (parent[std::size_t(x)] != x) {
+            parent[std::size_t(x)] = parent[std::size_t(parent[std::size_t(x)])];
+            x = parent[std::size_t(x)];
         }
-    };
-    auto unite = [&](std::int32_t a, std::int32_t b) {
-        for (;;) {
-            a = find(a);
-            b = find(b);
-            if (a == b) return;
-            if (a > b) std::swap(a, b);
-            std::int32_t expect = b;  // b is still a root: link it below a
-            if (parent[std::size_t(b)].compare_exchange_strong(expect, a,
-                                                               std::memory_order_relaxed)) {
-                return;
-            }
-        }
+        return x;
     };
     // Faces around each vertex (counting sort); a face g that holds both ends of an edge (a, b)
-    // of face f has that edge too. The order within a vertex's list does not matter.
-    std::vector<std::atomic<std::uint32_t>> count(vertex_count);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 16384),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t f = r.begin(); f < r.end(); ++f) {
-            for (std::int32_t i : faces[f]) {
-                count[std::size_t(i)].fetch_add(1, std::memory_order_relaxed);
-            }
-        }
-    });
+    // of face f has that edge too.
     std::vector<std::size_t> first(vertex_count + 1, 0);
-    for (std::size_t v = 0; v < vertex_count; ++v) {
-        first[v + 1] = first[v] + count[v].load(std::memory_order_relaxed);
-        count[v].store(0, std::memory_order_relaxed);
+    for (const Triangle& t : faces) {
+        for (std::int32_t i : t) ++first[std::size_t(i) + 1];
     }
+    for (std::size_t v = 0; v < vertex_count; ++v) first[v + 1] += first[v];
     std::vector<std::int32_t> around(first[vertex_count]);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 16384),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t f = r.begin(); f < r.end(); ++f) {
-            for (std::int32_t i : faces[f]) {
-                const std::size_t v = std::size_t(i);
-                around[first[v] + count[v].fetch_add(1, std::memory_order_relaxed)] =
-                    std::int32_t(f);
+    std::vector<std::size_t> fill(first.begin(), first.end() - 1);
+    for (std::size_t f = 0; f < nf; ++f) {
+        for (std::int32_t i : faces[f]) around[fill[std::size_t(i)]++] = std::int32_t(f);
+    }
+    for (std::size_t f = 0; f < nf; ++f) {
+        const Triangle& t = faces[f];
+        for (int k = 0; k < 3; ++k) {
+            const std::size_t a = std::size_t(t[k]);
+            const std::int32_t b = t[(k + 1) % 3];
+            if (std::int32_t(a) == b) continue;  // a degenerate edge joins nothing
+            for (std::size_t j = first[a]; j < first[a + 1]; ++j) {
+                const std::int32_t g = around[j];
+                if (std::size_t(g) <= f) continue;  // each pair once
+                const Triangle& u = faces[std::size_t(g)];
+                if (u[0] != b && u[1] != b && u[2] != b) continue;
+                const std::int32_t ra = find(std::int32_t(f)), rb = find(g);
+                if (ra != rb) parent[std::size_t(std::max(ra, rb))] = std::min(ra, rb);
             }
         }
-    });
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 4096),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t f = r.begin(); f < r.end(); ++f) {
-            const Triangle& t = faces[f];
-            for (int k = 0; k < 3; ++k) {
-                const std::size_t a = std::size_t(t[k]);
-                const std::int32_t b = t[(k + 1) % 3];
-                if (std::int32_t(a) == b) continue;  // a degenerate edge joins nothing
-                for (std::size_t j = first[a]; j < first[a + 1]; ++j) {
-                    const std::int32_t g = around[j];
-                    if (std::size_t(g) <= f) continue;  // each pair once
-                    const Triangle& u = faces[std::size_t(g)];
-                    if (u[0] != b && u[1] != b && u[2] != b) continue;
-                    unite(std::int32_t(f), g);
-                }
-            }
-        }
-    });
-    std::vector<std::int32_t> label(nf);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 16384),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t f = r.begin(); f < r.end(); ++f) label[f] = find(std::int32_t(f));
-    });
-    return label;
+    }
+    for (std::size_t f = 0; f < nf; ++f) parent[f] = find(std::int32_t(f));
+    return parent;
 }
 
 std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh) {

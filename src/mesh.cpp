@@ -255,16 +255,19 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
         const std::vector<std::array<double, 3>> face_n = face_normal_sums(mesh);
         std::vector<Vec3f>& normals = mesh.normals.edit();
         normals.resize(mesh.vertices.size());
-        for (std::size_t i = 0; i < npoints; ++i) {
-            if (remap[i] < 0) continue;
-            const std::size_t v = std::size_t(remap[i]);
-            openvdb::Vec3d g(grad[i]);
-            const openvdb::Vec3d fn(face_n[v][0], face_n[v][1], face_n[v][2]);
-            if (!(g.length() > 1e-12) || g.dot(fn) < 0.0) g = fn;
-            const double len = g.length();
-            if (len > 0.0) g /= len;
-            normals[v] = {float(g[0]), float(g[1]), float(g[2])};
-        }
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 16384),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                if (remap[i] < 0) continue;
+                const std::size_t v = std::size_t(remap[i]);
+                openvdb::Vec3d g(grad[i]);
+                const openvdb::Vec3d fn(face_n[v][0], face_n[v][1], face_n[v][2]);
+                if (!(g.length() > 1e-12) || g.dot(fn) < 0.0) g = fn;
+                const double len = g.length();
+                if (len > 0.0) g /= len;
+                normals[v] = {float(g[0]), float(g[1]), float(g[2])};
+            }
+        });
     }
     if (volume.color && !mesh.vertices.empty()) {
         std::vector<Vec3f>& colors = mesh.colors.edit();

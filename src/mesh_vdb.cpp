@@ -1,5 +1,7 @@
 // The `vdb` mesher: OpenVDB's tools::volumeToMesh (dual marching cubes).
 #include <openvdb/tools/VolumeToMesh.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include "detail/mesh_common.h"
 #include "vdbrecon/error.h"
@@ -28,24 +30,34 @@ RawSurface mesh_vdb(const Volume& volume, const MeshOptions& options) {
         return (raw.points[a] - raw.points[b]).lengthSqr();
     };
     const openvdb::tools::PolygonPoolList& pools = mesher.polygonPoolList();
-    for (std::size_t p = 0; p < mesher.polygonPoolListSize(); ++p) {
-        const openvdb::tools::PolygonPool& pool = pools[p];
-        for (std::size_t q = 0; q < pool.numQuads(); ++q) {
-            const openvdb::Vec4I& v = pool.quad(q);
-            const auto i = [&](int k) { return std::int32_t(v[k]); };
-            if (len2(v[0], v[2]) <= len2(v[1], v[3])) {
-                raw.triangles.push_back({i(3), i(2), i(0)});
-                raw.triangles.push_back({i(2), i(1), i(0)});
-            } else {
-                raw.triangles.push_back({i(3), i(2), i(1)});
-                raw.triangles.push_back({i(3), i(1), i(0)});
+    const std::size_t npools = mesher.polygonPoolListSize();
+    std::vector<std::size_t> first(npools + 1, 0);  // each pool's first triangle
+    for (std::size_t p = 0; p < npools; ++p) {
+        first[p + 1] = first[p] + 2 * pools[p].numQuads() + pools[p].numTriangles();
+    }
+    raw.triangles.resize(first[npools]);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npools, 1),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t p = r.begin(); p < r.end(); ++p) {
+            const openvdb::tools::PolygonPool& pool = pools[p];
+            Triangle* out = raw.triangles.data() + first[p];
+            for (std::size_t q = 0; q < pool.numQuads(); ++q) {
+                const openvdb::Vec4I& v = pool.quad(q);
+                const auto i = [&](int k) { return std::int32_t(v[k]); };
+                if (len2(v[0], v[2]) <= len2(v[1], v[3])) {
+                    *out++ = {i(3), i(2), i(0)};
+                    *out++ = {i(2), i(1), i(0)};
+                } else {
+                    *out++ = {i(3), i(2), i(1)};
+                    *out++ = {i(3), i(1), i(0)};
+                }
+            }
+            for (std::size_t t = 0; t < pool.numTriangles(); ++t) {
+                const openvdb::Vec3I& v = pool.triangle(t);
+                *out++ = {std::int32_t(v[2]), std::int32_t(v[1]), std::int32_t(v[0])};
             }
         }
-        for (std::size_t t = 0; t < pool.numTriangles(); ++t) {
-            const openvdb::Vec3I& v = pool.triangle(t);
-            raw.triangles.push_back({std::int32_t(v[2]), std::int32_t(v[1]), std::int32_t(v[0])});
-        }
-    }
+    });
     return raw;
 }
 

@@ -96,24 +96,32 @@ namespace {
 constexpr int kLeafLog2 = 3;  // 8^3 leaves, OpenVDB's default FloatTree leaf
 constexpr int kLeafDim = 1 << kLeafLog2;
 constexpr int kLeafVoxels = kLeafDim * kLeafDim * kLeafDim;
+// Points are summed per block of 2x2x2 leaves: a kernel (usually 7 voxels across) is cut into
+// fewer pieces by 16-voxel blocks than by 8-voxel leaves (2.3 instead of 5.2 per point on the
+// bunny), and each piece costs a setup (its clipped box, six exp()) and shorter rows.
+constexpr int kBlockLog2 = kLeafLog2 + 1;
+constexpr int kBlockDim = 1 << kBlockLog2;
+constexpr int kBlockVoxels = kBlockDim * kBlockDim * kBlockDim;
 constexpr int kKeyBits = 21;
 constexpr std::int64_t kKeyBias = std::int64_t(1) << (kKeyBits - 1);
 // Keep index coordinates well inside what a 21-bit leaf key can address (+-2^23 voxels).
 constexpr double kMaxIndex = double(kKeyBias) * kLeafDim - 64.0;
 
-inline int floor_div_leaf(int v) { return v >= 0 ? v >> kLeafLog2 : -((-v + kLeafDim - 1) >> kLeafLog2); }
-
-inline std::uint64_t leaf_key(int lx, int ly, int lz) {
-    return (std::uint64_t(lx + kKeyBias) << (2 * kKeyBits)) |
-           (std::uint64_t(ly + kKeyBias) << kKeyBits) | std::uint64_t(lz + kKeyBias);
+inline int floor_div_block(int v) {
+    return v >= 0 ? v >> kBlockLog2 : -((-v + kBlockDim - 1) >> kBlockLog2);
 }
 
-inline openvdb::Coord leaf_origin(std::uint64_t key) {
+inline std::uint64_t block_key(int bx, int by, int bz) {
+    return (std::uint64_t(bx + kKeyBias) << (2 * kKeyBits)) |
+           (std::uint64_t(by + kKeyBias) << kKeyBits) | std::uint64_t(bz + kKeyBias);
+}
+
+inline openvdb::Coord block_origin(std::uint64_t key) {
     const std::uint64_t mask = (std::uint64_t(1) << kKeyBits) - 1;
-    const int lx = int(std::int64_t((key >> (2 * kKeyBits)) & mask) - kKeyBias);
-    const int ly = int(std::int64_t((key >> kKeyBits) & mask) - kKeyBias);
-    const int lz = int(std::int64_t(key & mask) - kKeyBias);
-    return openvdb::Coord(lx * kLeafDim, ly * kLeafDim, lz * kLeafDim);
+    const int bx = int(std::int64_t((key >> (2 * kKeyBits)) & mask) - kKeyBias);
+    const int by = int(std::int64_t((key >> kKeyBits) & mask) - kKeyBias);
+    const int bz = int(std::int64_t(key & mask) - kKeyBias);
+    return openvdb::Coord(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
 }
 
 struct Pair {
@@ -223,11 +231,11 @@ inline Box support_box(const Kernel& k) {
     return b;
 }
 
-inline std::size_t leaves_touched(const Box& b) {
+inline std::size_t blocks_touched(const Box& b) {
     std::size_t n = 1;
     for (int a = 0; a < 3; ++a) {
         if (b.hi[a] < b.lo[a]) return 0;
-        n *= std::size_t(floor_div_leaf(b.hi[a]) - floor_div_leaf(b.lo[a]) + 1);
+        n *= std::size_t(floor_div_block(b.hi[a]) - floor_div_block(b.lo[a]) + 1);
     }
     return n;
 }
@@ -236,38 +244,38 @@ inline std::size_t leaves_touched(const Box& b) {
 using FloatLeaf = openvdb::FloatTree::LeafNodeType;
 using Vec3Leaf = openvdb::Vec3fTree::LeafNodeType;
 
-/// What one leaf contributes: its grids' leaf nodes (null when no voxel is valid) and counts.
-struct LeafOut {
-    std::unique_ptr<FloatLeaf> sdf, weight;
-    std::unique_ptr<Vec3Leaf> nearest, color;
+/// What one block contributes: its eight leaves per grid (null where no voxel is valid), counts.
+struct BlockOut {
+    std::unique_ptr<FloatLeaf> sdf[8], weight[8];
+    std::unique_ptr<Vec3Leaf> nearest[8], color[8];
     std::size_t updates = 0, touched = 0, active = 0;
 };
 
-/// Per-voxel sums of one leaf, as separate arrays: w, the averaging weight u = amp * w, u * phi,
+/// Per-voxel sums of one block, as separate arrays: w, the averaging weight u = amp * w, u * phi,
 /// and the nearest sample (squared distance, index units, and its point; the first sample in
 /// point order wins ties).
-struct LeafSums {
-    double w[kLeafVoxels], u[kLeafVoxels], uphi[kLeafVoxels], d2[kLeafVoxels];
-    std::uint32_t nearest[kLeafVoxels];
+struct BlockSums {
+    double w[kBlockVoxels], u[kBlockVoxels], uphi[kBlockVoxels], d2[kBlockVoxels];
+    std::uint32_t nearest[kBlockVoxels];
 };
 struct ColorSums {
     double r, g, b;
 };
 
-/// Sums every (point, voxel) contribution of one 8^3 leaf, in increasing point order.
+/// Sums every (point, voxel) contribution of one 16^3 block, in increasing point order.
 template <bool kColors>
-void splat_leaf(const openvdb::Coord& o, const Pair* begin, const Pair* end,
-                const std::vector<Kernel>& kernels, const PointCloud& cloud, double voxel,
-                double min_weight, float background, LeafSums& sums, LeafOut& out) {
-    std::array<ColorSums, kColors ? kLeafVoxels : 1> csums;
+void splat_block(const openvdb::Coord& o, const Pair* begin, const Pair* end,
+                 const std::vector<Kernel>& kernels, const PointCloud& cloud, double voxel,
+                 double min_weight, float background, BlockSums& sums,
+                 std::vector<ColorSums>& csums, BlockOut& out) {
     std::fill(std::begin(sums.w), std::end(sums.w), 0.0);
     std::fill(std::begin(sums.u), std::end(sums.u), 0.0);
     std::fill(std::begin(sums.uphi), std::end(sums.uphi), 0.0);
     std::fill(std::begin(sums.d2), std::end(sums.d2), std::numeric_limits<double>::infinity());
-    if (kColors) csums.fill({0, 0, 0});
-    double gx[kLeafDim], gy[kLeafDim], gz[kLeafDim];
-    double dx2[kLeafDim], dy2[kLeafDim], dz2[kLeafDim];
-    double px[kLeafDim], py[kLeafDim], pz[kLeafDim];
+    if (kColors) csums.assign(kBlockVoxels, {0, 0, 0});
+    double gx[kBlockDim], gy[kBlockDim], gz[kBlockDim];
+    double dx2[kBlockDim], dy2[kBlockDim], dz2[kBlockDim];
+    double px[kBlockDim], py[kBlockDim], pz[kBlockDim];
     std::size_t updates = 0;
     for (const Pair* q = begin; q != end; ++q) {
         const Kernel& k = kernels[q->point];
@@ -275,7 +283,7 @@ void splat_leaf(const openvdb::Coord& o, const Pair* begin, const Pair* end,
         int lo[3], hi[3];
         for (int a = 0; a < 3; ++a) {
             lo[a] = std::max(b.lo[a], o[a]) - o[a];
-            hi[a] = std::min(b.hi[a], o[a] + kLeafDim - 1) - o[a];
+            hi[a] = std::min(b.hi[a], o[a] + kBlockDim - 1) - o[a];
         }
         if (hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]) continue;
         const double inv_s2 = 1.0 / (double(k.s) * double(k.s));
@@ -312,7 +320,7 @@ void splat_leaf(const openvdb::Coord& o, const Pair* begin, const Pair* end,
                 while (z1 >= z0 && dxy2 + dz2[z1] > r2) --z1;
                 const double wxy = gx[x] * gy[y];
                 const double pxy = px[x] + py[y];
-                const int row = (x << (2 * kLeafLog2)) | (y << kLeafLog2);
+                const int row = (x << (2 * kBlockLog2)) | (y << kBlockLog2);
                 for (int z = z0; z <= z1; ++z) {
                     const int i = row | z;
                     const double d2 = dxy2 + dz2[z];
@@ -337,32 +345,45 @@ void splat_leaf(const openvdb::Coord& o, const Pair* begin, const Pair* end,
     }
     out.updates = updates;
     auto valid = [&](int i) { return sums.w[i] > 0.0 && sums.w[i] >= min_weight; };
-    for (int i = 0; i < kLeafVoxels; ++i) {
-        out.touched += sums.w[i] > 0.0;
-        out.active += valid(i);
-    }
-    if (out.active == 0) return;
-    out.sdf = std::make_unique<FloatLeaf>(o, background, false);
-    out.weight = std::make_unique<FloatLeaf>(o, 0.0f, false);
-    out.nearest = std::make_unique<Vec3Leaf>(o, openvdb::Vec3f(0.0f), false);
-    if (kColors) out.color = std::make_unique<Vec3Leaf>(o, openvdb::Vec3f(0.0f), false);
-    for (int i = 0; i < kLeafVoxels; ++i) {
-        if (!valid(i)) continue;
-        const double inv_u = 1.0 / sums.u[i];
-        const auto idx = openvdb::Index(i);
-        out.sdf->setValueOn(idx, float(std::clamp(sums.uphi[i] * inv_u, -double(background),
-                                                  double(background))));
-        out.weight->setValueOn(idx, float(sums.w[i]));
-        // Stored as the vector from the voxel to the sample, world units.
-        const Kernel& k = kernels[sums.nearest[i]];
-        const openvdb::Coord v = FloatLeaf::offsetToLocalCoord(idx) + o;
-        const double ex = double(v[0]) - k.cx, ey = double(v[1]) - k.cy, ez = double(v[2]) - k.cz;
-        out.nearest->setValueOn(idx, openvdb::Vec3f(float(-ex * voxel), float(-ey * voxel),
-                                                    float(-ez * voxel)));
-        if (kColors) {
-            const ColorSums& c = csums[std::size_t(i)];
-            out.color->setValueOn(
-                idx, openvdb::Vec3f(float(c.r * inv_u), float(c.g * inv_u), float(c.b * inv_u)));
+    // The block's eight leaves, each written only when one of its voxels is valid.
+    for (int s = 0; s < 8; ++s) {
+        const openvdb::Coord lo((s >> 2) * kLeafDim, ((s >> 1) & 1) * kLeafDim, (s & 1) * kLeafDim);
+        auto at = [&](int v) {  // leaf voxel offset -> block index
+            return ((lo[0] + (v >> 6)) << (2 * kBlockLog2)) | ((lo[1] + ((v >> 3) & 7)) << kBlockLog2) |
+                   (lo[2] + (v & 7));
+        };
+        std::size_t active = 0;
+        for (int v = 0; v < kLeafVoxels; ++v) {
+            out.touched += sums.w[at(v)] > 0.0;
+            active += valid(at(v));
+        }
+        out.active += active;
+        if (active == 0) continue;
+        const openvdb::Coord lo_world = o + lo;
+        out.sdf[s] = std::make_unique<FloatLeaf>(lo_world, background, false);
+        out.weight[s] = std::make_unique<FloatLeaf>(lo_world, 0.0f, false);
+        out.nearest[s] = std::make_unique<Vec3Leaf>(lo_world, openvdb::Vec3f(0.0f), false);
+        if (kColors) out.color[s] = std::make_unique<Vec3Leaf>(lo_world, openvdb::Vec3f(0.0f), false);
+        for (int v = 0; v < kLeafVoxels; ++v) {
+            const int i = at(v);
+            if (!valid(i)) continue;
+            const double inv_u = 1.0 / sums.u[i];
+            const auto idx = openvdb::Index(v);
+            out.sdf[s]->setValueOn(idx, float(std::clamp(sums.uphi[i] * inv_u, -double(background),
+                                                          double(background))));
+            out.weight[s]->setValueOn(idx, float(sums.w[i]));
+            // Stored as the vector from the voxel to the sample, world units.
+            const Kernel& k = kernels[sums.nearest[i]];
+            const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(idx) + lo_world;
+            const double ex = double(c[0]) - k.cx, ey = double(c[1]) - k.cy,
+                         ez = double(c[2]) - k.cz;
+            out.nearest[s]->setValueOn(idx, openvdb::Vec3f(float(-ex * voxel), float(-ey * voxel),
+                                                           float(-ez * voxel)));
+            if (kColors) {
+                const ColorSums& c3 = csums[std::size_t(i)];
+                out.color[s]->setValueOn(idx, openvdb::Vec3f(float(c3.r * inv_u), float(c3.g * inv_u),
+                                                             float(c3.b * inv_u)));
+            }
         }
     }
 }
@@ -468,7 +489,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
-            first_pair[i + 1] = kernels[i].r > 0.0f ? leaves_touched(support_box(kernels[i])) : 0;
+            first_pair[i + 1] = kernels[i].r > 0.0f ? blocks_touched(support_box(kernels[i])) : 0;
         }
     });
     std::partial_sum(first_pair.begin(), first_pair.end(), first_pair.begin());
@@ -483,10 +504,10 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
             if (kernels[i].r == 0.0f) continue;
             const Box b = support_box(kernels[i]);
             std::size_t o = first_pair[i];
-            for (int lx = floor_div_leaf(b.lo[0]); lx <= floor_div_leaf(b.hi[0]); ++lx) {
-                for (int ly = floor_div_leaf(b.lo[1]); ly <= floor_div_leaf(b.hi[1]); ++ly) {
-                    for (int lz = floor_div_leaf(b.lo[2]); lz <= floor_div_leaf(b.hi[2]); ++lz) {
-                        pairs[o++] = {leaf_key(lx, ly, lz), std::uint32_t(i)};
+            for (int bx = floor_div_block(b.lo[0]); bx <= floor_div_block(b.hi[0]); ++bx) {
+                for (int by = floor_div_block(b.lo[1]); by <= floor_div_block(b.hi[1]); ++by) {
+                    for (int bz = floor_div_block(b.lo[2]); bz <= floor_div_block(b.hi[2]); ++bz) {
+                        pairs[o++] = {block_key(bx, by, bz), std::uint32_t(i)};
                     }
                 }
             }
@@ -495,13 +516,41 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     first_pair = {};
     sort_pairs(pairs);
 
-    // Leaf ranges.
-    std::vector<std::size_t> leaf_begin;
+    // Block ranges.
+    std::vector<std::size_t> block_begin;
     for (std::size_t i = 0; i < pairs.size(); ++i) {
-        if (i == 0 || pairs[i].key != pairs[i - 1].key) leaf_begin.push_back(i);
+        if (i == 0 || pairs[i].key != pairs[i - 1].key) block_begin.push_back(i);
     }
-    leaf_begin.push_back(pairs.size());
-    const std::size_t num_leaves = leaf_begin.size() - 1;
+    block_begin.push_back(pairs.size());
+    const std::size_t num_blocks = block_begin.size() - 1;
+    // The 8^3 leaves the kernels touch (of each block's eight), for the memory estimate.
+    std::vector<std::uint8_t> touched_leaves(num_blocks, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 64),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
+            const openvdb::Coord o = block_origin(pairs[block_begin[B]].key);
+            unsigned mask = 0;
+            for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
+                const Box b = support_box(kernels[pairs[j].point]);
+                unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
+                for (int a = 0; a < 3; ++a) {
+                    const int lo = std::max(b.lo[a], o[a]) - o[a];
+                    const int hi = std::min(b.hi[a], o[a] + kBlockDim - 1) - o[a];
+                    halves[a] = hi < lo ? 0u : (lo < kLeafDim ? 1u : 0u) | (hi >= kLeafDim ? 2u : 0u);
+                }
+                for (int leaf = 0; leaf < 8; ++leaf) {
+                    if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
+                        (halves[2] >> (leaf & 1) & 1u)) {
+                        mask |= 1u << leaf;
+                    }
+                }
+            }
+            touched_leaves[B] = std::uint8_t(mask);
+        }
+    });
+    std::size_t num_leaves = 0;
+    for (std::uint8_t m : touched_leaves) num_leaves += std::size_t(__builtin_popcount(m));
+    touched_leaves = {};
     {
         std::ostringstream what;
         what << num_leaves << " leaves of 8^3 voxels";
@@ -513,22 +562,23 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     const double half_width = std::max(3.0, std::ceil(double(max_r)));
     const float background = float(half_width * voxel);
 
-    std::vector<LeafOut> leaves(num_leaves);
+    std::vector<BlockOut> blocks(num_blocks);
     const double min_weight = options.min_weight;
 
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_leaves, 4),
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 1),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
-        auto sums = std::make_unique<LeafSums>();
-        for (std::size_t L = rg.begin(); L < rg.end(); ++L) {
-            const Pair* b = pairs.data() + leaf_begin[L];
-            const Pair* e = pairs.data() + leaf_begin[L + 1];
-            LeafOut& out = leaves[L];
+        auto sums = std::make_unique<BlockSums>();
+        std::vector<ColorSums> csums;
+        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
+            const Pair* b = pairs.data() + block_begin[B];
+            const Pair* e = pairs.data() + block_begin[B + 1];
+            BlockOut& out = blocks[B];
             if (colors) {
-                splat_leaf<true>(leaf_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
-                                 background, *sums, out);
+                splat_block<true>(block_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
+                                  background, *sums, csums, out);
             } else {
-                splat_leaf<false>(leaf_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
-                                  background, *sums, out);
+                splat_block<false>(block_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
+                                   background, *sums, csums, out);
             }
         }
     });
@@ -541,16 +591,18 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     auto nearest = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
     openvdb::Vec3fGrid::Ptr color = colors ? openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f))
                                            : nullptr;
-    for (LeafOut& l : leaves) {
+    for (BlockOut& l : blocks) {
         result.updates += l.updates;
         result.touched_voxels += l.touched;
         result.active_voxels += l.active;
-        if (!l.sdf) continue;
-        ++result.leaves;
-        sdf->tree().addLeaf(l.sdf.release());
-        weight->tree().addLeaf(l.weight.release());
-        nearest->tree().addLeaf(l.nearest.release());
-        if (colors) color->tree().addLeaf(l.color.release());
+        for (int s = 0; s < 8; ++s) {
+            if (!l.sdf[s]) continue;
+            ++result.leaves;
+            sdf->tree().addLeaf(l.sdf[s].release());
+            weight->tree().addLeaf(l.weight[s].release());
+            nearest->tree().addLeaf(l.nearest[s].release());
+            if (colors) color->tree().addLeaf(l.color[s].release());
+        }
     }
     if (result.active_voxels == 0) {
         std::ostringstream s;

@@ -1,12 +1,14 @@
 // Splatting oriented points into sparse grids (see splat.h for the kernel and references).
 //
-// Determinism: every (leaf, point) pair is listed, the list is sorted by (leaf key, point
-// index), and each leaf is then summed by exactly one task in increasing point order. No
-// floating-point sum depends on scheduling, so the grids are bit-identical for any thread count.
+// Determinism: every (block, point) pair is listed (a block is 2x2x2 leaves, 16^3 voxels), the
+// list is sorted by (block key, point index), and each block is then summed by exactly one task
+// in increasing point order. No floating-point sum depends on scheduling, so the grids are
+// bit-identical for any thread count.
 //
 // Cost: the Gaussian is separable, exp(-|d|^2/s^2) = gx(dx) gy(dy) gz(dz), and the linear basis
-// is additive, n.d = nx dx + ny dy + nz dz; per point only (2r+1) exponentials per axis are
-// evaluated and the voxel loop is a handful of multiply-adds.
+// is additive, n.d = nx dx + ny dy + nz dz; per (block, point) piece two exponentials per axis
+// are evaluated (the rest by recurrence), each row of the spherical support is one run of
+// voxels, and the voxel loop is a handful of multiply-adds on per-block arrays of sums.
 #include "vdbrecon/splat.h"
 
 #include <openvdb/tools/SignedFloodFill.h>

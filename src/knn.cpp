@@ -447,27 +447,16 @@ KnnResult KnnIndex::self_neighbours(int k) const {
     if (out.k == 0) return out;
     out.indices.resize(m.n * std::size_t(out.k));
     out.sq_distances.resize(out.indices.size());
-    // The queries are the points in the index's own order, whose runs are the cells.
-    std::vector<Vec3f> q(m.n);
+    // The queries are the points themselves, taken in the index's order, whose runs are its
+    // cells; each answer goes straight to the point's row.
     std::vector<std::uint32_t> order(m.n);
+    std::vector<int> self(m.n);
     for (std::size_t i = 0; i < m.n; ++i) {
-        q[i] = {m.x[i], m.y[i], m.z[i]};
-        order[i] = std::uint32_t(i);
+        order[i] = std::uint32_t(m.id[i]);
+        self[i] = int(i);
     }
-    std::vector<float> dist(out.indices.size());
-    std::vector<int> idx(out.indices.size());
-    m.search(q, m.id.data(), order, m.cell_first, m.cell_key, out.k, idx.data(), dist.data());
-    q = {};
-    // Rows back to input order.
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, m.n, 8192),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t i = r.begin(); i < r.end(); ++i) {
-            const std::size_t from = i * std::size_t(out.k);
-            const std::size_t to = std::size_t(m.id[i]) * std::size_t(out.k);
-            std::copy_n(&idx[from], out.k, &out.indices[to]);
-            std::copy_n(&dist[from], out.k, &out.sq_distances[to]);
-        }
-    });
+    m.search(m.points, self.data(), order, m.cell_first, m.cell_key, out.k, out.indices.data(),
+             out.sq_distances.data());
     return out;
 }
 

@@ -1,10 +1,10 @@
 // Exact kNN on a Morton-ordered cell grid (see knn.h).
 //
-// The points are sorted by the Morton code of their cell in a 2^21-per-axis grid over their
-// bounding cube, so that the points of any cell of any coarser level 2^L (a prefix of the code)
-// are one contiguous run, and kept in that order as separate x, y, z arrays. One level L is
-// chosen so that an occupied cell holds about kPerCell points on average; the runs of its cells
-// are listed once (cell prefix and first point).
+// A cube around the points is divided into 2^L cells per axis, L chosen so that an occupied cell
+// holds about kPerCell points on average. The points are sorted by the Morton code of their
+// cell (ties in input order), so that the points of any cell of any coarser level (a prefix of
+// the code) are one contiguous run, and kept in that order as separate x, y, z arrays; the runs
+// of the level-L cells are listed once (cell code and first point).
 //
 // Queries go cell by cell: the candidates of all queries in a cell are the points of its 3x3x3
 // block of cells, gathered once into contiguous arrays; each query measures them all (a loop the
@@ -31,6 +31,7 @@
 #include <cstring>
 #include <limits>
 
+#include "detail/radix_sort.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
 
@@ -299,52 +300,63 @@ KnnIndex::KnnIndex(Span<Vec3f> points) : impl_(std::make_unique<Impl>()) {
     }
     m.extent = extent > 0.0 ? extent * (1.0 + 1e-6) : 1.0;
 
-    // Points keyed by (code, index): unique keys, so the sorted order is deterministic.
-    std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n);
-    auto sort_by_code = [&] {
-        m.to_grid = double(1u << kBits) / m.extent;
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 8192),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                const Vec3f& p = points[i];
-                keyed[i] = {morton(m.quantise(p[0], 0), m.quantise(p[1], 1), m.quantise(p[2], 2)),
-                            std::uint32_t(i)};
-            }
-        });
-        tbb::parallel_sort(keyed.begin(), keyed.end());
-    };
-    // Occupied cells of each level, from where consecutive codes first differ.
-    auto occupied_cells = [&] {
-        std::vector<double> occupied(kBits + 1, 1.0);
-        std::size_t first_diff[kBits + 1] = {};
-        for (std::size_t i = 1; i < n; ++i) {
-            const std::uint64_t d = keyed[i].first ^ keyed[i - 1].first;
-            if (d != 0) ++first_diff[kBits - (63 - __builtin_clzll(d)) / 3];  // and all finer
-        }
-        double acc = 1.0;
-        for (int l = 0; l <= kBits; ++l) occupied[std::size_t(l)] = acc += double(first_diff[l]);
-        return occupied;
-    };
+    m.to_grid = double(1u << kBits) / m.extent;
 
     // The cell size: where the mean points per occupied cell reaches kPerCell, interpolated
     // between the two power-of-two levels around it (occupancy ~ a power of the cell size).
-    // The cube is then grown so that this size is a level of it, and the points sorted again.
-    sort_by_code();
+    // Occupancy is counted on every `stride`-th point (sorted codes: consecutive codes first
+    // differ at a level, and so on every finer one), with the target scaled alike; only speed
+    // depends on this choice, never the answers.
     {
-        const std::vector<double> occupied = occupied_cells();
-        int l = 0;
-        while (l < kBits && double(n) / occupied[std::size_t(l + 1)] >= kPerCell) ++l;
-        double h = m.extent / double(1u << l);
-        if (l < kBits) {
-            const double hi_ppc = double(n) / occupied[std::size_t(l)];
-            const double lo_ppc = double(n) / occupied[std::size_t(l + 1)];
-            if (hi_ppc > lo_ppc) h *= std::exp2(-std::log(hi_ppc / kPerCell) / std::log(hi_ppc / lo_ppc));
+        const std::size_t stride = n > 65536 ? 4 : 1;
+        std::vector<std::uint64_t> codes;
+        codes.reserve(n / stride + 1);
+        for (std::size_t i = 0; i < n; i += stride) {
+            const Vec3f& p = points[i];
+            codes.push_back(morton(m.quantise(p[0], 0), m.quantise(p[1], 1), m.quantise(p[2], 2)));
         }
+        tbb::parallel_sort(codes.begin(), codes.end());
+        std::size_t first_diff[kBits + 1] = {};
+        for (std::size_t i = 1; i < codes.size(); ++i) {
+            const std::uint64_t d = codes[i] ^ codes[i - 1];
+            if (d != 0) ++first_diff[kBits - (63 - __builtin_clzll(d)) / 3];
+        }
+        std::vector<double> ppc(kBits + 1);
+        double occupied = 1.0;
+        for (int l = 0; l <= kBits; ++l) {
+            occupied += double(first_diff[l]);
+            ppc[std::size_t(l)] = double(codes.size()) / occupied;
+        }
+        const double target = kPerCell / double(stride);
+        int l = 0;
+        while (l < kBits && ppc[std::size_t(l + 1)] >= target) ++l;
+        double h = m.extent / double(1u << l);
+        if (l < kBits && ppc[std::size_t(l)] > ppc[std::size_t(l + 1)]) {
+            h *= std::exp2(-std::log(ppc[std::size_t(l)] / target) /
+                           std::log(ppc[std::size_t(l)] / ppc[std::size_t(l + 1)]));
+        }
+        // The cube grows so that this size is one of its levels.
         m.level = std::clamp(int(std::ceil(std::log2(m.extent / h) - 1e-9)), 0, kBits);
         m.extent = std::max(m.extent, h * double(1u << m.level));
+        m.to_grid = double(1u << kBits) / m.extent;
     }
-    sort_by_code();
-    const std::size_t cells = std::size_t(occupied_cells()[std::size_t(m.level)]);
+
+    // The points in Morton order three levels below the cells (so that consecutive queries in
+    // a cell are close, which tightens their bounds), ties in index order: a stable radix sort.
+    const int fine = std::min(kBits, m.level + 3);
+    const int shift = kBits - fine;
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 8192),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            const Vec3f& p = points[i];
+            keyed[i] = {morton(m.quantise(p[0], 0) >> shift, m.quantise(p[1], 1) >> shift,
+                               m.quantise(p[2], 2) >> shift),
+                        std::uint32_t(i)};
+        }
+    });
+    detail::radix_sort(keyed, 3 * fine, [](const auto& e) { return e.first; });
+    for (auto& e : keyed) e.first >>= 3 * (fine - m.level);  // the level-L cell
 
     m.x.resize(n);
     m.y.resize(n);
@@ -360,13 +372,9 @@ KnnIndex::KnnIndex(Span<Vec3f> points) : impl_(std::make_unique<Impl>()) {
             m.id[i] = int(keyed[i].second);
         }
     });
-    const int shift = 3 * (kBits - m.level);
-    m.cell_key.reserve(cells);
-    m.cell_first.reserve(cells + 1);
     for (std::size_t i = 0; i < n; ++i) {
-        const std::uint64_t key = keyed[i].first >> shift;
-        if (i == 0 || key != m.cell_key.back()) {
-            m.cell_key.push_back(key);
+        if (i == 0 || keyed[i].first != m.cell_key.back()) {
+            m.cell_key.push_back(keyed[i].first);
             m.cell_first.push_back(std::uint32_t(i));
         }
     }
@@ -426,7 +434,7 @@ void KnnIndex::Impl::search(Span<Vec3f> q, const int* self, int k, int* idx, flo
                         std::uint32_t(i)};
         }
     });
-    tbb::parallel_sort(keyed.begin(), keyed.end());
+    detail::radix_sort(keyed, 3 * level, [](const auto& e) { return e.first; });
     std::vector<std::uint32_t> order(q.size()), first;
     std::vector<std::uint64_t> keys;
     for (std::size_t i = 0; i < keyed.size(); ++i) {

@@ -25,6 +25,7 @@
 
 #include <unistd.h>
 
+#include "detail/radix_sort.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -139,21 +140,9 @@ void sort_pairs(std::vector<Pair>& pairs) {
     const std::size_t n = pairs.size();
     if (n < 2) return;
     const std::uint64_t field = (std::uint64_t(1) << kKeyBits) - 1;
-    // Fixed chunks (not per thread): histograms and scatters run per chunk in parallel. A
-    // stable sort's result is unique, so it does not depend on the chunking either.
-    constexpr std::size_t kChunk = std::size_t(1) << 16;
-    const std::size_t chunks = (n + kChunk - 1) / kChunk;
-    auto for_chunks = [&](auto&& fn) {
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks, 1),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t c = r.begin(); c < r.end(); ++c) {
-                fn(c, c * kChunk, std::min(n, (c + 1) * kChunk));
-            }
-        });
-    };
-    std::vector<std::array<std::uint64_t, 6>> range(chunks);  // per chunk: lo[3], hi[3]
-    for_chunks([&](std::size_t c, std::size_t begin, std::size_t end) {
-        std::array<std::uint64_t, 6> r = {field, field, field, 0, 0, 0};
+    std::vector<std::array<std::uint64_t, 6>> range((n + (std::size_t(1) << 16) - 1) >> 16);
+    detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        std::array<std::uint64_t, 6> r = {field, field, field, 0, 0, 0};  // lo[3], hi[3]
         for (std::size_t i = begin; i < end; ++i) {
             for (int a = 0; a < 3; ++a) {
                 const std::uint64_t v = (pairs[i].key >> (kKeyBits * (2 - a))) & field;
@@ -174,40 +163,13 @@ void sort_pairs(std::vector<Pair>& pairs) {
         while ((hi[a] - lo[a]) >> bits[a]) ++bits[a];
     }
     // The packed key: x in the high bits, z in the low ones, as in the full key.
-    auto packed = [&](std::uint64_t key) {
+    detail::radix_sort(pairs, bits[0] + bits[1] + bits[2], [&](const Pair& p) {
         std::uint64_t out = 0;
         for (int a = 0; a < 3; ++a) {
-            out = out << bits[a] | (((key >> (kKeyBits * (2 - a))) & field) - lo[a]);
+            out = out << bits[a] | (((p.key >> (kKeyBits * (2 - a))) & field) - lo[a]);
         }
         return out;
-    };
-    constexpr int kDigit = 11;
-    constexpr std::size_t kBuckets = std::size_t(1) << kDigit;
-    const int total = bits[0] + bits[1] + bits[2];
-    std::vector<Pair> tmp(n);
-    std::vector<std::size_t> count(chunks * kBuckets);  // [chunk][digit]
-    for (int shift = 0; shift < total; shift += kDigit) {
-        auto digit = [&](const Pair& p) { return (packed(p.key) >> shift) & (kBuckets - 1); };
-        for_chunks([&](std::size_t c, std::size_t begin, std::size_t end) {
-            std::size_t* h = &count[c * kBuckets];
-            std::fill(h, h + kBuckets, 0);
-            for (std::size_t i = begin; i < end; ++i) ++h[digit(pairs[i])];
-        });
-        // Where each (digit, chunk) run starts: digits in order, chunks in order within one.
-        std::size_t at = 0;
-        for (std::size_t d = 0; d < kBuckets; ++d) {
-            for (std::size_t c = 0; c < chunks; ++c) {
-                const std::size_t k = count[c * kBuckets + d];
-                count[c * kBuckets + d] = at;
-                at += k;
-            }
-        }
-        for_chunks([&](std::size_t c, std::size_t begin, std::size_t end) {
-            std::size_t* h = &count[c * kBuckets];
-            for (std::size_t i = begin; i < end; ++i) tmp[h[digit(pairs[i])]++] = pairs[i];
-        });
-        pairs.swap(tmp);
-    }
+    });
 }
 
 /// Per-point kernel parameters in index space.

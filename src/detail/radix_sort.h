@@ -1,0 +1,64 @@
+// A parallel, stable least-significant-digit radix sort on an integer key, shared by the splat
+// (its (block, point) pairs) and the kNN index (points by grid cell).
+#pragma once
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace vdbrecon::detail {
+
+/// Runs fn(chunk, begin, end) over fixed 64k-element chunks of [0, n), in parallel.
+template <typename Fn>
+void for_each_chunk(std::size_t n, Fn&& fn) {
+    constexpr std::size_t kChunk = std::size_t(1) << 16;
+    const std::size_t chunks = (n + kChunk - 1) / kChunk;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks, 1),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t c = r.begin(); c < r.end(); ++c) {
+            fn(c, c * kChunk, std::min(n, (c + 1) * kChunk));
+        }
+    });
+}
+
+/// Sorts v stably by key(element), whose values lie below 2^bits: 11-bit digits, each pass a
+/// per-chunk histogram and scatter in parallel. A stable sort's result is unique, so it does
+/// not depend on the chunking or the thread count.
+template <typename T, typename Key>
+void radix_sort(std::vector<T>& v, int bits, Key&& key) {
+    const std::size_t n = v.size();
+    if (n < 2 || bits <= 0) return;
+    constexpr int kDigit = 11;
+    constexpr std::size_t kBuckets = std::size_t(1) << kDigit;
+    const std::size_t chunks = (n + (std::size_t(1) << 16) - 1) >> 16;
+    std::vector<T> tmp(n);
+    std::vector<std::size_t> count(chunks * kBuckets);  // [chunk][digit]
+    for (int shift = 0; shift < bits; shift += kDigit) {
+        auto digit = [&](const T& e) { return std::size_t(key(e) >> shift) & (kBuckets - 1); };
+        for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+            std::size_t* h = &count[c * kBuckets];
+            std::fill(h, h + kBuckets, 0);
+            for (std::size_t i = begin; i < end; ++i) ++h[digit(v[i])];
+        });
+        // Where each (digit, chunk) run starts: digits in order, chunks in order within one.
+        std::size_t at = 0;
+        for (std::size_t d = 0; d < kBuckets; ++d) {
+            for (std::size_t c = 0; c < chunks; ++c) {
+                const std::size_t k = count[c * kBuckets + d];
+                count[c * kBuckets + d] = at;
+                at += k;
+            }
+        }
+        for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+            std::size_t* h = &count[c * kBuckets];
+            for (std::size_t i = begin; i < end; ++i) tmp[h[digit(v[i])]++] = v[i];
+        });
+        v.swap(tmp);
+    }
+}
+
+}  // namespace vdbrecon::detail

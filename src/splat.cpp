@@ -179,6 +179,8 @@ struct Kernel {
     float s;            // sigma, voxels
     float r;            // support radius, voxels (0 = point skipped)
     float amp;          // (sigma_median / sigma)^2: equal kernel mass per sample
+    double inv_s2;      // 1 / sigma^2
+    double rho;         // exp(-2 / sigma^2), the Gaussian recurrence's ratio step
 };
 
 struct Box {
@@ -250,10 +252,9 @@ void splat_block(const openvdb::Coord& o, const Pair* begin, const Pair* end,
             hi[a] = std::min(b.hi[a], o[a] + kBlockDim - 1) - o[a];
         }
         if (hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]) continue;
-        const double inv_s2 = 1.0 / (double(k.s) * double(k.s));
+        const double inv_s2 = k.inv_s2, rho = k.rho;
         const double r2 = double(k.r) * double(k.r);
         const double amp = double(k.amp);
-        const double rho = std::exp(-2.0 * inv_s2);
         // Gaussian on consecutive voxels by recurrence, two exp() per axis instead of one per
         // voxel: g(d+1) = g(d) q(d), q(d) = exp(-(2d+1)/s^2), q(d+1) = q(d) exp(-2/s^2).
         auto axis = [&](int a, double c, float nc, double* g, double* d2, double* ph) {
@@ -396,6 +397,8 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
             k.ny = float(nr[1] / len);
             k.nz = float(nr[2] / len);
             k.r = float(options.support * s);
+            k.inv_s2 = 1.0 / (double(k.s) * double(k.s));
+            k.rho = std::exp(-2.0 * k.inv_s2);
         }
     });
 

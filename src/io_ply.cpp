@@ -5,6 +5,9 @@
 // double/float64); vertex properties in any order; list properties and other elements walked
 // and skipped. The header's counts are checked against the file size before anything is
 // allocated, so a hostile header cannot make us reserve terabytes.
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <charconv>
 #include <cmath>
@@ -424,18 +427,18 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
     if (has[int(Role::scale)]) raw.scales.resize(n);
     if (has[int(Role::confidence)]) raw.confidences.resize(n);
 
-    double v;
-    for (std::size_t row = 0; row < n; ++row) {
+    auto read_row = [&](Cursor& cur, std::size_t row) {
+        double v;
         for (std::size_t k = 0; k < e.props.size(); ++k) {
             const Property& p = e.props[k];
             if (p.list) {
-                const std::uint64_t len = read_list_count(path, e, row, p, c, enc);
+                const std::uint64_t len = read_list_count(path, e, row, p, cur, enc);
                 for (std::uint64_t i = 0; i < len; ++i) {
-                    if (!c.read(p.type, v)) fail_at(path, e, row, c, enc);
+                    if (!cur.read(p.type, v)) fail_at(path, e, row, cur, enc);
                 }
                 continue;
             }
-            if (!c.read(p.type, v)) fail_at(path, e, row, c, enc);
+            if (!cur.read(p.type, v)) fail_at(path, e, row, cur, enc);
             switch (roles[k]) {
                 case Role::ignore: break;
                 case Role::x: raw.xyz[3 * row] = v; break;
@@ -451,7 +454,27 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
                 case Role::confidence: raw.confidences[row] = float(v); break;
             }
         }
+    };
+    // Binary rows without lists all have the same size: when the data holds all of them, chunks
+    // of rows are read in parallel, each from its own offset. Otherwise (ASCII, lists, a
+    // truncated file) row by row, which also finds and reports the row where the data ends.
+    bool fixed = enc != Encoding::ascii;
+    std::size_t row_bytes = 0;
+    for (const Property& p : e.props) {
+        fixed = fixed && !p.list;
+        row_bytes += type_size(p.type);
     }
+    if (fixed && c.remaining() / row_bytes >= n) {
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            Cursor cur = c;
+            cur.skip(r.begin() * row_bytes);
+            for (std::size_t row = r.begin(); row < r.end(); ++row) read_row(cur, row);
+        });
+        c.skip(n * row_bytes);
+        return;
+    }
+    for (std::size_t row = 0; row < n; ++row) read_row(c, row);
 }
 
 void read_faces(const std::string& path, const Element& e, Cursor& c, Encoding enc,

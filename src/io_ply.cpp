@@ -594,12 +594,12 @@ RawPoints read_ply_raw(const std::string& path, std::string_view content, bool w
 
 namespace {
 
+/// Stores v at p in the file's byte order and advances p.
 template <typename T>
-void put_binary(std::string& rec, T v, bool big_endian) {
-    unsigned char b[sizeof(T)];
-    std::memcpy(b, &v, sizeof(T));
-    if (big_endian) std::reverse(b, b + sizeof(T));
-    rec.append(reinterpret_cast<const char*>(b), sizeof(T));
+void put_binary(char*& p, T v, bool big_endian) {
+    std::memcpy(p, &v, sizeof(T));
+    if (big_endian) std::reverse(p, p + sizeof(T));
+    p += sizeof(T);
 }
 
 std::uint8_t to_byte(float c) {
@@ -645,10 +645,10 @@ void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& orig
     AtomicFile file(path);
     ByteWriter out(file.stream());
     out.put(header);
-    std::string rec;
-    for (std::size_t i = 0; i < positions.size(); ++i) {
-        rec.clear();
-        if (ascii) {
+    if (ascii) {
+        std::string rec;
+        for (std::size_t i = 0; i < positions.size(); ++i) {
+            rec.clear();
             for (int a = 0; a < 3; ++a) {
                 if (a) rec += ' ';
                 rec += far ? format_number(origin[a] + double(positions[i][a]))
@@ -663,37 +663,51 @@ void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& orig
             if (!scales.empty()) rec += ' ' + format_number(scales[i]);
             if (!confidences.empty()) rec += ' ' + format_number(confidences[i]);
             rec += '\n';
-        } else {
+            out.write(rec.data(), rec.size());
+        }
+        if (faces) {
+            for (const Triangle& t : *faces) {
+                rec = "3 " + std::to_string(t[0]) + ' ' + std::to_string(t[1]) + ' ' +
+                      std::to_string(t[2]) + '\n';
+                out.write(rec.data(), rec.size());
+            }
+        }
+    } else {
+        // Binary rows are packed into a block of memory, written a block at a time.
+        constexpr std::size_t kBlock = std::size_t(1) << 16;
+        std::vector<char> block(kBlock + 64);
+        char* p = block.data();
+        auto flush_if_full = [&] {
+            if (std::size_t(p - block.data()) < kBlock) return;
+            out.write(block.data(), std::size_t(p - block.data()));
+            p = block.data();
+        };
+        for (std::size_t i = 0; i < positions.size(); ++i) {
             for (int a = 0; a < 3; ++a) {
                 if (far) {
-                    put_binary(rec, origin[a] + double(positions[i][a]), big);
+                    put_binary(p, origin[a] + double(positions[i][a]), big);
                 } else {
-                    put_binary(rec, positions[i][a], big);
+                    put_binary(p, positions[i][a], big);
                 }
             }
             if (!normals.empty()) {
-                for (float v : normals[i]) put_binary(rec, v, big);
+                for (float v : normals[i]) put_binary(p, v, big);
             }
             if (!colors.empty()) {
-                for (float v : colors[i]) put_binary(rec, to_byte(v), big);
+                for (float v : colors[i]) put_binary(p, to_byte(v), big);
             }
-            if (!scales.empty()) put_binary(rec, scales[i], big);
-            if (!confidences.empty()) put_binary(rec, confidences[i], big);
+            if (!scales.empty()) put_binary(p, scales[i], big);
+            if (!confidences.empty()) put_binary(p, confidences[i], big);
+            flush_if_full();
         }
-        out.write(rec.data(), rec.size());
-    }
-    if (faces) {
-        for (const Triangle& t : *faces) {
-            rec.clear();
-            if (ascii) {
-                rec = "3 " + std::to_string(t[0]) + ' ' + std::to_string(t[1]) + ' ' +
-                      std::to_string(t[2]) + '\n';
-            } else {
-                put_binary(rec, std::uint8_t(3), big);
-                for (std::int32_t v : t) put_binary(rec, v, big);
+        if (faces) {
+            for (const Triangle& t : *faces) {
+                put_binary(p, std::uint8_t(3), big);
+                for (std::int32_t v : t) put_binary(p, v, big);
+                flush_if_full();
             }
-            out.write(rec.data(), rec.size());
         }
+        out.write(block.data(), std::size_t(p - block.data()));
     }
     out.flush();
     file.commit();

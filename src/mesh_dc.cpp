@@ -30,6 +30,7 @@
 #include <array>
 #include <limits>
 #include <memory>
+#include <unordered_map>
 
 #include "detail/crossings.h"
 #include "detail/mesh_common.h"
@@ -205,6 +206,131 @@ void hermite(Field& acc, Gradient&& gradient, const openvdb::Coord& v0, int axis
     weight = float(1.0 / (1.0 + std::pow(m / 0.05, 2)));
 }
 
+/// Thresholds of repair_hermite (see there).
+constexpr float kUnreliable = 0.5f, kReliable = 0.9f;
+constexpr int kReach = 2;  // voxels, between edge start voxels (Chebyshev)
+
+/// A reliable crossing's plane offered to an unreliable one (see repair_hermite).
+struct PlaneCandidate {
+    std::size_t j;
+    double t, u;  ///< root on the edge; u: the same, measured from the inside end
+    double m0, m1, off, agree;
+};
+
+/// Rules 1 to 3 of repair_hermite: the plane the crossing takes, or null. `reliable` holds every
+/// reliable crossing within reach, `cand` those whose plane the edge crosses, both in the order
+/// of a walk over the voxels around the edge's start, then over axes.
+const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
+                                 const std::vector<std::size_t>& reliable,
+                                 const std::vector<openvdb::Vec3f>& points,
+                                 const std::vector<openvdb::Vec3f>& normals) {
+    constexpr double kMatch = 0.02;    // voxels
+    constexpr double kOnPlane = 0.06;  // voxels
+    constexpr double kFace = 0.005;    // voxels
+    constexpr double kRoughAgreement = 0.7;
+    // Rule 1: an end's value explained, least extrapolation (ties: normal agreement).
+    const PlaneCandidate* pick = nullptr;
+    double best = 2.0;
+    for (const PlaneCandidate& c : cand) {
+        const double reach = std::min(std::fabs(c.m0) <= kMatch ? c.t : 2.0,
+                                      std::fabs(c.m1) <= kMatch ? 1.0 - c.t : 2.0);
+        if (reach < 2.0 &&
+            (reach < best - 1e-6 || (reach <= best + 1e-6 && c.agree > pick->agree))) {
+            best = std::min(best, reach);
+            pick = &c;
+        }
+    }
+    if (pick) return pick;
+    // Rule 2: the closest plane through our point (ties: normal agreement).
+    best = kOnPlane;
+    for (const PlaneCandidate& c : cand) {
+        if (c.off < best - 1e-3 || (pick && c.off <= best + 1e-3 && c.agree > pick->agree)) {
+            best = std::min(best, c.off);
+            pick = &c;
+        }
+    }
+    if (pick) return pick;
+    // Rule 3: the first root of a confirmed face below the field.
+    const auto is_face = [&](std::size_t j) {
+        const openvdb::Vec3d nj(normals[j]), pj(points[j]);
+        openvdb::Vec3d first(0.0);
+        bool have_first = false;
+        for (std::size_t k : reliable) {
+            const openvdb::Vec3d d = openvdb::Vec3d(points[k]) - pj;
+            if (!(openvdb::Vec3d(normals[k]).dot(nj) > 0.9999 && std::fabs(nj.dot(d)) <= kFace)) {
+                continue;
+            }
+            // Points a voxel apart in two directions: a flat patch, not the band along which a
+            // curved surface stays close to one tangent plane.
+            if (have_first && first.cross(d).length() >= first.length()) return true;
+            if (!have_first && d.lengthSqr() >= 1.0) {
+                first = d;
+                have_first = true;
+            }
+        }
+        return false;
+    };
+    const PlaneCandidate* below = nullptr;
+    for (const PlaneCandidate& c : cand) {
+        if (c.agree >= kRoughAgreement && c.m0 >= -kMatch && c.m1 >= -kMatch &&
+            (!below || c.u < below->u) && is_face(c.j)) {
+            below = &c;
+        }
+    }
+    return below;
+}
+
+/// The reliable crossings of each leaf, in crossing order (voxel order, then axis), and a way to
+/// gather those around a leaf.
+struct ReliableCrossings {
+    std::vector<std::size_t> begin;  ///< per leaf, into ids (leafCount() + 1)
+    std::vector<std::uint32_t> ids;
+    struct CoordHash {
+        std::size_t operator()(const openvdb::Coord& c) const {
+            return std::size_t(c[0]) * 73856093u ^ std::size_t(c[1]) * 19349663u ^
+                   std::size_t(c[2]) * 83492791u;
+        }
+    };
+    std::unordered_map<openvdb::Coord, std::size_t, CoordHash> leaf_index;  ///< by leaf origin
+
+    /// One reliable crossing near a leaf, with a key that sorts by start voxel, then axis.
+    struct Near {
+        openvdb::Coord start;
+        std::uint32_t key, j;
+    };
+
+    /// The reliable crossings whose edge starts within kReach of the leaf at `origin`, sorted by
+    /// start voxel (x, y, z) and axis: for an edge in the leaf, the order of a walk over the
+    /// voxels around its start, then over axes.
+    void around(const Crossings& crossings, const openvdb::Coord& origin,
+                std::vector<Near>& near) const {
+        constexpr int kW = 8 + 2 * kReach;
+        const openvdb::Coord lo = origin.offsetBy(-kReach), hi = origin.offsetBy(7 + kReach);
+        near.clear();
+        for (int dx = -8; dx <= 8; dx += 8) {
+            for (int dy = -8; dy <= 8; dy += 8) {
+                for (int dz = -8; dz <= 8; dz += 8) {
+                    const auto it = leaf_index.find(origin.offsetBy(dx, dy, dz));
+                    if (it == leaf_index.end()) continue;
+                    for (std::size_t k = begin[it->second]; k < begin[it->second + 1]; ++k) {
+                        const std::uint32_t j = ids[k];
+                        const openvdb::Coord& c = crossings.start[j];
+                        if (c[0] < lo[0] || c[1] < lo[1] || c[2] < lo[2] || c[0] > hi[0] ||
+                            c[1] > hi[1] || c[2] > hi[2]) {
+                            continue;
+                        }
+                        const openvdb::Coord b = c - lo;
+                        const int cell = (b[0] * kW + b[1]) * kW + b[2];
+                        near.push_back({c, std::uint32_t(cell * 3 + crossings.axis[j]), j});
+                    }
+                }
+            }
+        }
+        std::sort(near.begin(), near.end(),
+                  [](const Near& a, const Near& b) { return a.key < b.key; });
+    }
+};
+
 /// Repairs the Hermite data of unreliable crossings from reliable neighbours.
 ///
 /// Next to a corner or a sharp edge no stencil around a crossing's end voxels may stay in one
@@ -232,127 +358,105 @@ void hermite(Field& acc, Gradient&& gradient, const openvdb::Coord& v0, int axis
 ///      roughly agreeing with our own normal (a face's plane extended past its edge, across a
 ///      hole, bounds the field as well).
 /// The crossing then takes the plane's normal and weight, and its point moves along the edge to
-/// the root. Reads only the first pass's arrays, so the result does not depend on the order of
-/// evaluation. For a box sampled exactly this makes every crossing exact.
-template <typename Field>
-void repair_hermite(const Crossings& crossings, Field& values, double voxel, float iso,
-                    std::vector<openvdb::Vec3f>& points, std::vector<openvdb::Vec3f>& normals,
-                    std::vector<float>& weights) {
-    constexpr float kUnreliable = 0.5f, kReliable = 0.9f;
-    constexpr double kMatch = 0.02;    // voxels
-    constexpr double kOnPlane = 0.06;  // voxels
-    constexpr double kFace = 0.005;    // voxels
-    constexpr double kRoughAgreement = 0.7;
-    constexpr int kReach = 2;  // voxels, between edge start voxels (Chebyshev)
-    const std::vector<openvdb::Vec3f> old_points = points, old_normals = normals;
-    const std::vector<float> old_weights = weights;
+/// the root. The searches read only the first pass's data and the repairs are applied after all
+/// of them, so the result does not depend on the order of evaluation. For a box sampled exactly
+/// this makes every crossing exact.
+///
+/// Work per leaf: on a scanned surface reliable crossings are few (under one within reach of an
+/// unreliable crossing on average, on the bunny), so each search walks a short list of the
+/// reliable crossings around its leaf instead of probing the 125 voxels around its edge.
+void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
+                    const std::vector<const openvdb::FloatTree::LeafNodeType*>& leaves,
+                    double voxel, float iso, std::vector<openvdb::Vec3f>& points,
+                    std::vector<openvdb::Vec3f>& normals, std::vector<float>& weights) {
+    const std::size_t n_leaves = leaves.size();
+    ReliableCrossings rel;
+    rel.begin.assign(n_leaves + 1, 0);
+    bool any_unreliable = false;
+    for (std::size_t L = 0; L < n_leaves; ++L) {
+        for (std::size_t i = crossings.leaf_begin[L]; i < crossings.leaf_begin[L + 1]; ++i) {
+            if (weights[i] >= kReliable) rel.ids.push_back(std::uint32_t(i));
+            any_unreliable |= weights[i] < kUnreliable;
+        }
+        rel.begin[L + 1] = rel.ids.size();
+    }
+    if (!any_unreliable || rel.ids.empty()) return;
+    rel.leaf_index.reserve(n_leaves);
+    for (std::size_t L = 0; L < n_leaves; ++L) rel.leaf_index.emplace(leaves[L]->origin(), L);
+
+    struct Repair {
+        std::uint32_t i, j;  ///< the crossing, and the one whose plane it takes
+        double t;            ///< the plane's root on the edge
+    };
+    std::vector<std::vector<Repair>> repairs(n_leaves);
     tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, crossings.size(), 1024),
+        tbb::blocked_range<std::size_t>(0, n_leaves, 8),
         [&](const tbb::blocked_range<std::size_t>& r) {
-            openvdb::tree::ValueAccessor<const openvdb::UInt32Tree> ids(*crossings.ids);
-            Field acc(values);
-            std::vector<std::size_t> reliable;  // every reliable crossing around the edge
-            struct Candidate {
-                std::size_t j;
-                double t, u;  ///< root on the edge; u: the same, measured from the inside end
-                double m0, m1, off, agree;
-            };
-            std::vector<Candidate> cand;
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                if (!(old_weights[i] < kUnreliable)) continue;
-                const openvdb::Vec3d p(old_points[i]), n(old_normals[i]);
-                const int axis = crossings.axis[i];
-                const openvdb::Coord& s = crossings.start[i];
-                openvdb::Coord s1 = s;
-                s1[axis] += 1;
-                const openvdb::Vec3d v0 = s.asVec3d(), v1 = s1.asVec3d();
-                const double f0 = (double(acc.getValue(s)) - iso) / voxel,
-                             f1 = (double(acc.getValue(s1)) - iso) / voxel;
-                const double rise = crossings.start_inside[i] ? 1.0 : -1.0;
-                reliable.clear();
-                cand.clear();
-                for (int dx = -kReach; dx <= kReach; ++dx) {
-                    for (int dy = -kReach; dy <= kReach; ++dy) {
-                        for (int dz = -kReach; dz <= kReach; ++dz) {
-                            std::int64_t id[3];
-                            if (!crossing_ids(ids, s.offsetBy(dx, dy, dz), id)) continue;
-                            for (int a = 0; a < 3; ++a) {
-                                const std::int64_t j = id[a];
-                                if (j < 0 || !(old_weights[std::size_t(j)] >= kReliable)) continue;
-                                reliable.push_back(std::size_t(j));
-                                const openvdb::Vec3d nj(old_normals[std::size_t(j)]);
-                                if (!(rise * nj[axis] > 0.05)) continue;
-                                const openvdb::Vec3d pj(old_points[std::size_t(j)]);
-                                const double t = -nj.dot(v0 - pj) / nj[axis];
-                                if (!(t >= 0.0 && t <= 1.0)) continue;
-                                cand.push_back({std::size_t(j), t, rise > 0.0 ? t : 1.0 - t,
-                                                f0 - nj.dot(v0 - pj), f1 - nj.dot(v1 - pj),
-                                                std::fabs(nj.dot(p - pj)), nj.dot(n)});
-                            }
+            FloatAccessor acc(tree);
+            std::vector<ReliableCrossings::Near> near;
+            std::vector<std::size_t> reliable;
+            std::vector<PlaneCandidate> cand;
+            for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                const std::size_t begin = crossings.leaf_begin[L],
+                                  end = crossings.leaf_begin[L + 1];
+                if (std::none_of(weights.begin() + std::ptrdiff_t(begin),
+                                 weights.begin() + std::ptrdiff_t(end),
+                                 [](float w) { return w < kUnreliable; })) {
+                    continue;
+                }
+                rel.around(crossings, leaves[L]->origin(), near);
+                if (near.empty()) continue;
+                for (std::size_t i = begin; i < end; ++i) {
+                    if (!(weights[i] < kUnreliable)) continue;
+                    const openvdb::Vec3d p(points[i]), n(normals[i]);
+                    const int axis = crossings.axis[i];
+                    const openvdb::Coord& s = crossings.start[i];
+                    openvdb::Coord s1 = s;
+                    s1[axis] += 1;
+                    const openvdb::Vec3d v0 = s.asVec3d(), v1 = s1.asVec3d();
+                    const double rise = crossings.start_inside[i] ? 1.0 : -1.0;
+                    reliable.clear();
+                    cand.clear();
+                    double f0 = 0.0, f1 = 0.0;  // the ends' values in voxels, read when needed
+                    for (const ReliableCrossings::Near& e : near) {
+                        if (std::abs(e.start[0] - s[0]) > kReach ||
+                            std::abs(e.start[1] - s[1]) > kReach ||
+                            std::abs(e.start[2] - s[2]) > kReach) {
+                            continue;
                         }
+                        const std::size_t j = e.j;
+                        reliable.push_back(j);
+                        const openvdb::Vec3d nj(normals[j]);
+                        if (!(rise * nj[axis] > 0.05)) continue;
+                        const openvdb::Vec3d pj(points[j]);
+                        const double t = -nj.dot(v0 - pj) / nj[axis];
+                        if (!(t >= 0.0 && t <= 1.0)) continue;
+                        if (cand.empty()) {
+                            f0 = (double(acc.getValue(s)) - iso) / voxel;
+                            f1 = (double(acc.getValue(s1)) - iso) / voxel;
+                        }
+                        cand.push_back({j, t, rise > 0.0 ? t : 1.0 - t, f0 - nj.dot(v0 - pj),
+                                        f1 - nj.dot(v1 - pj), std::fabs(nj.dot(p - pj)),
+                                        nj.dot(n)});
+                    }
+                    if (const PlaneCandidate* pick = pick_plane(cand, reliable, points, normals)) {
+                        repairs[L].push_back({std::uint32_t(i), std::uint32_t(pick->j), pick->t});
                     }
                 }
-                // Rule 1: an end's value explained, least extrapolation (ties: normal agreement).
-                const Candidate* pick = nullptr;
-                double best = 2.0;
-                for (const Candidate& c : cand) {
-                    const double reach = std::min(std::fabs(c.m0) <= kMatch ? c.t : 2.0,
-                                                  std::fabs(c.m1) <= kMatch ? 1.0 - c.t : 2.0);
-                    if (reach < 2.0 &&
-                        (reach < best - 1e-6 || (reach <= best + 1e-6 && c.agree > pick->agree))) {
-                        best = std::min(best, reach);
-                        pick = &c;
-                    }
-                }
-                // Rule 2: the closest plane through our point (ties: normal agreement).
-                if (!pick) {
-                    best = kOnPlane;
-                    for (const Candidate& c : cand) {
-                        if (c.off < best - 1e-3 ||
-                            (pick && c.off <= best + 1e-3 && c.agree > pick->agree)) {
-                            best = std::min(best, c.off);
-                            pick = &c;
-                        }
-                    }
-                }
-                // Rule 3: the first root of a confirmed face below the field.
-                if (!pick) {
-                    const auto is_face = [&](std::size_t j) {
-                        const openvdb::Vec3d nj(old_normals[j]), pj(old_points[j]);
-                        openvdb::Vec3d first(0.0);
-                        bool have_first = false;
-                        for (std::size_t k : reliable) {
-                            const openvdb::Vec3d d = openvdb::Vec3d(old_points[k]) - pj;
-                            if (!(openvdb::Vec3d(old_normals[k]).dot(nj) > 0.9999 &&
-                                  std::fabs(nj.dot(d)) <= kFace)) {
-                                continue;
-                            }
-                            // Points a voxel apart in two directions: a flat patch, not the band
-                            // along which a curved surface stays close to one tangent plane.
-                            if (have_first && first.cross(d).length() >= first.length())
-                                return true;
-                            if (!have_first && d.lengthSqr() >= 1.0) {
-                                first = d;
-                                have_first = true;
-                            }
-                        }
-                        return false;
-                    };
-                    const Candidate* below = nullptr;
-                    for (const Candidate& c : cand) {
-                        if (c.agree >= kRoughAgreement && c.m0 >= -kMatch && c.m1 >= -kMatch &&
-                            (!below || c.u < below->u) && is_face(c.j)) {
-                            below = &c;
-                        }
-                    }
-                    pick = below;
-                }
-                if (!pick) continue;
-                points[i][axis] = float(double(s[axis]) + pick->t);
-                normals[i] = old_normals[pick->j];
-                weights[i] = old_weights[pick->j];
             }
         });
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n_leaves, 64),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                              for (const Repair& e : repairs[L]) {
+                                  const int axis = crossings.axis[e.i];
+                                  points[e.i][axis] =
+                                      float(double(crossings.start[e.i][axis]) + e.t);
+                                  normals[e.i] = normals[e.j];
+                                  weights[e.i] = weights[e.j];
+                              }
+                          }
+                      });
 }
 
 /// One patch vertex before global numbering: its position and, for each crossing of its loop,
@@ -656,10 +760,8 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                               }
                           }
                       });
-    {
-        FloatAccessor acc(tree);
-        repair_hermite(crossings, acc, volume.sdf->voxelSize()[0], iso, points, normals, weights);
-    }
+    repair_hermite(crossings, tree, leaves, volume.sdf->voxelSize()[0], iso, points, normals,
+                   weights);
     // One vertex per loop, collected per leaf.
     const QefData qef{points, normals, weights, options.dc_truncation, options.dc_bias};
     std::vector<std::vector<PatchVertex>> per_leaf(tree.leafCount());

@@ -610,15 +610,18 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
         const openvdb::Vec3f& nv = q.normals[std::size_t(cell.edge_id[edges[i]])];
         min_cos = std::min(min_cos, mean_n.dot(Eigen::Vector3d(nv[0], nv[1], nv[2])));
     }
-    // At a feature, one crossing whose normal was smeared across the kink tilts the solution off
-    // both faces. Iteratively reweighted least squares with a Cauchy weight on each plane's
-    // residual (in voxels) lets the consistent planes win; smooth patches solve once.
+    Eigen::Vector3d lo, hi;
+    for (int a = 0; a < 3; ++a) {
+        lo[a] = double(cell.origin[a]) - kCellMargin;
+        hi[a] = double(cell.origin[a]) + 1.0 + kCellMargin;
+    }
+    // The quadric in y = x - mass, E(y) = y^T Q y - 2 c^T y + const, with each plane weighted by
+    // robust[i] too.
     double robust[12];
     std::fill(robust, robust + n, 1.0);
-    const int rounds = min_cos < 0.9 ? 4 : 1;
     Eigen::Matrix3d ata;
     Eigen::Vector3d atb, x;
-    for (int round = 0; round < rounds; ++round) {
+    const auto quadric = [&] {
         ata = q.bias * Eigen::Matrix3d::Identity();
         atb = Eigen::Vector3d::Zero();
         for (int i = 0; i < n; ++i) {
@@ -631,33 +634,7 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
             ata += w * nn * nn.transpose();
             atb += w * b * nn;
         }
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-        es.computeDirect(ata);
-        const Eigen::Vector3d lambda = es.eigenvalues();  // ascending, = singular values squared
-        const double cutoff = q.truncation * q.truncation * lambda[2];
-        x = Eigen::Vector3d::Zero();
-        for (int k = 0; k < 3; ++k) {
-            if (lambda[k] > cutoff && lambda[k] > 0.0) {
-                const Eigen::Vector3d v = es.eigenvectors().col(k);
-                x += (v.dot(atb) / lambda[k]) * v;
-            }
-        }
-        if (round + 1 == rounds) break;
-        for (int i = 0; i < n; ++i) {
-            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
-            const openvdb::Vec3f& p = q.points[id];
-            const openvdb::Vec3f& nv = q.normals[id];
-            const Eigen::Vector3d nn(nv[0], nv[1], nv[2]);
-            const double r = nn.dot(x + mass - Eigen::Vector3d(p[0], p[1], p[2])) / 0.02;
-            robust[i] = 1.0 / (1.0 + r * r);
-        }
-    }
-    x += mass;
-    Eigen::Vector3d lo, hi;
-    for (int a = 0; a < 3; ++a) {
-        lo[a] = double(cell.origin[a]) - kCellMargin;
-        hi[a] = double(cell.origin[a]) + 1.0 + kCellMargin;
-    }
+    };
     // A curved but smooth patch (normals spread by more than ~0.8 and less than ~25 degrees) has
     // no feature to keep, and the intersection of its tangent planes lies off the curved surface
     // (outside a convex one by about t^2 / 2R for crossings at tangential distance t). The vertex
@@ -666,7 +643,8 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
     // corrected by the bend its normal shows, -(p_i - m).(n_i - mean_n) / 2 -- exact to second
     // order for any radius of curvature, and it needs only the Hermite data (the trilinear field,
     // which would serve too, is rounded next to sharp edges and pulled vertices off flat faces
-    // there).
+    // there). No quadric is solved then; it is built only if the vertex leaves the cell.
+    bool placed = false;
     if (min_cos > 0.9 && min_cos < 0.9999) {
         double sum = 0.0, wsum = 0.0;
         for (int i = 0; i < n; ++i) {
@@ -680,7 +658,44 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
             sum += q.weights[id] * a;
             wsum += q.weights[id];
         }
-        if (wsum > 0.0) x = mass + (sum / wsum) * mean_n;
+        if (wsum > 0.0) {
+            x = mass + (sum / wsum) * mean_n;
+            placed = true;
+            if ((x.array() >= lo.array()).all() && (x.array() <= hi.array()).all()) {
+                return openvdb::Vec3d(x[0], x[1], x[2]);
+            }
+            quadric();
+        }
+    }
+    // At a feature, one crossing whose normal was smeared across the kink tilts the solution off
+    // both faces. Iteratively reweighted least squares with a Cauchy weight on each plane's
+    // residual (in voxels) lets the consistent planes win; smooth patches solve once.
+    const int rounds = placed ? 0 : min_cos < 0.9 ? 4 : 1;
+    for (int round = 0; round < rounds; ++round) {
+        quadric();
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+        es.computeDirect(ata);
+        const Eigen::Vector3d lambda = es.eigenvalues();  // ascending, = singular values squared
+        const double cutoff = q.truncation * q.truncation * lambda[2];
+        x = Eigen::Vector3d::Zero();
+        for (int k = 0; k < 3; ++k) {
+            if (lambda[k] > cutoff && lambda[k] > 0.0) {
+                const Eigen::Vector3d v = es.eigenvectors().col(k);
+                x += (v.dot(atb) / lambda[k]) * v;
+            }
+        }
+        if (round + 1 == rounds) {
+            x += mass;
+            break;
+        }
+        for (int i = 0; i < n; ++i) {
+            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
+            const openvdb::Vec3f& p = q.points[id];
+            const openvdb::Vec3f& nv = q.normals[id];
+            const Eigen::Vector3d nn(nv[0], nv[1], nv[2]);
+            const double r = nn.dot(x + mass - Eigen::Vector3d(p[0], p[1], p[2])) / 0.02;
+            robust[i] = 1.0 / (1.0 + r * r);
+        }
     }
     if ((x.array() >= lo.array()).all() && (x.array() <= hi.array()).all()) {
         return openvdb::Vec3d(x[0], x[1], x[2]);
@@ -765,31 +780,32 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     // One vertex per loop, collected per leaf.
     const QefData qef{points, normals, weights, options.dc_truncation, options.dc_bias};
     std::vector<std::vector<PatchVertex>> per_leaf(tree.leafCount());
-    for_each_surface_cell(tree, crossings, iso,
-                          [&](std::size_t L, const SurfaceCell& cell, LeafBlock& acc) {
-        for (int l = 0; l < cell.loops.count; ++l) {
-            int start[12], size[12];
-            const int chains = loop_chains(cell, l, acc, iso, start, size);
-            for (int c = 0; c < chains; ++c) {
-                std::uint8_t chain[12];
-                const int n = cell.loops.size[l];
-                for (int i = 0; i < size[c]; ++i) chain[i] = cell.loops.edge[l][(start[c] + i) % n];
-                PatchVertex v;
-                v.position = openvdb::Vec3f(solve_qef(cell, chain, size[c], qef, v.normal));
-                v.size = std::uint8_t(size[c]);
-                for (int i = 0; i < v.size; ++i) {
-                    const int e = chain[i];
-                    const int a = kEdgeAxis[e];
-                    const int* s = kCubeCorner[kEdgeCorner[e][0]];
-                    // Which of the four cells around the edge this one is: its offset from the
-                    // edge's start voxel along the two other axes (b, c) = (a + 1, a + 2).
-                    v.crossing[i] = cell.edge_id[e];
-                    v.slot[i] = std::uint8_t(s[(a + 1) % 3] + 2 * s[(a + 2) % 3]);
+    for_each_surface_cell(
+        tree, crossings, iso, [&](std::size_t L, const SurfaceCell& cell, FloatAccessor& acc) {
+            for (int l = 0; l < cell.loops.count; ++l) {
+                int start[12], size[12];
+                const int chains = loop_chains(cell, l, acc, iso, start, size);
+                for (int c = 0; c < chains; ++c) {
+                    std::uint8_t chain[12];
+                    const int n = cell.loops.size[l];
+                    for (int i = 0; i < size[c]; ++i)
+                        chain[i] = cell.loops.edge[l][(start[c] + i) % n];
+                    PatchVertex v;
+                    v.position = openvdb::Vec3f(solve_qef(cell, chain, size[c], qef, v.normal));
+                    v.size = std::uint8_t(size[c]);
+                    for (int i = 0; i < v.size; ++i) {
+                        const int e = chain[i];
+                        const int a = kEdgeAxis[e];
+                        const int* s = kCubeCorner[kEdgeCorner[e][0]];
+                        // Which of the four cells around the edge this one is: its offset from the
+                        // edge's start voxel along the two other axes (b, c) = (a + 1, a + 2).
+                        v.crossing[i] = cell.edge_id[e];
+                        v.slot[i] = std::uint8_t(s[(a + 1) % 3] + 2 * s[(a + 2) % 3]);
+                    }
+                    per_leaf[L].push_back(v);
                 }
-                per_leaf[L].push_back(v);
             }
-        }
-    });
+        });
 
     // Global vertex numbers in leaf order; each crossing learns its four cells' vertices.
     std::vector<std::size_t> base(per_leaf.size() + 1, 0);

@@ -459,14 +459,10 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                       });
 }
 
-/// One patch vertex before global numbering: its position and, for each crossing of its loop,
-/// the crossing id and which of the edge's four cells this is.
+/// One patch vertex before global numbering.
 struct PatchVertex {
     openvdb::Vec3f position;
     openvdb::Vec3f normal;  ///< mean normal of the patch's crossings
-    std::uint8_t size = 0;
-    std::int64_t crossing[12];
-    std::uint8_t slot[12];
 };
 
 /// The face (kFaceCorner index) on which two cube edges meet, or -1.
@@ -716,6 +712,51 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
     return openvdb::Vec3d(x[0], x[1], x[2]);
 }
 
+/// Trilinear interpolation of the sdf at index-space points, as sdf_at(), keeping the corner
+/// values of the last cell (the quad diagonals ask about points close to each other) and reading
+/// a cell inside a leaf straight from the leaf's buffer.
+class CachedTrilinear {
+  public:
+    explicit CachedTrilinear(FloatAccessor& acc) : acc_(acc) {}
+
+    double operator()(const openvdb::Vec3d& p) {
+        const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
+        if (!valid_ || c != cell_) load(c);
+        const openvdb::Vec3d t = p - c.asVec3d();
+        double v = 0.0;
+        for (int k = 0; k < 8; ++k) {
+            const int dx = k >> 2, dy = (k >> 1) & 1, dz = k & 1;
+            const double w =
+                (dx ? t[0] : 1.0 - t[0]) * (dy ? t[1] : 1.0 - t[1]) * (dz ? t[2] : 1.0 - t[2]);
+            v += w * value_[k];
+        }
+        return v;
+    }
+
+  private:
+    void load(const openvdb::Coord& c) {
+        const int x = c[0] & 7, y = c[1] & 7, z = c[2] & 7;
+        const auto* leaf = x < 7 && y < 7 && z < 7 ? acc_.probeConstLeaf(c) : nullptr;
+        if (leaf) {
+            const float* data = leaf->buffer().data() + ((x << 6) | (y << 3) | z);
+            for (int k = 0; k < 8; ++k) {
+                value_[k] = double(data[((k >> 2) << 6) | (((k >> 1) & 1) << 3) | (k & 1)]);
+            }
+        } else {
+            for (int k = 0; k < 8; ++k) {
+                value_[k] = double(acc_.getValue(c.offsetBy(k >> 2, (k >> 1) & 1, k & 1)));
+            }
+        }
+        cell_ = c;
+        valid_ = true;
+    }
+
+    FloatAccessor& acc_;
+    openvdb::Coord cell_;
+    bool valid_ = false;
+    double value_[8];
+};
+
 }  // namespace
 
 RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
@@ -777,11 +818,22 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                       });
     repair_hermite(crossings, tree, leaves, volume.sdf->voxelSize()[0], iso, points, normals,
                    weights);
-    // One vertex per loop, collected per leaf.
+    // One vertex per chain, collected per leaf. Each crossing learns the vertices of its four
+    // cells as (leaf, index in the leaf): every (crossing, slot) belongs to exactly one cell, so
+    // there are no two writers.
     const QefData qef{points, normals, weights, options.dc_truncation, options.dc_bias};
-    std::vector<std::vector<PatchVertex>> per_leaf(tree.leafCount());
+    std::vector<std::vector<PatchVertex>> per_leaf(leaves.size());
+    constexpr std::uint64_t kNone = ~std::uint64_t(0);
+    std::vector<std::array<std::uint64_t, 4>> around(crossings.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, around.size(), 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          std::fill(around.begin() + std::ptrdiff_t(r.begin()),
+                                    around.begin() + std::ptrdiff_t(r.end()),
+                                    std::array<std::uint64_t, 4>{kNone, kNone, kNone, kNone});
+                      });
     for_each_surface_cell(
         tree, crossings, iso, [&](std::size_t L, const SurfaceCell& cell, FloatAccessor& acc) {
+            std::vector<PatchVertex>& out = per_leaf[L];
             for (int l = 0; l < cell.loops.count; ++l) {
                 int start[12], size[12];
                 const int chains = loop_chains(cell, l, acc, iso, start, size);
@@ -792,66 +844,66 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                         chain[i] = cell.loops.edge[l][(start[c] + i) % n];
                     PatchVertex v;
                     v.position = openvdb::Vec3f(solve_qef(cell, chain, size[c], qef, v.normal));
-                    v.size = std::uint8_t(size[c]);
-                    for (int i = 0; i < v.size; ++i) {
+                    const std::uint64_t id = (std::uint64_t(L) << 32) | out.size();
+                    out.push_back(v);
+                    for (int i = 0; i < size[c]; ++i) {
                         const int e = chain[i];
                         const int a = kEdgeAxis[e];
                         const int* s = kCubeCorner[kEdgeCorner[e][0]];
                         // Which of the four cells around the edge this one is: its offset from the
                         // edge's start voxel along the two other axes (b, c) = (a + 1, a + 2).
-                        v.crossing[i] = cell.edge_id[e];
-                        v.slot[i] = std::uint8_t(s[(a + 1) % 3] + 2 * s[(a + 2) % 3]);
+                        const int slot = s[(a + 1) % 3] + 2 * s[(a + 2) % 3];
+                        around[std::size_t(cell.edge_id[e])][std::size_t(slot)] = id;
                     }
-                    per_leaf[L].push_back(v);
                 }
             }
         });
 
-    // Global vertex numbers in leaf order; each crossing learns its four cells' vertices.
+    // Global vertex numbers in leaf order.
     std::vector<std::size_t> base(per_leaf.size() + 1, 0);
     for (std::size_t L = 0; L < per_leaf.size(); ++L) base[L + 1] = base[L] + per_leaf[L].size();
     RawSurface raw;
     raw.points.resize(base.back());
     std::vector<openvdb::Vec3f> patch_normal(base.back());
-    std::vector<std::array<std::int32_t, 4>> around(crossings.size(), {-1, -1, -1, -1});
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, per_leaf.size(), 16),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t L = r.begin(); L < r.end(); ++L) {
                               for (std::size_t k = 0; k < per_leaf[L].size(); ++k) {
-                                  const PatchVertex& v = per_leaf[L][k];
-                                  const std::int32_t id = std::int32_t(base[L] + k);
-                                  raw.points[std::size_t(id)] = v.position;
-                                  patch_normal[std::size_t(id)] = v.normal;
-                                  // Each (crossing, slot) belongs to exactly one cell: no two
-                                  // writers.
-                                  for (int i = 0; i < v.size; ++i)
-                                      around[std::size_t(v.crossing[i])][v.slot[i]] = id;
+                                  raw.points[base[L] + k] = per_leaf[L][k].position;
+                                  patch_normal[base[L] + k] = per_leaf[L][k].normal;
                               }
+                              per_leaf[L] = {};
                           }
                       });
-    per_leaf = {};
 
-    // One quad per crossing whose four cells all have a vertex.
-    std::vector<std::vector<Triangle>> quads((crossings.size() + 65535) / 65536);
+    // One quad per crossing whose four cells all have a vertex, collected per leaf.
+    std::vector<std::vector<Triangle>> quads(leaves.size());
     tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, quads.size(), 1),
+        tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
         [&](const tbb::blocked_range<std::size_t>& r) {
             FloatAccessor acc(tree);
-            for (std::size_t chunk = r.begin(); chunk < r.end(); ++chunk) {
-                const std::size_t end = std::min(crossings.size(), (chunk + 1) * 65536);
-                for (std::size_t c = chunk * 65536; c < end; ++c) {
+            CachedTrilinear field(acc);
+            for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1];
+                     ++c) {
                     const auto& q = around[c];
-                    if (q[0] < 0 || q[1] < 0 || q[2] < 0 || q[3] < 0) continue;
+                    if (q[0] == kNone || q[1] == kNone || q[2] == kNone || q[3] == kNone) {
+                        continue;
+                    }
+                    const auto global = [&](std::uint64_t id) {
+                        return std::int32_t(base[id >> 32] + (id & 0xffffffffu));
+                    };
                     // Counter-clockwise around +axis: slots 0, 1, 3, 2. Outward is +axis when the
                     // edge starts inside.
-                    std::array<std::int32_t, 4> v = {q[0], q[1], q[3], q[2]};
+                    std::array<std::int32_t, 4> v = {global(q[0]), global(q[1]), global(q[3]),
+                                                     global(q[2])};
                     if (!crossings.start_inside[c]) std::reverse(v.begin(), v.end());
                     auto off_surface = [&](std::int32_t a, std::int32_t b, std::int32_t d) {
                         const openvdb::Vec3d centre = (openvdb::Vec3d(raw.points[std::size_t(a)]) +
                                                        openvdb::Vec3d(raw.points[std::size_t(b)]) +
                                                        openvdb::Vec3d(raw.points[std::size_t(d)])) /
                                                       3.0;
-                        return std::fabs(sdf_at(acc, centre) - double(iso));
+                        return std::fabs(field(centre) - double(iso));
                     };
                     // Next to a sharp edge the diagonal must run along it, between the two
                     // vertices whose patch normals agree, not across it (which cuts the edge
@@ -867,17 +919,27 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                         use02 = off_surface(v[0], v[1], v[2]) + off_surface(v[0], v[2], v[3]) <=
                                 off_surface(v[0], v[1], v[3]) + off_surface(v[1], v[2], v[3]);
                     }
+                    std::vector<Triangle>& out = quads[L];
                     if (use02) {
-                        quads[chunk].push_back({v[0], v[1], v[2]});
-                        quads[chunk].push_back({v[0], v[2], v[3]});
+                        out.push_back({v[0], v[1], v[2]});
+                        out.push_back({v[0], v[2], v[3]});
                     } else {
-                        quads[chunk].push_back({v[0], v[1], v[3]});
-                        quads[chunk].push_back({v[1], v[2], v[3]});
+                        out.push_back({v[0], v[1], v[3]});
+                        out.push_back({v[1], v[2], v[3]});
                     }
                 }
             }
         });
-    for (auto& t : quads) raw.triangles.insert(raw.triangles.end(), t.begin(), t.end());
+    std::vector<std::size_t> first(quads.size() + 1, 0);
+    for (std::size_t L = 0; L < quads.size(); ++L) first[L + 1] = first[L] + quads[L].size();
+    raw.triangles.resize(first.back());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, quads.size(), 64),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                              std::copy(quads[L].begin(), quads[L].end(),
+                                        raw.triangles.begin() + std::ptrdiff_t(first[L]));
+                          }
+                      });
     return raw;
 }
 

@@ -4,8 +4,9 @@
 // A crossing is a grid edge (voxel v, axis a) from v to v + e_a whose end voxels are both valid
 // (active) and on opposite sides of the iso-value. Crossings are numbered leaf by leaf in the
 // tree's leaf order, so the numbering does not depend on the thread count. A UInt32 tree with
-// the sdf's topology stores, for every voxel, the id of its first crossing (low 29 bits) and
-// which of its three edges cross (high 3 bits): a lookup is one accessor read. The walk over the
+// the sdf's topology stores, for every voxel with a crossing edge, the id of its first crossing
+// (low 29 bits) and which of its three edges cross (high 3 bits); other voxels hold 0: a lookup is
+// one read. The walk over the
 // surface cells copies each leaf's cell corners (values, active states, packed ids) into a dense
 // CellBlock and picks the cells from the crossing masks, without a tree lookup per cell.
 #pragma once
@@ -14,6 +15,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -24,7 +26,7 @@
 namespace vdbrecon::detail {
 
 struct Crossings {
-    openvdb::UInt32Tree::Ptr ids;              ///< per voxel: first id | axis mask << 29
+    openvdb::UInt32Tree::Ptr ids;              ///< per voxel: first id | axis mask << 29, or 0
     std::vector<openvdb::Vec3f> points;        ///< index-space crossing position, per crossing
     std::vector<openvdb::Coord> start;         ///< the edge's lower voxel, per crossing
     std::vector<std::uint8_t> axis;            ///< the edge's axis, per crossing
@@ -58,29 +60,33 @@ class CellBlock {
                     const int nx = dx ? 1 : 8, ny = dy ? 1 : 8, nz = dz ? 1 : 8;
                     const openvdb::Coord o = origin.offsetBy(8 * dx, 8 * dy, 8 * dz);
                     const auto* leaf = values.probeConstLeaf(o);
-                    const auto* id_leaf = leaf ? ids.probeConstLeaf(o) : nullptr;
-                    float tile = 0.0f;
-                    const bool tile_on = leaf ? false : values.probeValue(o, tile);
+                    if (!leaf) {
+                        float tile = 0.0f;
+                        const bool tile_on = values.probeValue(o, tile);
+                        for (int x = 0; x < nx; ++x) {
+                            for (int y = 0; y < ny; ++y) {
+                                const int row = (8 * dx + x) * kX + (8 * dy + y) * kY + 8 * dz;
+                                std::fill(value_ + row, value_ + row + nz, tile);
+                                std::fill(on_ + row, on_ + row + nz, std::uint8_t(tile_on));
+                                std::fill(id_ + row, id_ + row + nz, 0u);
+                            }
+                        }
+                        continue;
+                    }
+                    const float* data = leaf->buffer().data();
+                    const std::uint32_t* id = ids.probeConstLeaf(o)->buffer().data();
+                    const auto& mask = leaf->getValueMask();
                     for (int x = 0; x < nx; ++x) {
                         for (int y = 0; y < ny; ++y) {
                             const int row = (8 * dx + x) * kX + (8 * dy + y) * kY + 8 * dz;
-                            if (!leaf) {
-                                for (int z = 0; z < nz; ++z) {
-                                    value_[row + z] = tile;
-                                    on_[row + z] = tile_on;
-                                    id_[row + z] = 0;
-                                }
-                                continue;
-                            }
-                            const openvdb::Index l = openvdb::Index((x << 6) | (y << 3));
+                            // A z-row of a leaf: 8 consecutive values, one byte of its mask.
+                            const int l = (x << 6) | (y << 3);
                             const unsigned bits =
-                                leaf->getValueMask().template getWord<std::uint8_t>(l >> 3);
-                            const float* data = leaf->buffer().data() + l;
-                            const std::uint32_t* id = id_leaf->buffer().data() + l;
+                                mask.template getWord<std::uint8_t>(openvdb::Index(l >> 3));
+                            std::copy(data + l, data + l + nz, value_ + row);
+                            std::copy(id + l, id + l + nz, id_ + row);
                             for (int z = 0; z < nz; ++z) {
-                                value_[row + z] = data[z];
                                 on_[row + z] = std::uint8_t((bits >> z) & 1u);
-                                id_[row + z] = id[z];
                             }
                         }
                     }

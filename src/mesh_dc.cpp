@@ -884,6 +884,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
             FloatAccessor acc(tree);
             CachedTrilinear field(acc);
             for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                quads[L].reserve(2 * (crossings.leaf_begin[L + 1] - crossings.leaf_begin[L]));
                 for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1];
                      ++c) {
                     const auto& q = around[c];

@@ -83,10 +83,16 @@ class CellBlock {
                             const int l = (x << 6) | (y << 3);
                             const unsigned bits =
                                 mask.template getWord<std::uint8_t>(openvdb::Index(l >> 3));
-                            std::copy(data + l, data + l + nz, value_ + row);
-                            std::copy(id + l, id + l + nz, id_ + row);
-                            for (int z = 0; z < nz; ++z) {
-                                on_[row + z] = std::uint8_t((bits >> z) & 1u);
+                            if (nz == 8) {  // fixed-size copies, which the compiler inlines
+                                std::copy(data + l, data + l + 8, value_ + row);
+                                std::copy(id + l, id + l + 8, id_ + row);
+                                for (int z = 0; z < 8; ++z) {
+                                    on_[row + z] = std::uint8_t((bits >> z) & 1u);
+                                }
+                            } else {
+                                value_[row] = data[l];
+                                id_[row] = id[l];
+                                on_[row] = std::uint8_t(bits & 1u);
                             }
                         }
                     }

@@ -99,6 +99,29 @@ class CellBlock {
                 }
             }
         }
+        // Per (x, y) row, bit z set where the edge along each axis crosses.
+        for (int x = 0; x < kN; ++x) {
+            for (int y = 0; y < kN; ++y) {
+                std::uint32_t r[3] = {0, 0, 0};
+                const int row = x * kX + y * kY;
+                for (int z = 0; z < kN; ++z) {
+                    const std::uint32_t m = id_[row + z] >> kIdBits;
+                    for (int a = 0; a < 3; ++a) r[a] |= ((m >> a) & 1u) << z;
+                }
+                for (int a = 0; a < 3; ++a) rows_[a][x][y] = std::uint16_t(r[a]);
+            }
+        }
+    }
+
+    /// Bit z set when the cell at offset (x, y, z) from the leaf's origin, 0 <= x, y, z < 8, has
+    /// a crossing edge: x edges start at its corners (0, 0|1, 0|1), y edges at (0|1, 0, 0|1),
+    /// z edges at (0|1, 0|1, 0).
+    unsigned cells_with_crossings(int x, int y) const {
+        const unsigned ex = rows_[0][x][y] | rows_[0][x][y + 1];
+        const unsigned ey = rows_[1][x][y] | rows_[1][x + 1][y];
+        const unsigned ez =
+            rows_[2][x][y] | rows_[2][x + 1][y] | rows_[2][x][y + 1] | rows_[2][x + 1][y + 1];
+        return (ex | (ex >> 1) | ey | (ey >> 1) | ez) & 0xFFu;
     }
 
     /// The block index of the voxel at offset (x, y, z) from the leaf's origin, 0 <= x, y, z <= 8.
@@ -119,10 +142,8 @@ class CellBlock {
     float value_[kN * kN * kN];
     std::uint8_t on_[kN * kN * kN];
     std::uint32_t id_[kN * kN * kN];
+    std::uint16_t rows_[3][kN][kN];
 };
-
-/// Per cube corner, the axes (bit mask) of the cube edges that start there.
-constexpr unsigned kCornerEdges[8] = {7, 6, 5, 4, 3, 2, 1, 0};
 
 /// Whether an edge starting just past the upper faces of the leaf at `origin` (in one of its
 /// seven upper neighbours, on the layer next to the leaf) crosses: the cells of a leaf without
@@ -186,13 +207,10 @@ void for_each_surface_cell(const openvdb::FloatTree& sdf, const Crossings& cross
             block->load(acc, ids, origin);
             for (int x = 0; x < 8; ++x) {
                 for (int y = 0; y < 8; ++y) {
-                    for (int z = 0; z < 8; ++z) {
+                    for (unsigned cells = block->cells_with_crossings(x, y); cells;
+                         cells &= cells - 1) {
+                        const int z = __builtin_ctz(cells);
                         const int i = CellBlock::index(x, y, z);
-                        unsigned m = 0;
-                        for (int k = 0; k < 7; ++k) {
-                            m |= block->crossing_mask(i + corner[k]) & kCornerEdges[k];
-                        }
-                        if (!m) continue;
                         bool valid = true;
                         for (int k = 0; k < 8 && valid; ++k) {
                             valid = block->on(i + corner[k]);

@@ -743,8 +743,22 @@ class CachedTrilinear {
                 value_[k] = double(data[((k >> 2) << 6) | (((k >> 1) & 1) << 3) | (k & 1)]);
             }
         } else {
+            // A cell across leaves: one probe per leaf it touches, not one per corner (the
+            // accessor caches a single leaf).
+            const float* data[8];
+            bool probed[8] = {};
             for (int k = 0; k < 8; ++k) {
-                value_[k] = double(acc_.getValue(c.offsetBy(k >> 2, (k >> 1) & 1, k & 1)));
+                const int dx = k >> 2, dy = (k >> 1) & 1, dz = k & 1;
+                const int part = ((x + dx) >> 3) << 2 | ((y + dy) >> 3) << 1 | ((z + dz) >> 3);
+                const openvdb::Coord q = c.offsetBy(dx, dy, dz);
+                if (!probed[part]) {
+                    const auto* l = acc_.probeConstLeaf(q);
+                    data[part] = l ? l->buffer().data() : nullptr;
+                    probed[part] = true;
+                }
+                value_[k] = double(
+                    data[part] ? data[part][openvdb::FloatTree::LeafNodeType::coordToOffset(q)]
+                               : acc_.getValue(q));
             }
         }
         cell_ = c;

@@ -6,9 +6,9 @@
 // tree's leaf order, so the numbering does not depend on the thread count. A UInt32 tree with
 // the sdf's topology stores, for every voxel with a crossing edge, the id of its first crossing
 // (low 29 bits) and which of its three edges cross (high 3 bits); other voxels hold 0: a lookup is
-// one read. The walk over the
-// surface cells copies each leaf's cell corners (values, active states, packed ids) into a dense
-// CellBlock and picks the cells from the crossing masks, without a tree lookup per cell.
+// one read. The walk over the surface cells copies each leaf's cell corners (values, active
+// states, packed ids) into a dense CellBlock and picks the cells from per-row crossing bits,
+// without a tree lookup per cell.
 #pragma once
 
 #include <openvdb/openvdb.h>

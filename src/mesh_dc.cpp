@@ -30,6 +30,7 @@
 #include <array>
 #include <limits>
 #include <memory>
+#include <unordered_map>
 
 #include "detail/crossings.h"
 #include "detail/mesh_common.h"
@@ -205,6 +206,131 @@ void hermite(Field& acc, Gradient&& gradient, const openvdb::Coord& v0, int axis
     weight = float(1.0 / (1.0 + std::pow(m / 0.05, 2)));
 }
 
+/// Thresholds of repair_hermite (see there).
+constexpr float kUnreliable = 0.5f, kReliable = 0.9f;
+constexpr int kReach = 2;  // voxels, between edge start voxels (Chebyshev)
+
+/// A reliable crossing's plane offered to an unreliable one (see repair_hermite).
+struct PlaneCandidate {
+    std::size_t j;
+    double t, u;  ///< root on the edge; u: the same, measured from the inside end
+    double m0, m1, off, agree;
+};
+
+/// Rules 1 to 3 of repair_hermite: the plane the crossing takes, or null. `reliable` holds every
+/// reliable crossing within reach, `cand` those whose plane the edge crosses, both in the order
+/// of a walk over the voxels around the edge's start, then over axes.
+const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
+                                 const std::vector<std::size_t>& reliable,
+                                 const std::vector<openvdb::Vec3f>& points,
+                                 const std::vector<openvdb::Vec3f>& normals) {
+    constexpr double kMatch = 0.02;    // voxels
+    constexpr double kOnPlane = 0.06;  // voxels
+    constexpr double kFace = 0.005;    // voxels
+    constexpr double kRoughAgreement = 0.7;
+    // Rule 1: an end's value explained, least extrapolation (ties: normal agreement).
+    const PlaneCandidate* pick = nullptr;
+    double best = 2.0;
+    for (const PlaneCandidate& c : cand) {
+        const double reach = std::min(std::fabs(c.m0) <= kMatch ? c.t : 2.0,
+                                      std::fabs(c.m1) <= kMatch ? 1.0 - c.t : 2.0);
+        if (reach < 2.0 &&
+            (reach < best - 1e-6 || (reach <= best + 1e-6 && c.agree > pick->agree))) {
+            best = std::min(best, reach);
+            pick = &c;
+        }
+    }
+    if (pick) return pick;
+    // Rule 2: the closest plane through our point (ties: normal agreement).
+    best = kOnPlane;
+    for (const PlaneCandidate& c : cand) {
+        if (c.off < best - 1e-3 || (pick && c.off <= best + 1e-3 && c.agree > pick->agree)) {
+            best = std::min(best, c.off);
+            pick = &c;
+        }
+    }
+    if (pick) return pick;
+    // Rule 3: the first root of a confirmed face below the field.
+    const auto is_face = [&](std::size_t j) {
+        const openvdb::Vec3d nj(normals[j]), pj(points[j]);
+        openvdb::Vec3d first(0.0);
+        bool have_first = false;
+        for (std::size_t k : reliable) {
+            const openvdb::Vec3d d = openvdb::Vec3d(points[k]) - pj;
+            if (!(openvdb::Vec3d(normals[k]).dot(nj) > 0.9999 && std::fabs(nj.dot(d)) <= kFace)) {
+                continue;
+            }
+            // Points a voxel apart in two directions: a flat patch, not the band along which a
+            // curved surface stays close to one tangent plane.
+            if (have_first && first.cross(d).length() >= first.length()) return true;
+            if (!have_first && d.lengthSqr() >= 1.0) {
+                first = d;
+                have_first = true;
+            }
+        }
+        return false;
+    };
+    const PlaneCandidate* below = nullptr;
+    for (const PlaneCandidate& c : cand) {
+        if (c.agree >= kRoughAgreement && c.m0 >= -kMatch && c.m1 >= -kMatch &&
+            (!below || c.u < below->u) && is_face(c.j)) {
+            below = &c;
+        }
+    }
+    return below;
+}
+
+/// The reliable crossings of each leaf, in crossing order (voxel order, then axis), and a way to
+/// gather those around a leaf.
+struct ReliableCrossings {
+    std::vector<std::size_t> begin;  ///< per leaf, into ids (leafCount() + 1)
+    std::vector<std::uint32_t> ids;
+    struct CoordHash {
+        std::size_t operator()(const openvdb::Coord& c) const {
+            return std::size_t(c[0]) * 73856093u ^ std::size_t(c[1]) * 19349663u ^
+                   std::size_t(c[2]) * 83492791u;
+        }
+    };
+    std::unordered_map<openvdb::Coord, std::size_t, CoordHash> leaf_index;  ///< by leaf origin
+
+    /// One reliable crossing near a leaf, with a key that sorts by start voxel, then axis.
+    struct Near {
+        openvdb::Coord start;
+        std::uint32_t key, j;
+    };
+
+    /// The reliable crossings whose edge starts within kReach of the leaf at `origin`, sorted by
+    /// start voxel (x, y, z) and axis: for an edge in the leaf, the order of a walk over the
+    /// voxels around its start, then over axes.
+    void around(const Crossings& crossings, const openvdb::Coord& origin,
+                std::vector<Near>& near) const {
+        constexpr int kW = 8 + 2 * kReach;
+        const openvdb::Coord lo = origin.offsetBy(-kReach), hi = origin.offsetBy(7 + kReach);
+        near.clear();
+        for (int dx = -8; dx <= 8; dx += 8) {
+            for (int dy = -8; dy <= 8; dy += 8) {
+                for (int dz = -8; dz <= 8; dz += 8) {
+                    const auto it = leaf_index.find(origin.offsetBy(dx, dy, dz));
+                    if (it == leaf_index.end()) continue;
+                    for (std::size_t k = begin[it->second]; k < begin[it->second + 1]; ++k) {
+                        const std::uint32_t j = ids[k];
+                        const openvdb::Coord& c = crossings.start[j];
+                        if (c[0] < lo[0] || c[1] < lo[1] || c[2] < lo[2] || c[0] > hi[0] ||
+                            c[1] > hi[1] || c[2] > hi[2]) {
+                            continue;
+                        }
+                        const openvdb::Coord b = c - lo;
+                        const int cell = (b[0] * kW + b[1]) * kW + b[2];
+                        near.push_back({c, std::uint32_t(cell * 3 + crossings.axis[j]), j});
+                    }
+                }
+            }
+        }
+        std::sort(near.begin(), near.end(),
+                  [](const Near& a, const Near& b) { return a.key < b.key; });
+    }
+};
+
 /// Repairs the Hermite data of unreliable crossings from reliable neighbours.
 ///
 /// Next to a corner or a sharp edge no stencil around a crossing's end voxels may stay in one
@@ -232,137 +358,111 @@ void hermite(Field& acc, Gradient&& gradient, const openvdb::Coord& v0, int axis
 ///      roughly agreeing with our own normal (a face's plane extended past its edge, across a
 ///      hole, bounds the field as well).
 /// The crossing then takes the plane's normal and weight, and its point moves along the edge to
-/// the root. Reads only the first pass's arrays, so the result does not depend on the order of
-/// evaluation. For a box sampled exactly this makes every crossing exact.
-template <typename Field>
-void repair_hermite(const Crossings& crossings, Field& values, double voxel, float iso,
-                    std::vector<openvdb::Vec3f>& points, std::vector<openvdb::Vec3f>& normals,
-                    std::vector<float>& weights) {
-    constexpr float kUnreliable = 0.5f, kReliable = 0.9f;
-    constexpr double kMatch = 0.02;    // voxels
-    constexpr double kOnPlane = 0.06;  // voxels
-    constexpr double kFace = 0.005;    // voxels
-    constexpr double kRoughAgreement = 0.7;
-    constexpr int kReach = 2;  // voxels, between edge start voxels (Chebyshev)
-    const std::vector<openvdb::Vec3f> old_points = points, old_normals = normals;
-    const std::vector<float> old_weights = weights;
+/// the root. The searches read only the first pass's data and the repairs are applied after all
+/// of them, so the result does not depend on the order of evaluation. For a box sampled exactly
+/// this makes every crossing exact.
+///
+/// Work per leaf: on a scanned surface reliable crossings are few (under one within reach of an
+/// unreliable crossing on average, on the bunny), so each search walks a short list of the
+/// reliable crossings around its leaf instead of probing the 125 voxels around its edge.
+void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
+                    const std::vector<const openvdb::FloatTree::LeafNodeType*>& leaves,
+                    double voxel, float iso, std::vector<openvdb::Vec3f>& points,
+                    std::vector<openvdb::Vec3f>& normals, std::vector<float>& weights) {
+    const std::size_t n_leaves = leaves.size();
+    ReliableCrossings rel;
+    rel.begin.assign(n_leaves + 1, 0);
+    bool any_unreliable = false;
+    for (std::size_t L = 0; L < n_leaves; ++L) {
+        for (std::size_t i = crossings.leaf_begin[L]; i < crossings.leaf_begin[L + 1]; ++i) {
+            if (weights[i] >= kReliable) rel.ids.push_back(std::uint32_t(i));
+            any_unreliable |= weights[i] < kUnreliable;
+        }
+        rel.begin[L + 1] = rel.ids.size();
+    }
+    if (!any_unreliable || rel.ids.empty()) return;
+    rel.leaf_index.reserve(n_leaves);
+    for (std::size_t L = 0; L < n_leaves; ++L) rel.leaf_index.emplace(leaves[L]->origin(), L);
+
+    struct Repair {
+        std::uint32_t i, j;  ///< the crossing, and the one whose plane it takes
+        double t;            ///< the plane's root on the edge
+    };
+    std::vector<std::vector<Repair>> repairs(n_leaves);
     tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, crossings.size(), 1024),
+        tbb::blocked_range<std::size_t>(0, n_leaves, 8),
         [&](const tbb::blocked_range<std::size_t>& r) {
-            openvdb::tree::ValueAccessor<const openvdb::UInt32Tree> ids(*crossings.ids);
-            Field acc(values);
-            std::vector<std::size_t> reliable;  // every reliable crossing around the edge
-            struct Candidate {
-                std::size_t j;
-                double t, u;  ///< root on the edge; u: the same, measured from the inside end
-                double m0, m1, off, agree;
-            };
-            std::vector<Candidate> cand;
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                if (!(old_weights[i] < kUnreliable)) continue;
-                const openvdb::Vec3d p(old_points[i]), n(old_normals[i]);
-                const int axis = crossings.axis[i];
-                const openvdb::Coord& s = crossings.start[i];
-                openvdb::Coord s1 = s;
-                s1[axis] += 1;
-                const openvdb::Vec3d v0 = s.asVec3d(), v1 = s1.asVec3d();
-                const double f0 = (double(acc.getValue(s)) - iso) / voxel,
-                             f1 = (double(acc.getValue(s1)) - iso) / voxel;
-                const double rise = crossings.start_inside[i] ? 1.0 : -1.0;
-                reliable.clear();
-                cand.clear();
-                for (int dx = -kReach; dx <= kReach; ++dx) {
-                    for (int dy = -kReach; dy <= kReach; ++dy) {
-                        for (int dz = -kReach; dz <= kReach; ++dz) {
-                            std::int64_t id[3];
-                            if (!crossing_ids(ids, s.offsetBy(dx, dy, dz), id)) continue;
-                            for (int a = 0; a < 3; ++a) {
-                                const std::int64_t j = id[a];
-                                if (j < 0 || !(old_weights[std::size_t(j)] >= kReliable)) continue;
-                                reliable.push_back(std::size_t(j));
-                                const openvdb::Vec3d nj(old_normals[std::size_t(j)]);
-                                if (!(rise * nj[axis] > 0.05)) continue;
-                                const openvdb::Vec3d pj(old_points[std::size_t(j)]);
-                                const double t = -nj.dot(v0 - pj) / nj[axis];
-                                if (!(t >= 0.0 && t <= 1.0)) continue;
-                                cand.push_back({std::size_t(j), t, rise > 0.0 ? t : 1.0 - t,
-                                                f0 - nj.dot(v0 - pj), f1 - nj.dot(v1 - pj),
-                                                std::fabs(nj.dot(p - pj)), nj.dot(n)});
-                            }
+            FloatAccessor acc(tree);
+            std::vector<ReliableCrossings::Near> near;
+            std::vector<std::size_t> reliable;
+            std::vector<PlaneCandidate> cand;
+            for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                const std::size_t begin = crossings.leaf_begin[L],
+                                  end = crossings.leaf_begin[L + 1];
+                if (std::none_of(weights.begin() + std::ptrdiff_t(begin),
+                                 weights.begin() + std::ptrdiff_t(end),
+                                 [](float w) { return w < kUnreliable; })) {
+                    continue;
+                }
+                rel.around(crossings, leaves[L]->origin(), near);
+                if (near.empty()) continue;
+                for (std::size_t i = begin; i < end; ++i) {
+                    if (!(weights[i] < kUnreliable)) continue;
+                    const openvdb::Vec3d p(points[i]), n(normals[i]);
+                    const int axis = crossings.axis[i];
+                    const openvdb::Coord& s = crossings.start[i];
+                    openvdb::Coord s1 = s;
+                    s1[axis] += 1;
+                    const openvdb::Vec3d v0 = s.asVec3d(), v1 = s1.asVec3d();
+                    const double rise = crossings.start_inside[i] ? 1.0 : -1.0;
+                    reliable.clear();
+                    cand.clear();
+                    double f0 = 0.0, f1 = 0.0;  // the ends' values in voxels, read when needed
+                    for (const ReliableCrossings::Near& e : near) {
+                        if (std::abs(e.start[0] - s[0]) > kReach ||
+                            std::abs(e.start[1] - s[1]) > kReach ||
+                            std::abs(e.start[2] - s[2]) > kReach) {
+                            continue;
                         }
+                        const std::size_t j = e.j;
+                        reliable.push_back(j);
+                        const openvdb::Vec3d nj(normals[j]);
+                        if (!(rise * nj[axis] > 0.05)) continue;
+                        const openvdb::Vec3d pj(points[j]);
+                        const double t = -nj.dot(v0 - pj) / nj[axis];
+                        if (!(t >= 0.0 && t <= 1.0)) continue;
+                        if (cand.empty()) {
+                            f0 = (double(acc.getValue(s)) - iso) / voxel;
+                            f1 = (double(acc.getValue(s1)) - iso) / voxel;
+                        }
+                        cand.push_back({j, t, rise > 0.0 ? t : 1.0 - t, f0 - nj.dot(v0 - pj),
+                                        f1 - nj.dot(v1 - pj), std::fabs(nj.dot(p - pj)),
+                                        nj.dot(n)});
+                    }
+                    if (const PlaneCandidate* pick = pick_plane(cand, reliable, points, normals)) {
+                        repairs[L].push_back({std::uint32_t(i), std::uint32_t(pick->j), pick->t});
                     }
                 }
-                // Rule 1: an end's value explained, least extrapolation (ties: normal agreement).
-                const Candidate* pick = nullptr;
-                double best = 2.0;
-                for (const Candidate& c : cand) {
-                    const double reach = std::min(std::fabs(c.m0) <= kMatch ? c.t : 2.0,
-                                                  std::fabs(c.m1) <= kMatch ? 1.0 - c.t : 2.0);
-                    if (reach < 2.0 &&
-                        (reach < best - 1e-6 || (reach <= best + 1e-6 && c.agree > pick->agree))) {
-                        best = std::min(best, reach);
-                        pick = &c;
-                    }
-                }
-                // Rule 2: the closest plane through our point (ties: normal agreement).
-                if (!pick) {
-                    best = kOnPlane;
-                    for (const Candidate& c : cand) {
-                        if (c.off < best - 1e-3 ||
-                            (pick && c.off <= best + 1e-3 && c.agree > pick->agree)) {
-                            best = std::min(best, c.off);
-                            pick = &c;
-                        }
-                    }
-                }
-                // Rule 3: the first root of a confirmed face below the field.
-                if (!pick) {
-                    const auto is_face = [&](std::size_t j) {
-                        const openvdb::Vec3d nj(old_normals[j]), pj(old_points[j]);
-                        openvdb::Vec3d first(0.0);
-                        bool have_first = false;
-                        for (std::size_t k : reliable) {
-                            const openvdb::Vec3d d = openvdb::Vec3d(old_points[k]) - pj;
-                            if (!(openvdb::Vec3d(old_normals[k]).dot(nj) > 0.9999 &&
-                                  std::fabs(nj.dot(d)) <= kFace)) {
-                                continue;
-                            }
-                            // Points a voxel apart in two directions: a flat patch, not the band
-                            // along which a curved surface stays close to one tangent plane.
-                            if (have_first && first.cross(d).length() >= first.length())
-                                return true;
-                            if (!have_first && d.lengthSqr() >= 1.0) {
-                                first = d;
-                                have_first = true;
-                            }
-                        }
-                        return false;
-                    };
-                    const Candidate* below = nullptr;
-                    for (const Candidate& c : cand) {
-                        if (c.agree >= kRoughAgreement && c.m0 >= -kMatch && c.m1 >= -kMatch &&
-                            (!below || c.u < below->u) && is_face(c.j)) {
-                            below = &c;
-                        }
-                    }
-                    pick = below;
-                }
-                if (!pick) continue;
-                points[i][axis] = float(double(s[axis]) + pick->t);
-                normals[i] = old_normals[pick->j];
-                weights[i] = old_weights[pick->j];
             }
         });
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n_leaves, 64),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                              for (const Repair& e : repairs[L]) {
+                                  const int axis = crossings.axis[e.i];
+                                  points[e.i][axis] =
+                                      float(double(crossings.start[e.i][axis]) + e.t);
+                                  normals[e.i] = normals[e.j];
+                                  weights[e.i] = weights[e.j];
+                              }
+                          }
+                      });
 }
 
-/// One patch vertex before global numbering: its position and, for each crossing of its loop,
-/// the crossing id and which of the edge's four cells this is.
+/// One patch vertex before global numbering.
 struct PatchVertex {
     openvdb::Vec3f position;
     openvdb::Vec3f normal;  ///< mean normal of the patch's crossings
-    std::uint8_t size = 0;
-    std::int64_t crossing[12];
-    std::uint8_t slot[12];
 };
 
 /// The face (kFaceCorner index) on which two cube edges meet, or -1.
@@ -506,15 +606,18 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
         const openvdb::Vec3f& nv = q.normals[std::size_t(cell.edge_id[edges[i]])];
         min_cos = std::min(min_cos, mean_n.dot(Eigen::Vector3d(nv[0], nv[1], nv[2])));
     }
-    // At a feature, one crossing whose normal was smeared across the kink tilts the solution off
-    // both faces. Iteratively reweighted least squares with a Cauchy weight on each plane's
-    // residual (in voxels) lets the consistent planes win; smooth patches solve once.
+    Eigen::Vector3d lo, hi;
+    for (int a = 0; a < 3; ++a) {
+        lo[a] = double(cell.origin[a]) - kCellMargin;
+        hi[a] = double(cell.origin[a]) + 1.0 + kCellMargin;
+    }
+    // The quadric in y = x - mass, E(y) = y^T Q y - 2 c^T y + const, with each plane weighted by
+    // robust[i] too.
     double robust[12];
     std::fill(robust, robust + n, 1.0);
-    const int rounds = min_cos < 0.9 ? 4 : 1;
     Eigen::Matrix3d ata;
     Eigen::Vector3d atb, x;
-    for (int round = 0; round < rounds; ++round) {
+    const auto quadric = [&] {
         ata = q.bias * Eigen::Matrix3d::Identity();
         atb = Eigen::Vector3d::Zero();
         for (int i = 0; i < n; ++i) {
@@ -527,33 +630,7 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
             ata += w * nn * nn.transpose();
             atb += w * b * nn;
         }
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-        es.computeDirect(ata);
-        const Eigen::Vector3d lambda = es.eigenvalues();  // ascending, = singular values squared
-        const double cutoff = q.truncation * q.truncation * lambda[2];
-        x = Eigen::Vector3d::Zero();
-        for (int k = 0; k < 3; ++k) {
-            if (lambda[k] > cutoff && lambda[k] > 0.0) {
-                const Eigen::Vector3d v = es.eigenvectors().col(k);
-                x += (v.dot(atb) / lambda[k]) * v;
-            }
-        }
-        if (round + 1 == rounds) break;
-        for (int i = 0; i < n; ++i) {
-            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
-            const openvdb::Vec3f& p = q.points[id];
-            const openvdb::Vec3f& nv = q.normals[id];
-            const Eigen::Vector3d nn(nv[0], nv[1], nv[2]);
-            const double r = nn.dot(x + mass - Eigen::Vector3d(p[0], p[1], p[2])) / 0.02;
-            robust[i] = 1.0 / (1.0 + r * r);
-        }
-    }
-    x += mass;
-    Eigen::Vector3d lo, hi;
-    for (int a = 0; a < 3; ++a) {
-        lo[a] = double(cell.origin[a]) - kCellMargin;
-        hi[a] = double(cell.origin[a]) + 1.0 + kCellMargin;
-    }
+    };
     // A curved but smooth patch (normals spread by more than ~0.8 and less than ~25 degrees) has
     // no feature to keep, and the intersection of its tangent planes lies off the curved surface
     // (outside a convex one by about t^2 / 2R for crossings at tangential distance t). The vertex
@@ -562,7 +639,8 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
     // corrected by the bend its normal shows, -(p_i - m).(n_i - mean_n) / 2 -- exact to second
     // order for any radius of curvature, and it needs only the Hermite data (the trilinear field,
     // which would serve too, is rounded next to sharp edges and pulled vertices off flat faces
-    // there).
+    // there). No quadric is solved then; it is built only if the vertex leaves the cell.
+    bool placed = false;
     if (min_cos > 0.9 && min_cos < 0.9999) {
         double sum = 0.0, wsum = 0.0;
         for (int i = 0; i < n; ++i) {
@@ -576,7 +654,44 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
             sum += q.weights[id] * a;
             wsum += q.weights[id];
         }
-        if (wsum > 0.0) x = mass + (sum / wsum) * mean_n;
+        if (wsum > 0.0) {
+            x = mass + (sum / wsum) * mean_n;
+            placed = true;
+            if ((x.array() >= lo.array()).all() && (x.array() <= hi.array()).all()) {
+                return openvdb::Vec3d(x[0], x[1], x[2]);
+            }
+            quadric();
+        }
+    }
+    // At a feature, one crossing whose normal was smeared across the kink tilts the solution off
+    // both faces. Iteratively reweighted least squares with a Cauchy weight on each plane's
+    // residual (in voxels) lets the consistent planes win; smooth patches solve once.
+    const int rounds = placed ? 0 : min_cos < 0.9 ? 4 : 1;
+    for (int round = 0; round < rounds; ++round) {
+        quadric();
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+        es.computeDirect(ata);
+        const Eigen::Vector3d lambda = es.eigenvalues();  // ascending, = singular values squared
+        const double cutoff = q.truncation * q.truncation * lambda[2];
+        x = Eigen::Vector3d::Zero();
+        for (int k = 0; k < 3; ++k) {
+            if (lambda[k] > cutoff && lambda[k] > 0.0) {
+                const Eigen::Vector3d v = es.eigenvectors().col(k);
+                x += (v.dot(atb) / lambda[k]) * v;
+            }
+        }
+        if (round + 1 == rounds) {
+            x += mass;
+            break;
+        }
+        for (int i = 0; i < n; ++i) {
+            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
+            const openvdb::Vec3f& p = q.points[id];
+            const openvdb::Vec3f& nv = q.normals[id];
+            const Eigen::Vector3d nn(nv[0], nv[1], nv[2]);
+            const double r = nn.dot(x + mass - Eigen::Vector3d(p[0], p[1], p[2])) / 0.02;
+            robust[i] = 1.0 / (1.0 + r * r);
+        }
     }
     if ((x.array() >= lo.array()).all() && (x.array() <= hi.array()).all()) {
         return openvdb::Vec3d(x[0], x[1], x[2]);
@@ -596,6 +711,65 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
     x = y + mass;
     return openvdb::Vec3d(x[0], x[1], x[2]);
 }
+
+/// Trilinear interpolation of the sdf at index-space points, as sdf_at(), keeping the corner
+/// values of the last cell (the quad diagonals ask about points close to each other) and reading
+/// a cell inside a leaf straight from the leaf's buffer.
+class CachedTrilinear {
+  public:
+    explicit CachedTrilinear(FloatAccessor& acc) : acc_(acc) {}
+
+    double operator()(const openvdb::Vec3d& p) {
+        const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
+        if (!valid_ || c != cell_) load(c);
+        const openvdb::Vec3d t = p - c.asVec3d();
+        double v = 0.0;
+        for (int k = 0; k < 8; ++k) {
+            const int dx = k >> 2, dy = (k >> 1) & 1, dz = k & 1;
+            const double w =
+                (dx ? t[0] : 1.0 - t[0]) * (dy ? t[1] : 1.0 - t[1]) * (dz ? t[2] : 1.0 - t[2]);
+            v += w * value_[k];
+        }
+        return v;
+    }
+
+  private:
+    void load(const openvdb::Coord& c) {
+        const int x = c[0] & 7, y = c[1] & 7, z = c[2] & 7;
+        const auto* leaf = x < 7 && y < 7 && z < 7 ? acc_.probeConstLeaf(c) : nullptr;
+        if (leaf) {
+            const float* data = leaf->buffer().data() + ((x << 6) | (y << 3) | z);
+            for (int k = 0; k < 8; ++k) {
+                value_[k] = double(data[((k >> 2) << 6) | (((k >> 1) & 1) << 3) | (k & 1)]);
+            }
+        } else {
+            // A cell across leaves: one probe per leaf it touches, not one per corner (the
+            // accessor caches a single leaf).
+            const float* data[8];
+            bool probed[8] = {};
+            for (int k = 0; k < 8; ++k) {
+                const int dx = k >> 2, dy = (k >> 1) & 1, dz = k & 1;
+                const int part = ((x + dx) >> 3) << 2 | ((y + dy) >> 3) << 1 | ((z + dz) >> 3);
+                const openvdb::Coord q = c.offsetBy(dx, dy, dz);
+                if (!probed[part]) {
+                    const auto* l = acc_.probeConstLeaf(q);
+                    data[part] = l ? l->buffer().data() : nullptr;
+                    probed[part] = true;
+                }
+                value_[k] = double(
+                    data[part] ? data[part][openvdb::FloatTree::LeafNodeType::coordToOffset(q)]
+                               : acc_.getValue(q));
+            }
+        }
+        cell_ = c;
+        valid_ = true;
+    }
+
+    FloatAccessor& acc_;
+    openvdb::Coord cell_;
+    bool valid_ = false;
+    double value_[8];
+};
 
 }  // namespace
 
@@ -656,84 +830,95 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                               }
                           }
                       });
-    {
-        FloatAccessor acc(tree);
-        repair_hermite(crossings, acc, volume.sdf->voxelSize()[0], iso, points, normals, weights);
-    }
-    // One vertex per loop, collected per leaf.
+    repair_hermite(crossings, tree, leaves, volume.sdf->voxelSize()[0], iso, points, normals,
+                   weights);
+    // One vertex per chain, collected per leaf. Each crossing learns the vertices of its four
+    // cells as (leaf, index in the leaf): every (crossing, slot) belongs to exactly one cell, so
+    // there are no two writers.
     const QefData qef{points, normals, weights, options.dc_truncation, options.dc_bias};
-    std::vector<std::vector<PatchVertex>> per_leaf(tree.leafCount());
-    for_each_surface_cell(tree, crossings, iso,
-                          [&](std::size_t L, const SurfaceCell& cell, LeafBlock& acc) {
-        for (int l = 0; l < cell.loops.count; ++l) {
-            int start[12], size[12];
-            const int chains = loop_chains(cell, l, acc, iso, start, size);
-            for (int c = 0; c < chains; ++c) {
-                std::uint8_t chain[12];
-                const int n = cell.loops.size[l];
-                for (int i = 0; i < size[c]; ++i) chain[i] = cell.loops.edge[l][(start[c] + i) % n];
-                PatchVertex v;
-                v.position = openvdb::Vec3f(solve_qef(cell, chain, size[c], qef, v.normal));
-                v.size = std::uint8_t(size[c]);
-                for (int i = 0; i < v.size; ++i) {
-                    const int e = chain[i];
-                    const int a = kEdgeAxis[e];
-                    const int* s = kCubeCorner[kEdgeCorner[e][0]];
-                    // Which of the four cells around the edge this one is: its offset from the
-                    // edge's start voxel along the two other axes (b, c) = (a + 1, a + 2).
-                    v.crossing[i] = cell.edge_id[e];
-                    v.slot[i] = std::uint8_t(s[(a + 1) % 3] + 2 * s[(a + 2) % 3]);
+    std::vector<std::vector<PatchVertex>> per_leaf(leaves.size());
+    constexpr std::uint64_t kNone = ~std::uint64_t(0);
+    std::vector<std::array<std::uint64_t, 4>> around(crossings.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, around.size(), 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          std::fill(around.begin() + std::ptrdiff_t(r.begin()),
+                                    around.begin() + std::ptrdiff_t(r.end()),
+                                    std::array<std::uint64_t, 4>{kNone, kNone, kNone, kNone});
+                      });
+    for_each_surface_cell(
+        tree, crossings, iso, [&](std::size_t L, const SurfaceCell& cell, FloatAccessor& acc) {
+            std::vector<PatchVertex>& out = per_leaf[L];
+            for (int l = 0; l < cell.loops.count; ++l) {
+                int start[12], size[12];
+                const int chains = loop_chains(cell, l, acc, iso, start, size);
+                for (int c = 0; c < chains; ++c) {
+                    std::uint8_t chain[12];
+                    const int n = cell.loops.size[l];
+                    for (int i = 0; i < size[c]; ++i)
+                        chain[i] = cell.loops.edge[l][(start[c] + i) % n];
+                    PatchVertex v;
+                    v.position = openvdb::Vec3f(solve_qef(cell, chain, size[c], qef, v.normal));
+                    const std::uint64_t id = (std::uint64_t(L) << 32) | out.size();
+                    out.push_back(v);
+                    for (int i = 0; i < size[c]; ++i) {
+                        const int e = chain[i];
+                        const int a = kEdgeAxis[e];
+                        const int* s = kCubeCorner[kEdgeCorner[e][0]];
+                        // Which of the four cells around the edge this one is: its offset from the
+                        // edge's start voxel along the two other axes (b, c) = (a + 1, a + 2).
+                        const int slot = s[(a + 1) % 3] + 2 * s[(a + 2) % 3];
+                        around[std::size_t(cell.edge_id[e])][std::size_t(slot)] = id;
+                    }
                 }
-                per_leaf[L].push_back(v);
             }
-        }
-    });
+        });
 
-    // Global vertex numbers in leaf order; each crossing learns its four cells' vertices.
+    // Global vertex numbers in leaf order.
     std::vector<std::size_t> base(per_leaf.size() + 1, 0);
     for (std::size_t L = 0; L < per_leaf.size(); ++L) base[L + 1] = base[L] + per_leaf[L].size();
     RawSurface raw;
     raw.points.resize(base.back());
     std::vector<openvdb::Vec3f> patch_normal(base.back());
-    std::vector<std::array<std::int32_t, 4>> around(crossings.size(), {-1, -1, -1, -1});
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, per_leaf.size(), 16),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t L = r.begin(); L < r.end(); ++L) {
                               for (std::size_t k = 0; k < per_leaf[L].size(); ++k) {
-                                  const PatchVertex& v = per_leaf[L][k];
-                                  const std::int32_t id = std::int32_t(base[L] + k);
-                                  raw.points[std::size_t(id)] = v.position;
-                                  patch_normal[std::size_t(id)] = v.normal;
-                                  // Each (crossing, slot) belongs to exactly one cell: no two
-                                  // writers.
-                                  for (int i = 0; i < v.size; ++i)
-                                      around[std::size_t(v.crossing[i])][v.slot[i]] = id;
+                                  raw.points[base[L] + k] = per_leaf[L][k].position;
+                                  patch_normal[base[L] + k] = per_leaf[L][k].normal;
                               }
+                              per_leaf[L] = {};
                           }
                       });
-    per_leaf = {};
 
-    // One quad per crossing whose four cells all have a vertex.
-    std::vector<std::vector<Triangle>> quads((crossings.size() + 65535) / 65536);
+    // One quad per crossing whose four cells all have a vertex, collected per leaf.
+    std::vector<std::vector<Triangle>> quads(leaves.size());
     tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, quads.size(), 1),
+        tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
         [&](const tbb::blocked_range<std::size_t>& r) {
             FloatAccessor acc(tree);
-            for (std::size_t chunk = r.begin(); chunk < r.end(); ++chunk) {
-                const std::size_t end = std::min(crossings.size(), (chunk + 1) * 65536);
-                for (std::size_t c = chunk * 65536; c < end; ++c) {
+            CachedTrilinear field(acc);
+            for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                quads[L].reserve(2 * (crossings.leaf_begin[L + 1] - crossings.leaf_begin[L]));
+                for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1];
+                     ++c) {
                     const auto& q = around[c];
-                    if (q[0] < 0 || q[1] < 0 || q[2] < 0 || q[3] < 0) continue;
+                    if (q[0] == kNone || q[1] == kNone || q[2] == kNone || q[3] == kNone) {
+                        continue;
+                    }
+                    const auto global = [&](std::uint64_t id) {
+                        return std::int32_t(base[id >> 32] + (id & 0xffffffffu));
+                    };
                     // Counter-clockwise around +axis: slots 0, 1, 3, 2. Outward is +axis when the
                     // edge starts inside.
-                    std::array<std::int32_t, 4> v = {q[0], q[1], q[3], q[2]};
+                    std::array<std::int32_t, 4> v = {global(q[0]), global(q[1]), global(q[3]),
+                                                     global(q[2])};
                     if (!crossings.start_inside[c]) std::reverse(v.begin(), v.end());
                     auto off_surface = [&](std::int32_t a, std::int32_t b, std::int32_t d) {
                         const openvdb::Vec3d centre = (openvdb::Vec3d(raw.points[std::size_t(a)]) +
                                                        openvdb::Vec3d(raw.points[std::size_t(b)]) +
                                                        openvdb::Vec3d(raw.points[std::size_t(d)])) /
                                                       3.0;
-                        return std::fabs(sdf_at(acc, centre) - double(iso));
+                        return std::fabs(field(centre) - double(iso));
                     };
                     // Next to a sharp edge the diagonal must run along it, between the two
                     // vertices whose patch normals agree, not across it (which cuts the edge
@@ -749,17 +934,27 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                         use02 = off_surface(v[0], v[1], v[2]) + off_surface(v[0], v[2], v[3]) <=
                                 off_surface(v[0], v[1], v[3]) + off_surface(v[1], v[2], v[3]);
                     }
+                    std::vector<Triangle>& out = quads[L];
                     if (use02) {
-                        quads[chunk].push_back({v[0], v[1], v[2]});
-                        quads[chunk].push_back({v[0], v[2], v[3]});
+                        out.push_back({v[0], v[1], v[2]});
+                        out.push_back({v[0], v[2], v[3]});
                     } else {
-                        quads[chunk].push_back({v[0], v[1], v[3]});
-                        quads[chunk].push_back({v[1], v[2], v[3]});
+                        out.push_back({v[0], v[1], v[3]});
+                        out.push_back({v[1], v[2], v[3]});
                     }
                 }
             }
         });
-    for (auto& t : quads) raw.triangles.insert(raw.triangles.end(), t.begin(), t.end());
+    std::vector<std::size_t> first(quads.size() + 1, 0);
+    for (std::size_t L = 0; L < quads.size(); ++L) first[L + 1] = first[L] + quads[L].size();
+    raw.triangles.resize(first.back());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, quads.size(), 64),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                              std::copy(quads[L].begin(), quads[L].end(),
+                                        raw.triangles.begin() + std::ptrdiff_t(first[L]));
+                          }
+                      });
     return raw;
 }
 

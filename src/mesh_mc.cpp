@@ -21,26 +21,27 @@ RawSurface mesh_mc(const Volume& volume, const MeshOptions& options) {
         std::vector<openvdb::Vec3f> centres;
     };
     std::vector<LeafOut> per_leaf(tree.leafCount());
-    for_each_surface_cell(tree, crossings, iso, [&](std::size_t L, const SurfaceCell& cell, LeafBlock&) {
-        LeafOut& out = per_leaf[L];
-        for (int l = 0; l < cell.loops.count; ++l) {
-            const std::uint8_t* e = cell.loops.edge[l];
-            const int n = cell.loops.size[l];
-            auto id = [&](int i) { return std::int32_t(cell.edge_id[e[(i + n) % n]]); };
-            const int apex = fan_apex(cell.loops, l);
-            if (apex >= 0) {
-                for (int i = 1; i + 1 < n; ++i) {
-                    out.triangles.push_back({id(apex), id(apex + i), id(apex + i + 1)});
+    for_each_surface_cell(
+        tree, crossings, iso, [&](std::size_t L, const SurfaceCell& cell, FloatAccessor&) {
+            LeafOut& out = per_leaf[L];
+            for (int l = 0; l < cell.loops.count; ++l) {
+                const std::uint8_t* e = cell.loops.edge[l];
+                const int n = cell.loops.size[l];
+                auto id = [&](int i) { return std::int32_t(cell.edge_id[e[(i + n) % n]]); };
+                const int apex = fan_apex(cell.loops, l);
+                if (apex >= 0) {
+                    for (int i = 1; i + 1 < n; ++i) {
+                        out.triangles.push_back({id(apex), id(apex + i), id(apex + i + 1)});
+                    }
+                    continue;
                 }
-                continue;
+                openvdb::Vec3f centre(0.0f);
+                for (int i = 0; i < n; ++i) centre += crossings.points[std::size_t(id(i))];
+                out.centres.push_back(centre / float(n));
+                const std::int32_t c = -std::int32_t(out.centres.size());
+                for (int i = 0; i < n; ++i) out.triangles.push_back({c, id(i), id(i + 1)});
             }
-            openvdb::Vec3f centre(0.0f);
-            for (int i = 0; i < n; ++i) centre += crossings.points[std::size_t(id(i))];
-            out.centres.push_back(centre / float(n));
-            const std::int32_t c = -std::int32_t(out.centres.size());
-            for (int i = 0; i < n; ++i) out.triangles.push_back({c, id(i), id(i + 1)});
-        }
-    });
+        });
     RawSurface raw;
     raw.points = std::move(crossings.points);
     std::size_t total = 0;

@@ -4,14 +4,18 @@
 // A crossing is a grid edge (voxel v, axis a) from v to v + e_a whose end voxels are both valid
 // (active) and on opposite sides of the iso-value. Crossings are numbered leaf by leaf in the
 // tree's leaf order, so the numbering does not depend on the thread count. A UInt32 tree with
-// the sdf's topology stores, for every voxel, the id of its first crossing (low 29 bits) and
-// which of its three edges cross (high 3 bits): a lookup is one accessor read.
+// the sdf's topology stores, for every voxel with a crossing edge, the id of its first crossing
+// (low 29 bits) and which of its three edges cross (high 3 bits); other voxels hold 0: a lookup is
+// one read. The walk over the surface cells copies each leaf's cell corners (values, active
+// states, packed ids) into a dense CellBlock and picks the cells from per-row crossing bits,
+// without a tree lookup per cell.
 #pragma once
 
 #include <openvdb/openvdb.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -22,7 +26,7 @@
 namespace vdbrecon::detail {
 
 struct Crossings {
-    openvdb::UInt32Tree::Ptr ids;              ///< per voxel: first id | axis mask << 29
+    openvdb::UInt32Tree::Ptr ids;              ///< per voxel: first id | axis mask << 29, or 0
     std::vector<openvdb::Vec3f> points;        ///< index-space crossing position, per crossing
     std::vector<openvdb::Coord> start;         ///< the edge's lower voxel, per crossing
     std::vector<std::uint8_t> axis;            ///< the edge's axis, per crossing
@@ -38,23 +42,129 @@ constexpr std::uint32_t kIdMask = (1u << kIdBits) - 1;
 /// Finds every crossing of the active voxels of `sdf` (index space, iso-value `iso`).
 Crossings find_crossings(const openvdb::FloatTree& sdf, float iso);
 
-/// The ids of the crossings on the three edges (v, axis 0..2) with one lookup: id[axis] is -1
-/// where that edge does not cross. Returns false when none does.
-inline bool crossing_ids(openvdb::tree::ValueAccessor<const openvdb::UInt32Tree>& acc,
-                         const openvdb::Coord& v, std::int64_t id[3]) {
-    std::uint32_t value;
-    if (!acc.probeValue(v, value) || (value >> kIdBits) == 0) return false;
-    const std::uint32_t mask = value >> kIdBits;
-    std::int64_t next = std::int64_t(value & kIdMask);
-    for (int axis = 0; axis < 3; ++axis) id[axis] = (mask >> axis) & 1u ? next++ : -1;
-    return true;
-}
+/// The corners of a leaf's cells -- its voxels and one layer past its upper faces, origin ..
+/// origin + 8 on each axis -- copied from up to eight leaves into dense arrays: sdf values,
+/// active states and packed crossing ids (0 where no edge crosses).
+class CellBlock {
+  public:
+    static constexpr int kN = 9;
+    static constexpr int kX = kN * kN, kY = kN;  ///< index steps along x and y (z: 1)
 
-/// The id of the crossing on edge (v, axis), or -1 when that edge does not cross.
-inline std::int64_t crossing_id(openvdb::tree::ValueAccessor<const openvdb::UInt32Tree>& acc,
-                                const openvdb::Coord& v, int axis) {
-    std::int64_t id[3];
-    return crossing_ids(acc, v, id) ? id[axis] : -1;
+    /// Copies the block of the leaf at `origin`.
+    void load(FloatAccessor& values, openvdb::tree::ValueAccessor<const openvdb::UInt32Tree>& ids,
+              const openvdb::Coord& origin) {
+        for (int dx = 0; dx < 2; ++dx) {
+            for (int dy = 0; dy < 2; ++dy) {
+                for (int dz = 0; dz < 2; ++dz) {
+                    // Block range along each axis: 0..7 from this leaf, 8 from the next one's 0.
+                    const int nx = dx ? 1 : 8, ny = dy ? 1 : 8, nz = dz ? 1 : 8;
+                    const openvdb::Coord o = origin.offsetBy(8 * dx, 8 * dy, 8 * dz);
+                    const auto* leaf = values.probeConstLeaf(o);
+                    if (!leaf) {
+                        float tile = 0.0f;
+                        const bool tile_on = values.probeValue(o, tile);
+                        for (int x = 0; x < nx; ++x) {
+                            for (int y = 0; y < ny; ++y) {
+                                const int row = (8 * dx + x) * kX + (8 * dy + y) * kY + 8 * dz;
+                                std::fill(value_ + row, value_ + row + nz, tile);
+                                std::fill(on_ + row, on_ + row + nz, std::uint8_t(tile_on));
+                                std::fill(id_ + row, id_ + row + nz, 0u);
+                            }
+                        }
+                        continue;
+                    }
+                    const float* data = leaf->buffer().data();
+                    const std::uint32_t* id = ids.probeConstLeaf(o)->buffer().data();
+                    const auto& mask = leaf->getValueMask();
+                    for (int x = 0; x < nx; ++x) {
+                        for (int y = 0; y < ny; ++y) {
+                            const int row = (8 * dx + x) * kX + (8 * dy + y) * kY + 8 * dz;
+                            // A z-row of a leaf: 8 consecutive values, one byte of its mask.
+                            const int l = (x << 6) | (y << 3);
+                            const unsigned bits =
+                                mask.template getWord<std::uint8_t>(openvdb::Index(l >> 3));
+                            if (nz == 8) {  // fixed-size copies, which the compiler inlines
+                                std::copy(data + l, data + l + 8, value_ + row);
+                                std::copy(id + l, id + l + 8, id_ + row);
+                                for (int z = 0; z < 8; ++z) {
+                                    on_[row + z] = std::uint8_t((bits >> z) & 1u);
+                                }
+                            } else {
+                                value_[row] = data[l];
+                                id_[row] = id[l];
+                                on_[row] = std::uint8_t(bits & 1u);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // Per (x, y) row, bit z set where the edge along each axis crosses.
+        for (int x = 0; x < kN; ++x) {
+            for (int y = 0; y < kN; ++y) {
+                std::uint32_t r[3] = {0, 0, 0};
+                const int row = x * kX + y * kY;
+                for (int z = 0; z < kN; ++z) {
+                    const std::uint32_t m = id_[row + z] >> kIdBits;
+                    for (int a = 0; a < 3; ++a) r[a] |= ((m >> a) & 1u) << z;
+                }
+                for (int a = 0; a < 3; ++a) rows_[a][x][y] = std::uint16_t(r[a]);
+            }
+        }
+    }
+
+    /// Bit z set when the cell at offset (x, y, z) from the leaf's origin, 0 <= x, y, z < 8, has
+    /// a crossing edge: x edges start at its corners (0, 0|1, 0|1), y edges at (0|1, 0, 0|1),
+    /// z edges at (0|1, 0|1, 0).
+    unsigned cells_with_crossings(int x, int y) const {
+        const unsigned ex = rows_[0][x][y] | rows_[0][x][y + 1];
+        const unsigned ey = rows_[1][x][y] | rows_[1][x + 1][y];
+        const unsigned ez =
+            rows_[2][x][y] | rows_[2][x + 1][y] | rows_[2][x][y + 1] | rows_[2][x + 1][y + 1];
+        return (ex | (ex >> 1) | ey | (ey >> 1) | ez) & 0xFFu;
+    }
+
+    /// The block index of the voxel at offset (x, y, z) from the leaf's origin, 0 <= x, y, z <= 8.
+    static int index(int x, int y, int z) { return x * kX + y * kY + z; }
+
+    float value(int i) const { return value_[i]; }
+    bool on(int i) const { return on_[i] != 0; }
+    /// Bit a set when the edge (voxel i, axis a) crosses.
+    unsigned crossing_mask(int i) const { return id_[i] >> kIdBits; }
+    /// The id of the crossing on the edge (voxel i, axis a), or -1 when it does not cross.
+    std::int64_t crossing_id(int i, int axis) const {
+        const std::uint32_t mask = id_[i] >> kIdBits;
+        if (!((mask >> axis) & 1u)) return -1;
+        return std::int64_t(id_[i] & kIdMask) + __builtin_popcount(mask & ((1u << axis) - 1u));
+    }
+
+  private:
+    float value_[kN * kN * kN];
+    std::uint8_t on_[kN * kN * kN];
+    std::uint32_t id_[kN * kN * kN];
+    std::uint16_t rows_[3][kN][kN];
+};
+
+/// Whether an edge starting just past the upper faces of the leaf at `origin` (in one of its
+/// seven upper neighbours, on the layer next to the leaf) crosses: the cells of a leaf without
+/// crossings of its own can only have such ones.
+inline bool has_upper_crossing(openvdb::tree::ValueAccessor<const openvdb::UInt32Tree>& ids,
+                               const openvdb::Coord& origin) {
+    for (int d = 1; d < 8; ++d) {
+        const int dx = d & 1, dy = (d >> 1) & 1, dz = d >> 2;
+        const auto* leaf = ids.probeConstLeaf(origin.offsetBy(8 * dx, 8 * dy, 8 * dz));
+        if (!leaf) continue;
+        // The neighbour's layer 0 along each axis it is offset on, all of it along the others.
+        const std::uint32_t* id = leaf->buffer().data();
+        for (int x = 0; x < (dx ? 1 : 8); ++x) {
+            for (int y = 0; y < (dy ? 1 : 8); ++y) {
+                for (int z = 0; z < (dz ? 1 : 8); ++z) {
+                    if (id[(x << 6) | (y << 3) | z] >> kIdBits) return true;
+                }
+            }
+        }
+    }
+    return false;
 }
 
 /// A cell the surface passes through: its minimum voxel, corner values and loops.
@@ -65,53 +175,57 @@ struct SurfaceCell {
     std::int64_t edge_id[12];  ///< crossing id of each cube edge (-1 when it does not cross)
 };
 
-/// Calls visit(leaf_index, cell, block) for every valid cell (eight active corners) that the
-/// surface crosses, in parallel over the sdf's leaves; `block` holds the sdf around the cell's leaf
-/// for the visitor's own stencils. Each leaf visits its cells in index order, so a visitor that
-/// appends to per-leaf storage produces a thread-count independent result.
+/// Calls visit(leaf_index, cell, acc) for every valid cell (eight active corners) that the surface
+/// crosses, in parallel over the sdf's leaves; `acc` is an accessor to the sdf for the visitor's
+/// own lookups. Each leaf visits its cells in index order, so a visitor that appends to per-leaf
+/// storage produces a thread-count independent result.
+///
+/// A valid cell has corners on both sides of the iso-value exactly when one of its twelve edges
+/// crosses, so the crossing masks select the cells before their corners are read.
 template <typename Visit>
 void for_each_surface_cell(const openvdb::FloatTree& sdf, const Crossings& crossings, float iso,
                            Visit&& visit) {
     std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
     sdf.getNodes(leaves);
+    // Block offsets of the cube's corners.
+    int corner[8];
+    for (int k = 0; k < 8; ++k) {
+        corner[k] = CellBlock::index(kCubeCorner[k][0], kCubeCorner[k][1], kCubeCorner[k][2]);
+    }
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         FloatAccessor acc(sdf);
         openvdb::tree::ValueAccessor<const openvdb::UInt32Tree> ids(*crossings.ids);
-        auto block = std::make_unique<LeafBlock>(acc);
+        auto block = std::make_unique<CellBlock>();
         SurfaceCell cell;
         for (std::size_t L = r.begin(); L < r.end(); ++L) {
-            const auto& leaf = *leaves[L];
-            // Without a crossing starting in the leaf, a cell of it whose corners are all in the
-            // leaf has no sign change (its edges all start in the leaf): only cells on the leaf's
-            // upper faces need a look, and the block is loaded when one of them is a surface cell.
+            const openvdb::Coord origin = leaves[L]->origin();
+            // Without a crossing starting in the leaf, only cells on its upper faces can have one
+            // (on an edge starting in a neighbour).
             const bool any = crossings.leaf_begin[L] != crossings.leaf_begin[L + 1];
-            bool loaded = any;
-            if (loaded) block->load(leaf.origin());
-            for (auto it = leaf.cbeginValueOn(); it; ++it) {
-                const openvdb::Index p = it.pos();
-                if (!any && (p & 7) != 7 && ((p >> 3) & 7) != 7 && (p >> 6) != 7) continue;
-                const openvdb::Coord c = it.getCoord();
-                bool valid = true, neg = false, pos = false;
-                for (int k = 0; k < 8 && valid; ++k) {
-                    const openvdb::Coord q =
-                        c.offsetBy(kCubeCorner[k][0], kCubeCorner[k][1], kCubeCorner[k][2]);
-                    valid = loaded ? block->probeValue(q, cell.value[k])
-                                   : acc.probeValue(q, cell.value[k]);
-                    (cell.value[k] < iso ? neg : pos) = true;
+            if (!any && !has_upper_crossing(ids, origin)) continue;
+            block->load(acc, ids, origin);
+            for (int x = 0; x < 8; ++x) {
+                for (int y = 0; y < 8; ++y) {
+                    for (unsigned cells = block->cells_with_crossings(x, y); cells;
+                         cells &= cells - 1) {
+                        const int z = __builtin_ctz(cells);
+                        const int i = CellBlock::index(x, y, z);
+                        bool valid = true;
+                        for (int k = 0; k < 8 && valid; ++k) {
+                            valid = block->on(i + corner[k]);
+                            cell.value[k] = block->value(i + corner[k]);
+                        }
+                        if (!valid) continue;
+                        cell.origin = origin.offsetBy(x, y, z);
+                        cell_loops(cell.value, iso, cell.loops);
+                        for (int e = 0; e < 12; ++e) {
+                            cell.edge_id[e] =
+                                block->crossing_id(i + corner[kEdgeCorner[e][0]], kEdgeAxis[e]);
+                        }
+                        visit(L, cell, acc);
+                    }
                 }
-                if (!valid || !neg || !pos) continue;
-                if (!loaded) {
-                    block->load(leaf.origin());
-                    loaded = true;
-                }
-                cell.origin = c;
-                cell_loops(cell.value, iso, cell.loops);
-                for (int e = 0; e < 12; ++e) {
-                    const int* s = kCubeCorner[kEdgeCorner[e][0]];
-                    cell.edge_id[e] = crossing_id(ids, c.offsetBy(s[0], s[1], s[2]), kEdgeAxis[e]);
-                }
-                visit(L, cell, *block);
             }
         }
     });

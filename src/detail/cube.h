@@ -17,6 +17,7 @@
 // crossing is the end of one segment and the start of another, so the segments close into loops;
 // they are oriented so that a fan over a loop faces the positive (outside) side, and a face shared
 // by two cells is walked in opposite directions by them, so orientations agree across cells.
+// Without an ambiguous face the loops depend on the eight signs alone and come from a table.
 #pragma once
 
 #include <array>
@@ -78,8 +79,9 @@ struct CellLoops {
 };
 
 /// The oriented loops of the iso-surface in a cell with corner values f (inside: f < iso).
-/// Returns false (no loops) when all corners are on the same side.
-inline bool cell_loops(const float f[8], float iso, CellLoops& out) {
+/// Returns false (no loops) when all corners are on the same side. Computed from scratch; see
+/// cell_loops() for the tabulated version.
+inline bool cell_loops_direct(const float f[8], float iso, CellLoops& out) {
     int mask = 0;
     for (int c = 0; c < 8; ++c) mask |= (f[c] < iso ? 1 : 0) << c;
     out.count = 0;
@@ -135,6 +137,43 @@ inline bool cell_loops(const float f[8], float iso, CellLoops& out) {
         }
     }
     return true;
+}
+
+/// Whether some face of a cell with inside-corner mask `mask` has its two inside corners on a
+/// diagonal (the asymptotic decider then needs the values).
+constexpr bool has_ambiguous_face(int mask) {
+    for (const auto& face : kFaceCorner) {
+        const int a = (mask >> face[0]) & 1, b = (mask >> face[1]) & 1, c = (mask >> face[2]) & 1,
+                  d = (mask >> face[3]) & 1;
+        if (a == c && b == d && a != b) return true;
+    }
+    return false;
+}
+
+/// As cell_loops_direct(), from a table of the 256 sign patterns where no face is ambiguous (the
+/// loops then depend on the signs alone).
+inline bool cell_loops(const float f[8], float iso, CellLoops& out) {
+    struct Entry {
+        bool tabulated;
+        CellLoops loops;
+    };
+    static const auto table = [] {
+        std::array<Entry, 256> t{};
+        for (int mask = 0; mask < 256; ++mask) {
+            if (has_ambiguous_face(mask)) continue;
+            float v[8];
+            for (int c = 0; c < 8; ++c) v[c] = (mask >> c) & 1 ? -1.0f : 1.0f;
+            t[std::size_t(mask)].tabulated = true;
+            cell_loops_direct(v, 0.0f, t[std::size_t(mask)].loops);
+        }
+        return t;
+    }();
+    int mask = 0;
+    for (int c = 0; c < 8; ++c) mask |= (f[c] < iso ? 1 : 0) << c;
+    const Entry& e = table[std::size_t(mask)];
+    if (!e.tabulated) return cell_loops_direct(f, iso, out);
+    out = e.loops;
+    return mask != 0 && mask != 255;
 }
 
 /// The apex for fanning loop `l` into triangles such that no diagonal joins two crossings on a

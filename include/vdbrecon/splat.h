@@ -23,9 +23,9 @@
 // A voxel is valid (active) where weight >= min_weight; everything else is background, so
 // nothing is ever meshed where no data supports it.
 //
-// Parallel and deterministic: points are bucketed by the 8^3 leaf they touch, each leaf is
-// summed by one task in increasing point order, so the grids are bit-identical for any number
-// of threads.
+// Parallel and deterministic: points are bucketed by the 16^3 block (2x2x2 leaves) they touch,
+// each block is summed by one task in increasing point order, so the grids are bit-identical
+// for any number of threads.
 #pragma once
 
 #include <cstddef>

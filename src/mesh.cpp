@@ -63,7 +63,7 @@ bool point_in_valid_cells(FloatAccessor& acc, const openvdb::Vec3d& p) {
 /// The SDF around one cell, for the gradient at points inside it: the cell's eight corners and
 /// their axis neighbours outside the cell (32 voxels), read once instead of seven reads per
 /// corner. gradient() is the trilinear blend of the corners' central differences (one-sided next
-/// to inactive voxels; zero at an inactive corner), as gradient_at() computes it.
+/// to inactive voxels; zero at an inactive corner).
 class CellStencil {
 public:
     void load(FloatAccessor& acc, const openvdb::Coord& c) {

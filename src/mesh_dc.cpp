@@ -712,7 +712,8 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
     return openvdb::Vec3d(x[0], x[1], x[2]);
 }
 
-/// Trilinear interpolation of the sdf at index-space points, as sdf_at(), keeping the corner
+/// Trilinear interpolation of the sdf at index-space points (inactive voxels read as their
+/// stored value), keeping the corner
 /// values of the last cell (the quad diagonals ask about points close to each other) and reading
 /// a cell inside a leaf straight from the leaf's buffer.
 class CachedTrilinear {

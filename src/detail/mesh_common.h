@@ -123,64 +123,6 @@ inline bool cell_valid(FloatAccessor& acc, const openvdb::Coord& c) {
     return true;
 }
 
-/// Central-difference gradient at a voxel (one-sided next to invalid voxels), index units.
-inline openvdb::Vec3d voxel_gradient(FloatAccessor& acc, const openvdb::Coord& c) {
-    openvdb::Vec3d g(0.0);
-    float f0;
-    if (!acc.probeValue(c, f0)) return g;
-    for (int a = 0; a < 3; ++a) {
-        openvdb::Coord lo = c, hi = c;
-        lo[a] -= 1;
-        hi[a] += 1;
-        float fl, fh;
-        const bool l = acc.probeValue(lo, fl), h = acc.probeValue(hi, fh);
-        if (l && h) {
-            g[a] = 0.5 * (double(fh) - double(fl));
-        } else if (h) {
-            g[a] = double(fh) - double(f0);
-        } else if (l) {
-            g[a] = double(f0) - double(fl);
-        }
-    }
-    return g;
-}
-
-/// SDF gradient at an index-space point: trilinear blend of the corner gradients.
-inline openvdb::Vec3d gradient_at(FloatAccessor& acc, const openvdb::Vec3d& p) {
-    const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
-    const openvdb::Vec3d t = p - c.asVec3d();
-    openvdb::Vec3d g(0.0);
-    for (int dx = 0; dx <= 1; ++dx) {
-        for (int dy = 0; dy <= 1; ++dy) {
-            for (int dz = 0; dz <= 1; ++dz) {
-                const double w = (dx ? t[0] : 1.0 - t[0]) * (dy ? t[1] : 1.0 - t[1]) *
-                                 (dz ? t[2] : 1.0 - t[2]);
-                g += w * voxel_gradient(acc, c.offsetBy(dx, dy, dz));
-            }
-        }
-    }
-    return g;
-}
-
-/// Trilinear interpolation of the SDF at an index-space point (inactive voxels read as their
-/// stored value).
-template <typename Field>
-inline double sdf_at(Field& acc, const openvdb::Vec3d& p) {
-    const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
-    const openvdb::Vec3d t = p - c.asVec3d();
-    double v = 0.0;
-    for (int dx = 0; dx <= 1; ++dx) {
-        for (int dy = 0; dy <= 1; ++dy) {
-            for (int dz = 0; dz <= 1; ++dz) {
-                const double w = (dx ? t[0] : 1.0 - t[0]) * (dy ? t[1] : 1.0 - t[1]) *
-                                 (dz ? t[2] : 1.0 - t[2]);
-                v += w * double(acc.getValue(c.offsetBy(dx, dy, dz)));
-            }
-        }
-    }
-    return v;
-}
-
 /// Turns a mesher's raw surface into the result: drops faces in invalid cells (when asked),
 /// with too little weight or too far from the data, compacts the vertices, and adds normals and
 /// colours.

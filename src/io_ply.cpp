@@ -673,7 +673,9 @@ void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& orig
             }
         }
     } else {
-        // Binary rows are packed into a block of memory, written a block at a time.
+        // Binary rows are packed into a block of memory, written a block at a time. The block
+        // is flushed once kBlock bytes are reached, so it needs room for one more row past it:
+        // at most 47 bytes (3 doubles, 3 floats, 3 bytes, 2 floats; a face row is 13).
         constexpr std::size_t kBlock = std::size_t(1) << 16;
         std::vector<char> block(kBlock + 64);
         char* p = block.data();

@@ -42,14 +42,19 @@ void MeshOptions::validate() const {
 namespace detail {
 namespace {
 
-/// Every cell whose closed box contains the index-space point `p` (up to eps) is valid.
-bool point_in_valid_cells(FloatAccessor& acc, const openvdb::Vec3d& p) {
+/// The cells whose closed boxes contain the index-space point p (up to eps): lo..hi per axis.
+void cells_around(const openvdb::Vec3d& p, int lo[3], int hi[3]) {
     constexpr double eps = 1e-4;
-    int lo[3], hi[3];
     for (int a = 0; a < 3; ++a) {
         lo[a] = int(std::floor(p[a] - eps));
         hi[a] = int(std::floor(p[a] + eps));
     }
+}
+
+/// Every cell whose closed box contains the index-space point `p` (up to eps) is valid.
+bool point_in_valid_cells(FloatAccessor& acc, const openvdb::Vec3d& p) {
+    int lo[3], hi[3];
+    cells_around(p, lo, hi);
     for (int x = lo[0]; x <= hi[0]; ++x) {
         for (int y = lo[1]; y <= hi[1]; ++y) {
             for (int z = lo[2]; z <= hi[2]; ++z) {
@@ -133,11 +138,9 @@ private:
 
 /// Whether the index-space point p lies in one cell only (not within eps of a cell face).
 bool in_one_cell(const openvdb::Vec3d& p) {
-    constexpr double eps = 1e-4;  // as point_in_valid_cells
-    for (int a = 0; a < 3; ++a) {
-        if (std::floor(p[a] - eps) != std::floor(p[a] + eps)) return false;
-    }
-    return true;
+    int lo[3], hi[3];
+    cells_around(p, lo, hi);
+    return lo[0] == hi[0] && lo[1] == hi[1] && lo[2] == hi[2];
 }
 
 /// Distance (world units) from the index-space point p to the nearest of the samples recorded at

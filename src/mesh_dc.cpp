@@ -713,9 +713,8 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
 }
 
 /// Trilinear interpolation of the sdf at index-space points (inactive voxels read as their
-/// stored value), keeping the corner
-/// values of the last cell (the quad diagonals ask about points close to each other) and reading
-/// a cell inside a leaf straight from the leaf's buffer.
+/// stored value), keeping the corner values of the last cell (the quad diagonals ask about
+/// points close to each other) and reading a cell inside a leaf straight from the leaf's buffer.
 class CachedTrilinear {
   public:
     explicit CachedTrilinear(FloatAccessor& acc) : acc_(acc) {}

@@ -133,14 +133,14 @@ struct Pair {
 };
 
 /// Sorts the pairs by (key, point) when they arrive in point order: a stable least-significant-
-/// digit radix sort on the key, after each axis's leaf coordinate is shifted to start at 0 and
-/// packed into just the bits its range needs (a scan of a few hundred leaves per axis needs
+/// digit radix sort on the key, after each axis's block coordinate is shifted to start at 0 and
+/// packed into just the bits its range needs (a scan of a few hundred blocks per axis needs
 /// two 11-bit passes instead of a comparison sort's ~20 over the 63-bit key).
 void sort_pairs(std::vector<Pair>& pairs) {
     const std::size_t n = pairs.size();
     if (n < 2) return;
     const std::uint64_t field = (std::uint64_t(1) << kKeyBits) - 1;
-    std::vector<std::array<std::uint64_t, 6>> range((n + (std::size_t(1) << 16) - 1) >> 16);
+    std::vector<std::array<std::uint64_t, 6>> range(detail::chunk_count(n));
     detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
         std::array<std::uint64_t, 6> r = {field, field, field, 0, 0, 0};  // lo[3], hi[3]
         for (std::size_t i = begin; i < end; ++i) {
@@ -197,6 +197,17 @@ inline Box support_box(const Kernel& k) {
     return b;
 }
 
+/// The part of box b inside the block at origin o, in block-local voxels [lo, hi] per axis;
+/// false when they do not meet.
+inline bool clip_to_block(const Box& b, const openvdb::Coord& o, int lo[3], int hi[3]) {
+    for (int a = 0; a < 3; ++a) {
+        lo[a] = std::max(b.lo[a], o[a]) - o[a];
+        hi[a] = std::min(b.hi[a], o[a] + kBlockDim - 1) - o[a];
+        if (hi[a] < lo[a]) return false;
+    }
+    return true;
+}
+
 inline std::size_t blocks_touched(const Box& b) {
     std::size_t n = 1;
     for (int a = 0; a < 3; ++a) {
@@ -245,13 +256,8 @@ void splat_block(const openvdb::Coord& o, const Pair* begin, const Pair* end,
     std::size_t updates = 0;
     for (const Pair* q = begin; q != end; ++q) {
         const Kernel& k = kernels[q->point];
-        const Box b = support_box(k);
         int lo[3], hi[3];
-        for (int a = 0; a < 3; ++a) {
-            lo[a] = std::max(b.lo[a], o[a]) - o[a];
-            hi[a] = std::min(b.hi[a], o[a] + kBlockDim - 1) - o[a];
-        }
-        if (hi[0] < lo[0] || hi[1] < lo[1] || hi[2] < lo[2]) continue;
+        if (!clip_to_block(support_box(k), o, lo, hi)) continue;
         const double inv_s2 = k.inv_s2, rho = k.rho;
         const double r2 = double(k.r) * double(k.r);
         const double amp = double(k.amp);
@@ -498,12 +504,11 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
             const openvdb::Coord o = block_origin(pairs[block_begin[B]].key);
             unsigned mask = 0;
             for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
-                const Box b = support_box(kernels[pairs[j].point]);
+                int lo[3], hi[3];
+                if (!clip_to_block(support_box(kernels[pairs[j].point]), o, lo, hi)) continue;
                 unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
                 for (int a = 0; a < 3; ++a) {
-                    const int lo = std::max(b.lo[a], o[a]) - o[a];
-                    const int hi = std::min(b.hi[a], o[a] + kBlockDim - 1) - o[a];
-                    halves[a] = hi < lo ? 0u : (lo < kLeafDim ? 1u : 0u) | (hi >= kLeafDim ? 2u : 0u);
+                    halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
                 }
                 for (int leaf = 0; leaf < 8; ++leaf) {
                     if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&

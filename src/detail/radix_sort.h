@@ -12,12 +12,16 @@
 
 namespace vdbrecon::detail {
 
-/// Runs fn(chunk, begin, end) over fixed 64k-element chunks of [0, n), in parallel.
+/// Elements per chunk of for_each_chunk().
+constexpr std::size_t kChunk = std::size_t(1) << 16;
+
+/// How many chunks for_each_chunk() splits n elements into.
+inline std::size_t chunk_count(std::size_t n) { return (n + kChunk - 1) / kChunk; }
+
+/// Runs fn(chunk, begin, end) over fixed kChunk-element chunks of [0, n), in parallel.
 template <typename Fn>
 void for_each_chunk(std::size_t n, Fn&& fn) {
-    constexpr std::size_t kChunk = std::size_t(1) << 16;
-    const std::size_t chunks = (n + kChunk - 1) / kChunk;
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks, 1),
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunk_count(n), 1),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t c = r.begin(); c < r.end(); ++c) {
             fn(c, c * kChunk, std::min(n, (c + 1) * kChunk));
@@ -34,7 +38,7 @@ void radix_sort(std::vector<T>& v, int bits, Key&& key) {
     if (n < 2 || bits <= 0) return;
     constexpr int kDigit = 11;
     constexpr std::size_t kBuckets = std::size_t(1) << kDigit;
-    const std::size_t chunks = (n + (std::size_t(1) << 16) - 1) >> 16;
+    const std::size_t chunks = chunk_count(n);
     std::vector<T> tmp(n);
     std::vector<std::size_t> count(chunks * kBuckets);  // [chunk][digit]
     for (int shift = 0; shift < bits; shift += kDigit) {

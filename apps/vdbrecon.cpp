@@ -277,6 +277,7 @@ int run_eval(Args& args) {
 int run_reconstruct(Args& args) {
     const auto start = std::chrono::steady_clock::now();
     PipelineOptions o;
+    o.keep_volumes = false;  // written to .vdb files by the time the mesh is cleaned
     std::string input, output;
     bool quiet = false;
     while (!args.done()) {
@@ -395,7 +396,7 @@ int run_reconstruct(Args& args) {
         s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max
           << " (median " << p.splat.sigma_median << "), " << p.splat.active_voxels
           << " valid voxels in " << p.splat.leaves << " leaves, " << p.splat.updates
-          << " kernel updates, grids " << fmt_megabytes(p.volume.memory_bytes()) << " in memory";
+          << " kernel updates, grids " << fmt_megabytes(p.splat.memory_bytes) << " in memory";
         if (p.splat.skipped_points) s << ", " << p.splat.skipped_points << " points without normal";
         s << "\n";
         if (o.close.hole_radius > 0) {
@@ -446,13 +447,17 @@ int run_reconstruct(Args& args) {
 /// Keeps freed memory in the heap for the next stage: each stage allocates and frees arrays of
 /// tens of MB, which glibc would otherwise map afresh and page-fault in every time (9 % of the
 /// CPU time on the bunny). Costs a few MB of peak memory (210 -> 217 MB on the bunny).
-void keep_freed_memory() {
+/// One heap (arena) for all threads: with one per worker thread, memory one worker freed could
+/// not serve the next stage's allocations on another (bunny 0.5 mm, 2 threads: peak 200-204 ->
+/// 194 MB); the stages allocate in large blocks, so the shared lock is rarely taken.
+void tune_heap() {
     mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's largest: bigger blocks are still mapped
     mallopt(M_TRIM_THRESHOLD, 1 << 30);
+    mallopt(M_ARENA_MAX, 1);
 }
 
 int main(int argc, char** argv) {
-    keep_freed_memory();
+    tune_heap();
     Args args;
     args.argv.assign(argv + 1, argv + argc);
     install_signal_handlers();

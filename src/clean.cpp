@@ -125,26 +125,40 @@ CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
         }
     }
 
-    // Keep faces of large components, then the vertices they use, in input order.
+    // Keep faces of large components, then the vertices they use, in input order. The arrays
+    // are sized first: growing them by doubling would hold up to twice the mesh at the peak.
     Mesh& out = r.mesh;
     out.origin = mesh.origin;
+    auto kept = [&](std::size_t f) { return double(size[std::size_t(label[f])]) >= min_faces; };
     std::vector<std::int32_t> remap(mesh.vertices.size(), -1);
+    std::vector<Triangle>& faces = out.faces.edit();
+    faces.reserve(nf - r.removed_faces);
     for (std::size_t f = 0; f < nf; ++f) {
-        if (double(size[std::size_t(label[f])]) < min_faces) continue;
-        out.faces.push_back(mesh.faces[f]);
+        if (!kept(f)) continue;
+        faces.push_back(mesh.faces[f]);
         for (std::int32_t i : mesh.faces[f]) remap[std::size_t(i)] = 0;
     }
     const bool normals = mesh.normals.size() == mesh.vertices.size();
     const bool colors = mesh.colors.size() == mesh.vertices.size();
     std::int32_t next = 0;
-    for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
-        if (remap[i] < 0) continue;
-        remap[i] = next++;
-        out.vertices.push_back(mesh.vertices[i]);
-        if (normals) out.normals.push_back(mesh.normals[i]);
-        if (colors) out.colors.push_back(mesh.colors[i]);
+    for (std::int32_t& m : remap) {
+        if (m == 0) m = next++;
     }
-    for (Triangle& t : out.faces.edit()) {
+    const std::size_t nv = std::size_t(next);
+    out.vertices.resize(nv);
+    if (normals) out.normals.resize(nv);
+    if (colors) out.colors.resize(nv);
+    Vec3f* v = out.vertices.edit().data();
+    Vec3f* n = normals ? out.normals.edit().data() : nullptr;
+    Vec3f* c = colors ? out.colors.edit().data() : nullptr;
+    for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
+        const std::int32_t j = remap[i];
+        if (j < 0) continue;
+        v[j] = mesh.vertices[i];
+        if (n) n[j] = mesh.normals[i];
+        if (c) c[j] = mesh.colors[i];
+    }
+    for (Triangle& t : faces) {
         for (std::int32_t& i : t) i = remap[std::size_t(i)];
     }
     r.removed_vertices = mesh.vertices.size() - out.vertices.size();

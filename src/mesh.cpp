@@ -216,9 +216,10 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
     });
 
     // Faces: dropped in invalid cells, trimmed for weight or distance.
-    std::vector<Triangle> tris;
-    tris.reserve(raw.triangles.size());
-    for (const Triangle& t : raw.triangles) {
+    // Compacted in place (a filtered copy would add the mesh's faces to the peak).
+    std::vector<Triangle> tris = std::move(raw.triangles);
+    std::size_t kept = 0;
+    for (const Triangle& t : tris) {
         int worst = 1;
         for (std::int32_t v : t) {
             const int ok = point_ok[std::size_t(v)];
@@ -226,12 +227,12 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
             if (ok == 2 && worst == 1) worst = 2;
         }
         if (worst == 1) {
-            tris.push_back(t);
+            tris[kept++] = t;
         } else {
             ++(worst == 0 ? result.dropped_faces : result.trimmed_faces);
         }
     }
-    raw.triangles = {};
+    tris.resize(kept);
 
     // Compact: keep referenced points only, in their original order.
     std::vector<std::int32_t> remap(npoints, -1);
@@ -241,12 +242,16 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
     Mesh& mesh = result.mesh;
     mesh.origin = volume.origin;
     std::int32_t next = 0;
+    for (std::int32_t& r : remap) {
+        if (r == 0) r = next++;
+    }
+    std::vector<Vec3f>& vertices = mesh.vertices.edit();
+    vertices.resize(std::size_t(next));  // sized first: growth by doubling would raise the peak
     for (std::size_t i = 0; i < npoints; ++i) {
         if (remap[i] < 0) continue;
-        remap[i] = next++;
         const openvdb::Vec3f& p = raw.points[i];
-        mesh.vertices.push_back(
-            {float(p[0] * voxel), float(p[1] * voxel), float(p[2] * voxel)});
+        vertices[std::size_t(remap[i])] = {float(p[0] * voxel), float(p[1] * voxel),
+                                           float(p[2] * voxel)};
     }
     for (Triangle& t : tris) {
         for (std::int32_t& i : t) i = remap[std::size_t(i)];

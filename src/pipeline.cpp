@@ -131,8 +131,11 @@ bool same_file(const std::string& a, const std::string& b) {
 
 }  // namespace
 
-PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
-                           const StageCallback& on_stage, const VolumeCallback& on_volume) {
+namespace {
+
+/// reconstruct(); `consume`: free the cloud after the splat.
+PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const PipelineOptions& options,
+                                 const StageCallback& on_stage, const VolumeCallback& on_volume) {
     options.validate();
     if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
     PipelineResult r;
@@ -174,6 +177,7 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
             r.volume = std::move(r.splat.volume);
             r.splat.volume = Volume{};
         }
+        if (consume) cloud = PointCloud{};
         // Each volume is handed to on_volume (e.g. written to disk) while the next stage runs.
         tbb::task_group side;
         auto hand_over = [&](const char* stage, const Volume& v) {
@@ -206,6 +210,10 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
             throw;
         }
         side.wait();  // rethrows what on_volume threw
+        if (!options.keep_volumes) {
+            r.volume = Volume{};
+            r.closed_volume = Volume{};
+        }
         {
             StageClock clock(r.timings, on_stage, "clean");
             r.clean_stats = clean_mesh(r.mesh, options.clean);
@@ -217,6 +225,18 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
         log_warning("reconstruct: the surface is empty (no valid cell crosses zero)");
     }
     return r;
+}
+
+}  // namespace
+
+PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
+                           const StageCallback& on_stage, const VolumeCallback& on_volume) {
+    return reconstruct_cloud(cloud, false, options, on_stage, on_volume);
+}
+
+PipelineResult reconstruct(PointCloud&& cloud, const PipelineOptions& options,
+                           const StageCallback& on_stage, const VolumeCallback& on_volume) {
+    return reconstruct_cloud(cloud, true, options, on_stage, on_volume);
 }
 
 RunResult run(const std::string& input, const std::string& output, const PipelineOptions& options,
@@ -274,11 +294,14 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     }
     // Errors of the computing stages name the input they are about ("scan.ply: splat: ...").
     try {
-        out.result = reconstruct(cloud, options, on_stage, write_vdb);
+        const std::size_t points = cloud.size();
+        out.result = reconstruct(std::move(cloud), options, on_stage, write_vdb);
         if (out.result.mesh.faces.empty()) {
+            const PipelineResult& r = out.result;
             std::ostringstream s;
-            s << "no surface: no valid cell crosses zero at voxel " << out.result.voxel_size
-              << " (" << cloud.size() << " points). Hint: a larger --voxel, or more points";
+            s << "no surface: no valid cell crosses zero at voxel " << r.voxel_size << " ("
+              << points - r.outliers.statistical - r.outliers.planarity
+              << " points). Hint: a larger --voxel, or more points";
             throw NumericalError(s.str());
         }
     } catch (const Error& e) {
@@ -289,7 +312,6 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     } catch (const std::exception& e) {  // OpenVDB's and the standard library's
         throw NumericalError(input + ": " + e.what());
     }
-    cloud = PointCloud{};
     timings.insert(timings.end(), out.result.timings.begin(), out.result.timings.end());
     {
         StageClock clock(timings, on_stage, "write");

@@ -18,6 +18,7 @@
 #include <algorithm>
 #include <array>
 #include <memory>
+#include <climits>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
@@ -109,72 +110,44 @@ constexpr int kLeafVoxels = kLeafDim * kLeafDim * kLeafDim;
 constexpr int kBlockLog2 = kLeafLog2 + 1;
 constexpr int kBlockDim = 1 << kBlockLog2;
 constexpr int kBlockVoxels = kBlockDim * kBlockDim * kBlockDim;
-constexpr int kKeyBits = 21;
-constexpr std::int64_t kKeyBias = std::int64_t(1) << (kKeyBits - 1);
-// Keep index coordinates well inside what a 21-bit leaf key can address (+-2^23 voxels).
-constexpr double kMaxIndex = double(kKeyBias) * kLeafDim - 64.0;
+// Index coordinates stay within +-2^23 voxels: block coordinates then span at most 2^20 per
+// axis, and a packed block key (BlockCodec) at most 60 bits.
+constexpr double kMaxIndex = double(1 << 23) - 64.0;
 
 inline int floor_div_block(int v) {
     return v >= 0 ? v >> kBlockLog2 : -((-v + kBlockDim - 1) >> kBlockLog2);
 }
 
-inline std::uint64_t block_key(int bx, int by, int bz) {
-    return (std::uint64_t(bx + kKeyBias) << (2 * kKeyBits)) |
-           (std::uint64_t(by + kKeyBias) << kKeyBits) | std::uint64_t(bz + kKeyBias);
-}
+/// Block coordinates packed into one key relative to the scan's lowest block, each axis in just
+/// the bits its range needs, x high and z low: keys sort like (bx, by, bz), and a scan of a few
+/// hundred blocks per axis is sorted in two 11-bit radix passes.
+struct BlockCodec {
+    int lo[3] = {0, 0, 0};
+    int bits[3] = {0, 0, 0};
 
-inline openvdb::Coord block_origin(std::uint64_t key) {
-    const std::uint64_t mask = (std::uint64_t(1) << kKeyBits) - 1;
-    const int bx = int(std::int64_t((key >> (2 * kKeyBits)) & mask) - kKeyBias);
-    const int by = int(std::int64_t((key >> kKeyBits) & mask) - kKeyBias);
-    const int bz = int(std::int64_t(key & mask) - kKeyBias);
-    return openvdb::Coord(bx * kBlockDim, by * kBlockDim, bz * kBlockDim);
-}
-
-struct Pair {
-    std::uint64_t key;
-    std::uint32_t point;
+    int total() const { return bits[0] + bits[1] + bits[2]; }
+    std::uint64_t pack(int bx, int by, int bz) const {
+        return ((std::uint64_t(bx - lo[0]) << bits[1] | std::uint64_t(by - lo[1])) << bits[2]) |
+               std::uint64_t(bz - lo[2]);
+    }
+    openvdb::Coord origin(std::uint64_t key) const {
+        int b[3];
+        for (int a = 2; a >= 0; --a) {
+            b[a] = int(key & ((std::uint64_t(1) << bits[a]) - 1)) + lo[a];
+            key >>= bits[a];
+        }
+        return openvdb::Coord(b[0] * kBlockDim, b[1] * kBlockDim, b[2] * kBlockDim);
+    }
 };
 
-/// Sorts the pairs by (key, point) when they arrive in point order: a stable least-significant-
-/// digit radix sort on the key, after each axis's block coordinate is shifted to start at 0 and
-/// packed into just the bits its range needs (a scan of a few hundred blocks per axis needs
-/// two 11-bit passes instead of a comparison sort's ~20 over the 63-bit key).
-void sort_pairs(std::vector<Pair>& pairs) {
-    const std::size_t n = pairs.size();
-    if (n < 2) return;
-    const std::uint64_t field = (std::uint64_t(1) << kKeyBits) - 1;
-    std::vector<std::array<std::uint64_t, 6>> range(detail::chunk_count(n));
-    detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
-        std::array<std::uint64_t, 6> r = {field, field, field, 0, 0, 0};  // lo[3], hi[3]
-        for (std::size_t i = begin; i < end; ++i) {
-            for (int a = 0; a < 3; ++a) {
-                const std::uint64_t v = (pairs[i].key >> (kKeyBits * (2 - a))) & field;
-                r[std::size_t(a)] = std::min(r[std::size_t(a)], v);
-                r[std::size_t(a) + 3] = std::max(r[std::size_t(a) + 3], v);
-            }
-        }
-        range[c] = r;
-    });
-    std::uint64_t lo[3] = {field, field, field}, hi[3] = {0, 0, 0};
-    int bits[3];
-    for (int a = 0; a < 3; ++a) {
-        for (const auto& r : range) {
-            lo[a] = std::min(lo[a], r[std::size_t(a)]);
-            hi[a] = std::max(hi[a], r[std::size_t(a) + 3]);
-        }
-        bits[a] = 0;
-        while ((hi[a] - lo[a]) >> bits[a]) ++bits[a];
-    }
-    // The packed key: x in the high bits, z in the low ones, as in the full key.
-    detail::radix_sort(pairs, bits[0] + bits[1] + bits[2], [&](const Pair& p) {
-        std::uint64_t out = 0;
-        for (int a = 0; a < 3; ++a) {
-            out = out << bits[a] | (((p.key >> (kKeyBits * (2 - a))) & field) - lo[a]);
-        }
-        return out;
-    });
-}
+/// A (block, point) pair. Key = std::uint32_t (8-byte pairs) when the packed block keys fit 32
+/// bits, as for any scan under ~1,600 blocks (26,000 voxels) across on each axis; else
+/// std::uint64_t (16 bytes).
+template <typename Key>
+struct Pair {
+    Key key;
+    std::uint32_t point;
+};
 
 /// Per-point kernel parameters in index space.
 struct Kernel {
@@ -369,8 +342,8 @@ bool vector_rows_wanted() {
 }
 
 /// Sums every (point, voxel) contribution of one 16^3 block, in increasing point order.
-template <bool kColors>
-void splat_block(const openvdb::Coord& o, const Pair* begin, const Pair* end,
+template <bool kColors, typename P>
+void splat_block(const openvdb::Coord& o, const P* begin, const P* end,
                  const std::vector<Kernel>& kernels, const PointCloud& cloud, double voxel,
                  double min_weight, float background, bool vector_rows, BlockSums& sums,
                  std::vector<ColorSums>& csums, BlockOut& out) {
@@ -381,7 +354,7 @@ void splat_block(const openvdb::Coord& o, const Pair* begin, const Pair* end,
     if (kColors) csums.assign(kBlockVoxels, {0, 0, 0});
     Piece p{};  // zeroed: the vector rows read (and mask out) lanes outside the box
     std::size_t updates = 0;
-    for (const Pair* q = begin; q != end; ++q) {
+    for (const P* q = begin; q != end; ++q) {
         const Kernel& k = kernels[q->point];
         if (!clip_to_block(support_box(k), o, p.lo, p.hi)) continue;
         const double inv_s2 = k.inv_s2, rho = k.rho;
@@ -457,6 +430,115 @@ void splat_block(const openvdb::Coord& o, const Pair* begin, const Pair* end,
             }
         }
     }
+}
+
+/// What sum_blocks() needs of splat().
+struct BlockSetup {
+    const std::vector<Kernel>& kernels;
+    const BlockCodec& codec;
+    const PointCloud& cloud;
+    const SplatOptions& options;
+    float background;  ///< the sdf's background, world units
+};
+
+/// Lists the (block, point) pairs (first_pair: each point's first, prefix sums), sorts them,
+/// checks the memory budget and sums every block: the blocks' outputs in key order.
+template <typename Key>
+std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_t> first_pair) {
+    const std::vector<Kernel>& kernels = setup.kernels;
+    const BlockCodec& codec = setup.codec;
+    const PointCloud& cloud = setup.cloud;
+    const SplatOptions& options = setup.options;
+    const float background = setup.background;
+    const std::size_t n = kernels.size();
+    const bool colors = cloud.has_colors();
+    // Memory budget, first on the (leaf, point) index, then (below) on the distinct leaves.
+    const double point_bytes = double(n) * (sizeof(Kernel) + 64.0);  // the cloud and its kernels
+    check_memory(point_bytes + double(first_pair[n]) * sizeof(Pair<Key>), options,
+                 "for the index of the leaves its kernels touch");
+    std::vector<Pair<Key>> pairs(first_pair[n]);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
+            if (kernels[i].r == 0.0f) continue;
+            const Box b = support_box(kernels[i]);
+            std::size_t o = first_pair[i];
+            for (int bx = floor_div_block(b.lo[0]); bx <= floor_div_block(b.hi[0]); ++bx) {
+                for (int by = floor_div_block(b.lo[1]); by <= floor_div_block(b.hi[1]); ++by) {
+                    for (int bz = floor_div_block(b.lo[2]); bz <= floor_div_block(b.hi[2]); ++bz) {
+                        pairs[o++] = {Key(codec.pack(bx, by, bz)), std::uint32_t(i)};
+                    }
+                }
+            }
+        }
+    });
+    first_pair = {};
+    // A stable radix sort of pairs made in point order: (key, point) order.
+    detail::radix_sort(pairs, codec.total(), [](const Pair<Key>& p) { return p.key; });
+
+    // Block ranges.
+    std::vector<std::size_t> block_begin;
+    for (std::size_t i = 0; i < pairs.size(); ++i) {
+        if (i == 0 || pairs[i].key != pairs[i - 1].key) block_begin.push_back(i);
+    }
+    block_begin.push_back(pairs.size());
+    const std::size_t num_blocks = block_begin.size() - 1;
+    // The 8^3 leaves the kernels touch (of each block's eight), for the memory estimate.
+    std::vector<std::uint8_t> touched_leaves(num_blocks, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 64),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
+            const openvdb::Coord o = codec.origin(pairs[block_begin[B]].key);
+            unsigned mask = 0;
+            for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
+                int lo[3], hi[3];
+                if (!clip_to_block(support_box(kernels[pairs[j].point]), o, lo, hi)) continue;
+                unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
+                for (int a = 0; a < 3; ++a) {
+                    halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
+                }
+                for (int leaf = 0; leaf < 8; ++leaf) {
+                    if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
+                        (halves[2] >> (leaf & 1) & 1u)) {
+                        mask |= 1u << leaf;
+                    }
+                }
+            }
+            touched_leaves[B] = std::uint8_t(mask);
+        }
+    });
+    std::size_t num_leaves = 0;
+    for (std::uint8_t m : touched_leaves) num_leaves += std::size_t(__builtin_popcount(m));
+    touched_leaves = {};
+    {
+        std::ostringstream what;
+        what << num_leaves << " leaves of 8^3 voxels";
+        check_memory(point_bytes + double(num_leaves) * double(SplatOptions::kBytesPerLeaf),
+                     options, what.str().c_str());
+    }
+
+    std::vector<BlockOut> blocks(num_blocks);
+    const double min_weight = options.min_weight, voxel = options.voxel_size;
+    const bool vector_rows = vector_rows_wanted();
+
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 1),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        auto sums = std::make_unique<BlockSums>();
+        std::vector<ColorSums> csums;
+        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
+            const Pair<Key>* b = pairs.data() + block_begin[B];
+            const Pair<Key>* e = pairs.data() + block_begin[B + 1];
+            BlockOut& out = blocks[B];
+            if (colors) {
+                splat_block<true>(codec.origin(b->key), b, e, kernels, cloud, voxel, min_weight,
+                                  background, vector_rows, *sums, csums, out);
+            } else {
+                splat_block<false>(codec.origin(b->key), b, e, kernels, cloud, voxel, min_weight,
+                                   background, vector_rows, *sums, csums, out);
+            }
+        }
+    });
+    return blocks;
 }
 
 }  // namespace
@@ -557,105 +639,41 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
         for (Kernel& k : kernels) k.amp = float((sm / double(k.s)) * (sm / double(k.s)));
     }
 
-    // (leaf, point) pairs: count, prefix-sum, fill, sort.
+    // Blocks the kernels touch: per-point counts and the range of block coordinates.
     std::vector<std::size_t> first_pair(n + 1, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
-            first_pair[i + 1] = kernels[i].r > 0.0f ? blocks_touched(support_box(kernels[i])) : 0;
+    std::vector<std::array<int, 6>> ranges(detail::chunk_count(n));
+    detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        std::array<int, 6> r = {INT_MAX, INT_MAX, INT_MAX, INT_MIN, INT_MIN, INT_MIN};
+        for (std::size_t i = begin; i < end; ++i) {
+            if (!(kernels[i].r > 0.0f)) continue;
+            const Box b = support_box(kernels[i]);
+            first_pair[i + 1] = blocks_touched(b);
+            for (int a = 0; a < 3; ++a) {
+                r[std::size_t(a)] = std::min(r[std::size_t(a)], floor_div_block(b.lo[a]));
+                r[std::size_t(a) + 3] = std::max(r[std::size_t(a) + 3], floor_div_block(b.hi[a]));
+            }
         }
+        ranges[c] = r;
     });
     std::partial_sum(first_pair.begin(), first_pair.end(), first_pair.begin());
-    // Memory budget, first on the (leaf, point) index, then (below) on the distinct leaves.
-    const double point_bytes = double(n) * (sizeof(Kernel) + 64.0);  // the cloud and its kernels
-    check_memory(point_bytes + double(first_pair[n]) * sizeof(Pair), options,
-                 "for the index of the leaves its kernels touch");
-    std::vector<Pair> pairs(first_pair[n]);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
-            if (kernels[i].r == 0.0f) continue;
-            const Box b = support_box(kernels[i]);
-            std::size_t o = first_pair[i];
-            for (int bx = floor_div_block(b.lo[0]); bx <= floor_div_block(b.hi[0]); ++bx) {
-                for (int by = floor_div_block(b.lo[1]); by <= floor_div_block(b.hi[1]); ++by) {
-                    for (int bz = floor_div_block(b.lo[2]); bz <= floor_div_block(b.hi[2]); ++bz) {
-                        pairs[o++] = {block_key(bx, by, bz), std::uint32_t(i)};
-                    }
-                }
-            }
+    BlockCodec codec;
+    for (int a = 0; a < 3; ++a) {
+        int lo = INT_MAX, hi = INT_MIN;
+        for (const auto& r : ranges) {
+            lo = std::min(lo, r[std::size_t(a)]);
+            hi = std::max(hi, r[std::size_t(a) + 3]);
         }
-    });
-    first_pair = {};
-    sort_pairs(pairs);
-
-    // Block ranges.
-    std::vector<std::size_t> block_begin;
-    for (std::size_t i = 0; i < pairs.size(); ++i) {
-        if (i == 0 || pairs[i].key != pairs[i - 1].key) block_begin.push_back(i);
-    }
-    block_begin.push_back(pairs.size());
-    const std::size_t num_blocks = block_begin.size() - 1;
-    // The 8^3 leaves the kernels touch (of each block's eight), for the memory estimate.
-    std::vector<std::uint8_t> touched_leaves(num_blocks, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 64),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
-            const openvdb::Coord o = block_origin(pairs[block_begin[B]].key);
-            unsigned mask = 0;
-            for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
-                int lo[3], hi[3];
-                if (!clip_to_block(support_box(kernels[pairs[j].point]), o, lo, hi)) continue;
-                unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
-                for (int a = 0; a < 3; ++a) {
-                    halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
-                }
-                for (int leaf = 0; leaf < 8; ++leaf) {
-                    if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
-                        (halves[2] >> (leaf & 1) & 1u)) {
-                        mask |= 1u << leaf;
-                    }
-                }
-            }
-            touched_leaves[B] = std::uint8_t(mask);
-        }
-    });
-    std::size_t num_leaves = 0;
-    for (std::uint8_t m : touched_leaves) num_leaves += std::size_t(__builtin_popcount(m));
-    touched_leaves = {};
-    {
-        std::ostringstream what;
-        what << num_leaves << " leaves of 8^3 voxels";
-        check_memory(point_bytes + double(num_leaves) * double(SplatOptions::kBytesPerLeaf),
-                     options, what.str().c_str());
+        codec.lo[a] = lo;
+        while (std::uint32_t(hi - lo) >> codec.bits[a]) ++codec.bits[a];
     }
 
     // Narrow-band half width: no |sdf| can exceed the largest support radius.
     const double half_width = std::max(3.0, std::ceil(double(max_r)));
     const float background = float(half_width * voxel);
-
-    std::vector<BlockOut> blocks(num_blocks);
-    const double min_weight = options.min_weight;
-    const bool vector_rows = vector_rows_wanted();
-
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 1),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        auto sums = std::make_unique<BlockSums>();
-        std::vector<ColorSums> csums;
-        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
-            const Pair* b = pairs.data() + block_begin[B];
-            const Pair* e = pairs.data() + block_begin[B + 1];
-            BlockOut& out = blocks[B];
-            if (colors) {
-                splat_block<true>(block_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
-                                  background, vector_rows, *sums, csums, out);
-            } else {
-                splat_block<false>(block_origin(b->key), b, e, kernels, cloud, voxel, min_weight,
-                                   background, vector_rows, *sums, csums, out);
-            }
-        }
-    });
-    pairs = {};
+    BlockSetup setup{kernels, codec, cloud, options, background};
+    std::vector<BlockOut> blocks = codec.total() <= 32
+                                       ? sum_blocks<std::uint32_t>(setup, std::move(first_pair))
+                                       : sum_blocks<std::uint64_t>(setup, std::move(first_pair));
     kernels = {};
 
     // Assemble the trees (serial; leaves are disjoint, so the order does not matter).
@@ -720,6 +738,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     vol.metadata["scale_factor"] = std::to_string(options.scale_factor);
     vol.metadata["min_weight"] = std::to_string(options.min_weight);
     vol.metadata["points"] = std::to_string(n);
+    result.memory_bytes = vol.memory_bytes();
     return result;
 }
 

@@ -127,6 +127,38 @@ TEST_CASE("the vector rows give the scalar rows' grids bit for bit", "[splat]") 
     REQUIRE(same_grids(*scalar.volume.nearest, *vector.volume.nearest));
 }
 
+TEST_CASE("a scan too wide for 32-bit block keys gives the grids of its parts", "[splat]") {
+    // Two spheres 30,000 voxels apart on every axis: their blocks span more than 2^32 packed
+    // keys (16-byte pairs), each sphere alone fits 32 bits (8-byte pairs). Their supports do
+    // not meet and sigma is uniform, so the union's grids are exactly the two parts' grids.
+    const PointCloud a = sample_sphere(3000, 1.0);
+    const PointCloud b = sample_sphere(3000, 1.0, {600.0, -600.0, 600.0});
+    PointCloud both = a;
+    both.positions.edit().insert(both.positions.edit().end(), b.positions.begin(), b.positions.end());
+    both.normals.edit().insert(both.normals.edit().end(), b.normals.begin(), b.normals.end());
+    SplatOptions o;
+    o.voxel_size = 0.02;
+    const SplatResult ra = splat(a, o), rb = splat(b, o), rab = splat(both, o);
+    REQUIRE(rab.updates == ra.updates + rb.updates);
+    REQUIRE(rab.leaves == ra.leaves + rb.leaves);
+    auto same_leaves = [](const auto& whole, const auto& part) {
+        for (auto it = part.tree().cbeginLeaf(); it; ++it) {
+            const auto* w = whole.tree().probeConstLeaf(it->origin());
+            if (!w || w->getValueMask() != it->getValueMask()) return false;
+            if (std::memcmp(w->buffer().data(), it->buffer().data(),
+                            sizeof(*it->buffer().data()) * it->SIZE) != 0) {
+                return false;
+            }
+        }
+        return true;
+    };
+    REQUIRE(same_leaves(*rab.volume.sdf, *ra.volume.sdf));
+    REQUIRE(same_leaves(*rab.volume.sdf, *rb.volume.sdf));
+    REQUIRE(same_leaves(*rab.volume.weight, *ra.volume.weight));
+    REQUIRE(same_leaves(*rab.volume.weight, *rb.volume.weight));
+    REQUIRE(same_leaves(*rab.volume.nearest, *rb.volume.nearest));
+}
+
 TEST_CASE("colour is the weighted mean of the point colours", "[splat]") {
     PointCloud plane = sample_plane(41, 0.2);
     plane.colors.assign(plane.size(), Vec3f{0.25f, 0.5f, 1.0f});

@@ -42,6 +42,11 @@ struct PipelineOptions {
     PreviewOptions preview;
     /// Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh.
     bool write_vdb = true;
+    /// Return the splatted (and closed) volumes in the result. false frees them as soon as the
+    /// mesh is made and the volume callback has returned, which lowers the peak memory of the
+    /// clean stage by the grids' size; the CLI, which has written them to .vdb files by then,
+    /// sets it false.
+    bool keep_volumes = true;
     /// Automatic voxel = auto_voxel_factor * median per-point scale (dimensionless).
     double auto_voxel_factor = 1.0;
     /// The automatic voxel is never finer than the bounding-box diagonal / this (count).
@@ -60,8 +65,9 @@ struct StageTiming {
 
 struct PipelineResult {
     Mesh mesh;
-    Volume volume;              ///< the splatted volume
-    Volume closed_volume;       ///< the closed volume that was meshed (empty without closing)
+    Volume volume;              ///< the splatted volume (empty unless options.keep_volumes)
+    Volume closed_volume;       ///< the closed volume that was meshed (empty without closing
+                                ///< or without options.keep_volumes)
     OutlierResult outliers;     ///< kept points moved into the cloud; counts and flags kept
     NormalResult normals;       ///< normals/scales moved into the cloud; counts kept
     SplatResult splat;          ///< volume moved into `volume`; statistics kept
@@ -83,6 +89,12 @@ using VolumeCallback = std::function<void(const std::string& stage, const Volume
 /// Runs outliers > normals > splat > close > mesh > clean on an in-memory cloud (outliers are
 /// removed from it, normals and scales filled in). Exceptions from `on_volume` propagate once meshing has finished.
 PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
+                           const StageCallback& on_stage = {},
+                           const VolumeCallback& on_volume = {});
+
+/// The same for a cloud the caller gives up: its memory is freed once the splat has its
+/// kernels, so it does not add to the peak of the later stages.
+PipelineResult reconstruct(PointCloud&& cloud, const PipelineOptions& options,
                            const StageCallback& on_stage = {},
                            const VolumeCallback& on_volume = {});
 

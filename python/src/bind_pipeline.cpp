@@ -35,6 +35,9 @@ void bind_pipeline(py::module_& m) {
         .field("write_vdb", &PipelineOptions::write_vdb,
                "Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh "
                "(run() only; CLI --no-vdb sets False).")
+        .field("keep_volumes", &PipelineOptions::keep_volumes,
+               "Return the splatted (and closed) volumes in the result; False frees them once "
+               "the mesh is made (lower peak memory; the CLI sets False).")
         .field("auto_voxel_factor", &PipelineOptions::auto_voxel_factor,
                "Automatic voxel = auto_voxel_factor * median per-point scale, dimensionless.")
         .field("auto_voxel_max_cells", &PipelineOptions::auto_voxel_max_cells,

@@ -36,6 +36,7 @@ void bind_splat(py::module_& m) {
         .def_readonly("touched_voxels", &SplatResult::touched_voxels,
                       "Voxels with any weight (valid or not).")
         .def_readonly("leaves", &SplatResult::leaves, "8^3 leaves allocated.")
+        .def_readonly("memory_bytes", &SplatResult::memory_bytes, "Memory of the grids, bytes.")
         .def_readonly("updates", &SplatResult::updates,
                       "Point-voxel kernel evaluations inside the support.")
         .def_readonly("sigma_min", &SplatResult::sigma_min, "World units.")

@@ -258,6 +258,21 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
     }
     mesh.faces = std::move(tris);
 
+    if (volume.color && !mesh.vertices.empty()) {
+        std::vector<Vec3f>& colors = mesh.colors.edit();
+        colors.resize(mesh.vertices.size());
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            Vec3Accessor cacc(volume.color->tree());
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                if (remap[i] < 0) continue;
+                const openvdb::Vec3f c =
+                    openvdb::tools::BoxSampler::sample(cacc, openvdb::Vec3d(raw.points[i]));
+                colors[std::size_t(remap[i])] = {c[0], c[1], c[2]};
+            }
+        });
+    }
+    raw.points = {};  // not needed from here on: less to hold while the normals are made
     if (options.normals && !mesh.vertices.empty()) {
         // Normalised SDF gradient; area-weighted face normals where it vanishes or disagrees.
         const std::vector<std::array<double, 3>> face_n = face_normal_sums(mesh);
@@ -274,20 +289,6 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
                 const double len = g.length();
                 if (len > 0.0) g /= len;
                 normals[v] = {float(g[0]), float(g[1]), float(g[2])};
-            }
-        });
-    }
-    if (volume.color && !mesh.vertices.empty()) {
-        std::vector<Vec3f>& colors = mesh.colors.edit();
-        colors.resize(mesh.vertices.size());
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 4096),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            Vec3Accessor cacc(volume.color->tree());
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                if (remap[i] < 0) continue;
-                const openvdb::Vec3f c =
-                    openvdb::tools::BoxSampler::sample(cacc, openvdb::Vec3d(raw.points[i]));
-                colors[std::size_t(remap[i])] = {c[0], c[1], c[2]};
             }
         });
     }

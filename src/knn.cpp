@@ -7,9 +7,10 @@
 // of the level-L cells are listed once (cell code and first point).
 //
 // Queries go cell by cell: the candidates of all queries in a cell are the points of its 3x3x3
-// block of cells, gathered once into contiguous arrays; each query measures them all (a loop the
-// compiler vectorises) and keeps its k smallest, ordered by (distance, point index) so that the
-// answer does not depend on the gathering order. The answer is exact when the k-th distance is
+// block of cells, gathered once into contiguous arrays; each query measures them all (an AVX2
+// loop where the CPU has one, else one the compiler vectorises) and keeps its k smallest,
+// ordered by (distance, point index) so that the answer does not depend on the gathering
+// order. The answer is exact when the k-th distance is
 // smaller than the distance from the query to the outside of the block, which no point outside
 // the block can beat; otherwise (sparse regions, stray points, queries outside the cube) the
 // query is repeated on the block of its cell at the next coarser level, down to level 0, where
@@ -30,8 +31,12 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
 
 #include "detail/radix_sort.h"
+#include "detail/simd.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
 
@@ -127,6 +132,54 @@ void write_row(const Best& best, int k, int* idx, float* dist) {
     }
 }
 
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+
+/// For each 8-bit mask, the positions of its set bits, in order (the compaction's shuffle).
+struct CompressTable {
+    std::uint32_t lane[256][8];
+    CompressTable() {
+        for (int m = 0; m < 256; ++m) {
+            int o = 0;
+            for (int j = 0; j < 8; ++j) {
+                if (m >> j & 1) lane[m][o++] = std::uint32_t(j);
+            }
+            while (o < 8) lane[m][o++] = 0;
+        }
+    }
+};
+const CompressTable kCompress;
+
+/// Block::keep_within's loops eight candidates at a time (m a multiple of 8; keep has room for
+/// m + 8): the same float operations in the same order, so the same distances and the same kept
+/// list. No FMA, which would round differently.
+__attribute__((target("avx2"))) std::size_t keep_within_avx2(const float* bx, const float* by,
+                                                             const float* bz, std::size_t m,
+                                                             const float q[3], float bound,
+                                                             float* d, std::uint32_t* keep) {
+    const __m256 qx = _mm256_set1_ps(q[0]), qy = _mm256_set1_ps(q[1]), qz = _mm256_set1_ps(q[2]);
+    const __m256 lim = _mm256_set1_ps(bound);
+    const __m256i iota = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    std::size_t kept = 0;
+    for (std::size_t j = 0; j < m; j += 8) {
+        const __m256 ex = _mm256_sub_ps(_mm256_loadu_ps(bx + j), qx);
+        const __m256 ey = _mm256_sub_ps(_mm256_loadu_ps(by + j), qy);
+        const __m256 ez = _mm256_sub_ps(_mm256_loadu_ps(bz + j), qz);
+        const __m256 dd = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(ex, ex), _mm256_mul_ps(ey, ey)),
+                                        _mm256_mul_ps(ez, ez));
+        _mm256_storeu_ps(d + j, dd);
+        const int mask = _mm256_movemask_ps(_mm256_cmp_ps(dd, lim, _CMP_LE_OQ));
+        if (mask == 0) continue;
+        const __m256i lanes =
+            _mm256_loadu_si256(reinterpret_cast<const __m256i*>(kCompress.lane[mask]));
+        const __m256i ids = _mm256_add_epi32(_mm256_permutevar8x32_epi32(iota, lanes),
+                                             _mm256_set1_epi32(int(j)));
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(keep + kept), ids);
+        kept += std::size_t(__builtin_popcount(unsigned(mask)));
+    }
+    return kept;
+}
+#endif
+
 }  // namespace
 
 struct KnnIndex::Impl {
@@ -176,6 +229,7 @@ struct KnnIndex::Impl {
         std::vector<int> id;
         std::vector<float> d;
         std::vector<std::uint32_t> keep;
+        bool vector = detail::vector_loops();  ///< keep_within() by AVX2
         void clear() {
             x.clear();
             y.clear();
@@ -204,8 +258,17 @@ struct KnnIndex::Impl {
             b.z.insert(b.z.end(), z.begin() + begin, z.begin() + end);
             b.id.insert(b.id.end(), id.begin() + begin, id.begin() + end);
         }
+        // Padded to whole groups of 8 for keep_within(): a NaN candidate is never within any
+        // bound, so the padding is never kept, by the scalar loop either.
+        const float nan = std::numeric_limits<float>::quiet_NaN();
+        while (b.x.size() % 8 != 0) {
+            b.x.push_back(nan);
+            b.y.push_back(nan);
+            b.z.push_back(nan);
+            b.id.push_back(-1);
+        }
         b.d.resize(b.x.size());
-        b.keep.resize(b.x.size());
+        b.keep.resize(b.x.size() + 8);
     }
 
     /// Distance from world point q to the outside of the block around level-l cell c (infinite
@@ -222,9 +285,13 @@ struct KnnIndex::Impl {
         return best - 1e-5 * h - 1e-6 * extent;
     }
 
-    /// Offers every candidate of `b` except `self` within squared distance `bound` of q to
-    /// `best` (bound: an upper bound of the k-th distance, or infinity when none is known).
-    static void measure(Block& b, const float q[3], int self, float bound, Best& best) {
+    /// Squared distances from q to the candidates of `b` (into b.d) and the candidates within
+    /// `bound`, in block order (into b.keep); returns their count.
+    static std::size_t keep_within(Block& b, const float q[3], float bound) {
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+        if (b.vector) return keep_within_avx2(b.x.data(), b.y.data(), b.z.data(), b.x.size(), q,
+                                            bound, b.d.data(), b.keep.data());
+#endif
         const std::size_t m = b.x.size();
         const float qx = q[0], qy = q[1], qz = q[2];
         float* d = b.d.data();
@@ -233,13 +300,21 @@ struct KnnIndex::Impl {
             const float ex = bx[j] - qx, ey = by[j] - qy, ez = bz[j] - qz;
             d[j] = ex * ex + ey * ey + ez * ez;
         }
-        // The candidates within the bound, in block order (branch-free compaction).
-        std::uint32_t* keep = b.keep.data();
+        std::uint32_t* keep = b.keep.data();  // branch-free compaction
         std::size_t kept = 0;
         for (std::size_t j = 0; j < m; ++j) {
             keep[kept] = std::uint32_t(j);
             kept += d[j] <= bound;
         }
+        return kept;
+    }
+
+    /// Offers every candidate of `b` except `self` within squared distance `bound` of q to
+    /// `best` (bound: an upper bound of the k-th distance, or infinity when none is known).
+    static void measure(Block& b, const float q[3], int self, float bound, Best& best) {
+        const std::size_t kept = keep_within(b, q, bound);
+        const float* d = b.d.data();
+        const std::uint32_t* keep = b.keep.data();
         best.clear();
         const int* ids = b.id.data();
         std::uint64_t limit = best.limit();

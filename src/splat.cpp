@@ -20,7 +20,6 @@
 #include <memory>
 #include <climits>
 #include <cmath>
-#include <cstdlib>
 #include <limits>
 #include <numeric>
 #include <sstream>
@@ -31,6 +30,7 @@
 #endif
 
 #include "detail/radix_sort.h"
+#include "detail/simd.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -270,8 +270,7 @@ std::size_t add_piece(const Piece& p, const float* col, BlockSums& sums,
     return updates;
 }
 
-#if defined(__x86_64__) && defined(__GNUC__)
-#define VDBRECON_SPLAT_AVX2 1
+#ifdef VDBRECON_HAVE_AVX2_PATHS
 /// add_piece<false> four voxels of a row at a time (AVX2), bit for bit the same sums: every
 /// voxel sees the same double operations in the same order, lanes outside the piece's box or
 /// the support add exact zeros (the sums are never -0) and keep their nearest sample. Lanes
@@ -330,17 +329,6 @@ __attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, Block
 
 #endif
 
-/// Whether add_piece_avx2 serves the rows of colourless clouds: on CPUs with AVX2, unless the
-/// environment sets VDBRECON_SPLAT_SCALAR (the tests compare both paths; so can a benchmark).
-bool vector_rows_wanted() {
-#ifdef VDBRECON_SPLAT_AVX2
-    static const bool avx2 = __builtin_cpu_supports("avx2");
-    return avx2 && !std::getenv("VDBRECON_SPLAT_SCALAR");
-#else
-    return false;
-#endif
-}
-
 /// Sums every (point, voxel) contribution of one 16^3 block, in increasing point order.
 template <bool kColors, typename P>
 void splat_block(const openvdb::Coord& o, const P* begin, const P* end,
@@ -378,7 +366,7 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end,
                 qt *= rho;
             }
         }
-#ifdef VDBRECON_SPLAT_AVX2
+#ifdef VDBRECON_HAVE_AVX2_PATHS
         if (!kColors && vector_rows) {
             updates += add_piece_avx2(p, sums);
             continue;
@@ -519,7 +507,7 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
 
     std::vector<BlockOut> blocks(num_blocks);
     const double min_weight = options.min_weight, voxel = options.voxel_size;
-    const bool vector_rows = vector_rows_wanted();
+    const bool vector_rows = detail::vector_loops();  // colourless clouds only
 
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 1),
                       [&](const tbb::blocked_range<std::size_t>& rg) {

@@ -1,6 +1,7 @@
 #include <tbb/global_control.h>
 
 #include <algorithm>
+#include <cstdlib>
 #include <random>
 
 #include "support.h"
@@ -79,6 +80,11 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
         two = KnnIndex(pts).self_neighbours(k);
     }
     REQUIRE(one.indices == two.indices);
+    ::setenv("VDBRECON_SCALAR", "1", 1);  // the scalar distance loop, not the AVX2 one
+    const KnnResult scalar = KnnIndex(pts).self_neighbours(k);
+    ::unsetenv("VDBRECON_SCALAR");
+    REQUIRE(one.indices == scalar.indices);
+    REQUIRE(one.sq_distances == scalar.sq_distances);
     std::size_t wrong = 0;
     for (std::size_t i = 0; i < pts.size(); ++i) {
         const auto expect = brute(pts[i], long(i));

@@ -110,15 +110,15 @@ TEST_CASE("splatting is bit-identical for any thread count", "[splat]") {
 }
 
 TEST_CASE("the vector rows give the scalar rows' grids bit for bit", "[splat]") {
-    // Colourless clouds take the AVX2 rows where the CPU has them; VDBRECON_SPLAT_SCALAR forces
+    // Colourless clouds take the AVX2 rows where the CPU has them; VDBRECON_SCALAR forces
     // the scalar loop. Per-point scales make every sum (w, u, u phi, nearest) differ per point.
     PointCloud c = noisy_sphere(30000, 1.0, 5);
     c.colors.clear();
     SplatOptions o;
     o.voxel_size = 0.013;
-    ::setenv("VDBRECON_SPLAT_SCALAR", "1", 1);
+    ::setenv("VDBRECON_SCALAR", "1", 1);
     const SplatResult scalar = splat(c, o);
-    ::unsetenv("VDBRECON_SPLAT_SCALAR");
+    ::unsetenv("VDBRECON_SCALAR");
     const SplatResult vector = splat(c, o);
     REQUIRE(scalar.updates == vector.updates);
     REQUIRE(scalar.active_voxels == vector.active_voxels);

@@ -554,44 +554,72 @@ KnnResult KnnIndex::query(Span<Vec3f> queries, int k) const {
     return r;
 }
 
-KnnResult KnnResult::subset(const std::vector<char>& removed,
-                            Span<Vec3f> kept_points, int k_sub,
-                            std::size_t* requeried) const {
+KnnResult KnnResult::subset(const std::vector<char>& removed, Span<Vec3f> kept_points,
+                            int k_sub, std::size_t* requeried) const& {
+    KnnResult copy = *this;
+    return std::move(copy).subset(removed, kept_points, k_sub, requeried);
+}
+
+KnnResult KnnResult::subset(const std::vector<char>& removed, Span<Vec3f> kept_points,
+                            int k_sub, std::size_t* requeried) && {
     if (requeried) *requeried = 0;
     const std::size_t n = removed.size();
-    KnnResult out;
-    if (k_sub <= 0 || k_sub > k || indices.size() != n * std::size_t(k)) return out;
-    if (kept_points.empty() || std::size_t(k_sub) >= kept_points.size()) return out;
+    if (k_sub <= 0 || k_sub > k || indices.size() != n * std::size_t(k)) return {};
+    if (kept_points.empty() || std::size_t(k_sub) >= kept_points.size()) return {};
     std::vector<int> renumber(n, -1);
     std::size_t m = 0;
     for (std::size_t i = 0; i < n; ++i) {
         if (!removed[i]) renumber[i] = int(m++);
     }
-    out.k = k_sub;
-    out.indices.resize(m * std::size_t(k_sub));
-    out.sq_distances.resize(out.indices.size());
+    if (m != kept_points.size()) throw InvalidArgument("kNN subset: kept point count mismatch");
+    // In place, a chunk of rows at a time: a chunk's new rows are made in parallel into scratch,
+    // then copied down over the old ones. New row r starts at r k_sub <= i k for its old row i,
+    // so no copy reaches an old row that a later chunk has still to read; the lists never exist
+    // twice (at 5M points and k = 16 the old ones alone are 640 MB).
+    constexpr std::size_t kChunkRows = std::size_t(1) << 15;
+    const std::size_t ks = std::size_t(k_sub);
     std::vector<char> short_row(m, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t i = r.begin(); i < r.end(); ++i) {
-            if (removed[i]) continue;
-            const std::size_t row = std::size_t(renumber[i]) * std::size_t(k_sub);
-            int o = 0;
-            for (int j = 0; j < k && o < k_sub; ++j) {
-                const int nb = renumber[std::size_t(neighbours(i)[j])];
-                if (nb < 0) continue;
-                out.indices[row + std::size_t(o)] = nb;
-                out.sq_distances[row + std::size_t(o)] = sq_dists(i)[j];
-                ++o;
+    std::vector<int> new_idx;
+    std::vector<float> new_d2;
+    std::size_t m1 = 0;
+    for (std::size_t c0 = 0; c0 < n; c0 += kChunkRows) {
+        const std::size_t c1 = std::min(n, c0 + kChunkRows);
+        // Kept rows of the chunk: [m0, m1) in the new numbering.
+        const std::size_t m0 = m1;
+        for (std::size_t i = c0; i < c1; ++i) m1 += removed[i] ? 0 : 1;
+        if (m1 == m0) continue;  // the whole chunk was removed
+        new_idx.resize((m1 - m0) * ks);
+        new_d2.resize(new_idx.size());
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(c0, c1, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                if (removed[i]) continue;
+                const std::size_t row = (std::size_t(renumber[i]) - m0) * ks;
+                std::size_t o = 0;
+                for (int j = 0; j < k && o < ks; ++j) {
+                    const int nb = renumber[std::size_t(neighbours(i)[j])];
+                    if (nb < 0) continue;
+                    new_idx[row + o] = nb;
+                    new_d2[row + o] = sq_dists(i)[j];
+                    ++o;
+                }
+                if (o < ks) short_row[std::size_t(renumber[i])] = 1;
             }
-            if (o < k_sub) short_row[std::size_t(renumber[i])] = 1;
-        }
-    });
+        });
+        std::copy(new_idx.begin(), new_idx.end(), indices.begin() + std::ptrdiff_t(m0 * ks));
+        std::copy(new_d2.begin(), new_d2.end(), sq_distances.begin() + std::ptrdiff_t(m0 * ks));
+    }
+    KnnResult out;
+    out.k = k_sub;
+    out.indices = std::move(indices);
+    out.sq_distances = std::move(sq_distances);
+    out.indices.resize(m * ks);  // keeps the capacity: shrinking would copy
+    out.sq_distances.resize(m * ks);
+    k = 0;
     std::vector<std::size_t> incomplete;
     for (std::size_t j = 0; j < m; ++j) {
         if (short_row[j]) incomplete.push_back(j);
     }
-    if (m != kept_points.size()) throw InvalidArgument("kNN subset: kept point count mismatch");
     if (!incomplete.empty()) KnnIndex(kept_points).fill_rows(out, incomplete);
     if (requeried) *requeried = incomplete.size();
     return out;

@@ -148,7 +148,8 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
             r.outliers.cloud = PointCloud{};
             if (cloud.empty()) throw InvalidArgument("reconstruct: every point was an outlier");
             const int k = std::min<int>(options.normals.k, int(cloud.size()) - 1);
-            neighbours = r.outliers.neighbours.subset(r.outliers.removed, cloud.positions, k);
+            neighbours =
+                std::move(r.outliers.neighbours).subset(r.outliers.removed, cloud.positions, k);
             r.outliers.neighbours = KnnResult{};
         }
         {

@@ -23,7 +23,10 @@ struct KnnResult {
     /// the list holds at least k_sub kept points. The rows where it does not are queried anew
     /// on a kd-tree of `kept_points` (built only then); their count goes to *requeried.
     KnnResult subset(const std::vector<char>& removed, Span<Vec3f> kept_points,
-                     int k_sub, std::size_t* requeried = nullptr) const;
+                     int k_sub, std::size_t* requeried = nullptr) const&;
+    /// The same, made in place from these lists (left empty): no second copy of the lists.
+    KnnResult subset(const std::vector<char>& removed, Span<Vec3f> kept_points,
+                     int k_sub, std::size_t* requeried = nullptr) &&;
 };
 
 /// An exact kd-tree over points; build once, query many times from any number of threads.

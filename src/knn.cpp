@@ -125,10 +125,11 @@ private:
     std::vector<std::uint64_t> key_;
 };
 
+/// One answer into its row; dist may be null (distances not kept).
 void write_row(const Best& best, int k, int* idx, float* dist) {
-    for (int j = 0; j < k; ++j) {
-        idx[j] = best.id(j);
-        dist[j] = best.dist(j);
+    for (int j = 0; j < k; ++j) idx[j] = best.id(j);
+    if (dist) {
+        for (int j = 0; j < k; ++j) dist[j] = best.dist(j);
     }
 }
 
@@ -494,7 +495,7 @@ void KnnIndex::Impl::search(Span<Vec3f> q, const int* self,
                 measure(block, p, s, bound, best);
                 if (!best.full()) measure(block, p, s, std::numeric_limits<float>::infinity(), best);
                 if (!settled(best, level, c, p)) answer_alone(p, s, level - 1, alone, best);
-                write_row(best, k, idx + i * std::size_t(k), dist + i * std::size_t(k));
+                write_row(best, k, idx + i * std::size_t(k), dist ? dist + i * std::size_t(k) : nullptr);
                 prev = p;
                 prev_worst = best.worst();
             }
@@ -524,13 +525,13 @@ void KnnIndex::Impl::search(Span<Vec3f> q, const int* self, int k, int* idx, flo
     search(q, self, order, first, keys, k, idx, dist);
 }
 
-KnnResult KnnIndex::self_neighbours(int k) const {
+KnnResult KnnIndex::self_neighbours(int k, bool distances) const {
     const Impl& m = *impl_;
     KnnResult out;
     out.k = std::max(0, std::min<int>(k, int(m.n) - 1));
     if (out.k == 0) return out;
     out.indices.resize(m.n * std::size_t(out.k));
-    out.sq_distances.resize(out.indices.size());
+    if (distances) out.sq_distances.resize(out.indices.size());
     // The queries are the points themselves, taken in the index's order, whose runs are its
     // cells; each answer goes straight to the point's row.
     std::vector<std::uint32_t> order(m.n);
@@ -540,7 +541,7 @@ KnnResult KnnIndex::self_neighbours(int k) const {
         self[i] = int(i);
     }
     m.search(m.points, self.data(), order, m.cell_first, m.cell_key, out.k, out.indices.data(),
-             out.sq_distances.data());
+             distances ? out.sq_distances.data() : nullptr);
     return out;
 }
 
@@ -578,6 +579,7 @@ KnnResult KnnResult::subset(const std::vector<char>& removed, Span<Vec3f> kept_p
     // twice (at 5M points and k = 16 the old ones alone are 640 MB).
     constexpr std::size_t kChunkRows = std::size_t(1) << 15;
     const std::size_t ks = std::size_t(k_sub);
+    const bool with_d2 = has_distances();
     std::vector<char> short_row(m, 0);
     std::vector<int> new_idx;
     std::vector<float> new_d2;
@@ -589,7 +591,7 @@ KnnResult KnnResult::subset(const std::vector<char>& removed, Span<Vec3f> kept_p
         for (std::size_t i = c0; i < c1; ++i) m1 += removed[i] ? 0 : 1;
         if (m1 == m0) continue;  // the whole chunk was removed
         new_idx.resize((m1 - m0) * ks);
-        new_d2.resize(new_idx.size());
+        if (with_d2) new_d2.resize(new_idx.size());
         tbb::parallel_for(tbb::blocked_range<std::size_t>(c0, c1, 4096),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t i = r.begin(); i < r.end(); ++i) {
@@ -600,7 +602,7 @@ KnnResult KnnResult::subset(const std::vector<char>& removed, Span<Vec3f> kept_p
                     const int nb = renumber[std::size_t(neighbours(i)[j])];
                     if (nb < 0) continue;
                     new_idx[row + o] = nb;
-                    new_d2[row + o] = sq_dists(i)[j];
+                    if (with_d2) new_d2[row + o] = sq_dists(i)[j];
                     ++o;
                 }
                 if (o < ks) short_row[std::size_t(renumber[i])] = 1;
@@ -614,7 +616,7 @@ KnnResult KnnResult::subset(const std::vector<char>& removed, Span<Vec3f> kept_p
     out.indices = std::move(indices);
     out.sq_distances = std::move(sq_distances);
     out.indices.resize(m * ks);  // keeps the capacity: shrinking would copy
-    out.sq_distances.resize(m * ks);
+    if (with_d2) out.sq_distances.resize(m * ks);
     k = 0;
     std::vector<std::size_t> incomplete;
     for (std::size_t j = 0; j < m; ++j) {
@@ -637,9 +639,13 @@ void KnnIndex::fill_rows(KnnResult& r, const std::vector<std::size_t>& rows) con
     std::vector<int> idx(rows.size() * std::size_t(r.k));
     std::vector<float> dist(idx.size());
     m.search(q, self.data(), r.k, idx.data(), dist.data());
+    const bool with_d2 = r.has_distances();
     for (std::size_t j = 0; j < rows.size(); ++j) {
         std::copy_n(&idx[j * std::size_t(r.k)], r.k, &r.indices[rows[j] * std::size_t(r.k)]);
-        std::copy_n(&dist[j * std::size_t(r.k)], r.k, &r.sq_distances[rows[j] * std::size_t(r.k)]);
+        if (with_d2) {
+            std::copy_n(&dist[j * std::size_t(r.k)], r.k,
+                        &r.sq_distances[rows[j] * std::size_t(r.k)]);
+        }
     }
 }
 

@@ -295,9 +295,10 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t i = r.begin(); i < r.end(); ++i) {
                 if (options.scale == ScaleMode::automatic && scales[i] > 0.0f) continue;
-                const float* d = knn.sq_dists(i);
                 double s = 0.0;
-                for (int j = 0; j < k; ++j) s += std::sqrt(double(d[j]));
+                for (int j = 0; j < k; ++j) {
+                    s += std::sqrt(double(knn.sq_dist(cloud.positions, i, j)));
+                }
                 scales[i] = float(s / double(k));
             }
         });

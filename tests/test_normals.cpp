@@ -125,6 +125,24 @@ TEST_CASE("kNN: the neighbours of a subset come from those of the whole set", "[
     REQUIRE(requeried < kept.size() / 10);
     const KnnResult fresh = KnnIndex(kept).self_neighbours(10);
     REQUIRE(sub.sq_distances == fresh.sq_distances);  // the same neighbours at the same distances
+
+    // The same without kept distances (what the outlier stage hands over), made in place: the
+    // same indices, and the distances computed on demand are the search's floats, bit for bit.
+    KnnResult bare = KnnIndex(c.positions).self_neighbours(16, false);
+    REQUIRE(!bare.has_distances());
+    REQUIRE(bare.indices == all.indices);
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        for (int j = 0; j < 16; ++j) {
+            REQUIRE(bare.sq_dist(c.positions, i, j) == all.sq_dists(i)[j]);
+        }
+    }
+    const KnnResult sub_bare = std::move(bare).subset(removed, kept, 10);
+    REQUIRE(bare.indices.empty());
+    REQUIRE(!sub_bare.has_distances());
+    REQUIRE(sub_bare.indices == sub.indices);
+    for (std::size_t i = 0; i < kept.size(); ++i) {
+        for (int j = 0; j < 10; ++j) REQUIRE(sub_bare.sq_dist(kept, i, j) == sub.sq_dists(i)[j]);
+    }
 }
 
 TEST_CASE("PCA normals on a sphere are radial and MST orients them all outwards", "[normals]") {

@@ -13,10 +13,25 @@ namespace vdbrecon {
 struct KnnResult {
     int k = 0;
     std::vector<int> indices;       ///< #Q*k point indices
-    std::vector<float> sq_distances;  ///< #Q*k squared distances, world units squared
+    /// #Q*k squared distances, world units squared; empty when they were not kept
+    /// (KnnIndex::self_neighbours(k, false)): sq_dist() computes them then.
+    std::vector<float> sq_distances;
 
     const int* neighbours(std::size_t q) const { return indices.data() + q * std::size_t(k); }
     const float* sq_dists(std::size_t q) const { return sq_distances.data() + q * std::size_t(k); }
+    bool has_distances() const { return sq_distances.size() == indices.size(); }
+    /// The squared distance from self-neighbour query q of `points` (the indexed points) to
+    /// its j-th neighbour: the kept value, or the same float computed anew.
+    float sq_dist(Span<Vec3f> points, std::size_t q, int j) const {
+        const std::size_t r = q * std::size_t(k) + std::size_t(j);
+        if (has_distances()) return sq_distances[r];
+        return squared_distance(points[q], points[std::size_t(indices[r])]);
+    }
+    /// |c - q|^2 in float, as the search computes it (the kept distances are these values).
+    static float squared_distance(const Vec3f& q, const Vec3f& c) {
+        const float ex = c[0] - q[0], ey = c[1] - q[1], ez = c[2] - q[2];
+        return ex * ex + ey * ey + ez * ez;
+    }
     /// The self-neighbours of the points left after removing those with removed[i] != 0
     /// (renumbered in order), k_sub each, from these self-neighbours of all of them: a kept
     /// point's nearest kept points are the first kept ones of its list, which is exact wherever
@@ -25,6 +40,7 @@ struct KnnResult {
     KnnResult subset(const std::vector<char>& removed, Span<Vec3f> kept_points,
                      int k_sub, std::size_t* requeried = nullptr) const&;
     /// The same, made in place from these lists (left empty): no second copy of the lists.
+    /// Without kept distances the result has none either (`kept_points` are the indexed ones).
     KnnResult subset(const std::vector<char>& removed, Span<Vec3f> kept_points,
                      int k_sub, std::size_t* requeried = nullptr) &&;
 };
@@ -42,8 +58,9 @@ public:
 
     /// For every indexed point, its k nearest *other* points (the point itself is excluded, even
     /// when exact duplicates exist). Runs in parallel; the result does not depend on the thread
-    /// count. `k` is clamped to size() - 1.
-    KnnResult self_neighbours(int k) const;
+    /// count. `k` is clamped to size() - 1. Without `distances` only the indices are kept (half
+    /// the memory; KnnResult::sq_dist computes a distance when asked).
+    KnnResult self_neighbours(int k, bool distances = true) const;
 
     /// The k nearest indexed points of arbitrary query points, in parallel.
     KnnResult query(Span<Vec3f> queries, int k) const;

@@ -51,8 +51,8 @@ struct OutlierResult {
     std::size_t planarity = 0;       ///< removed by the planarity rule (and not the first)
     std::vector<char> removed;       ///< #P flags of the input points, 1 = removed
     /// The k nearest neighbours of every point of the input, computed for the rules (empty
-    /// when the removal did not run): the normal stage takes its own from them
-    /// (KnnResult::subset) instead of building a second kd-tree.
+    /// when the removal did not run), indices only (KnnResult::sq_dist gives a distance): the
+    /// normal stage takes its own from them (KnnResult::subset) instead of a second search.
     KnnResult neighbours;
 };
 

@@ -123,6 +123,32 @@ TEST_CASE("a cloud borrowing the caller's arrays reconstructs like an owned one,
     REQUIRE(n.normals.data() == normals.data());
 }
 
+TEST_CASE("a lean run (volumes not kept, cloud given up) makes the same mesh", "[pipeline]") {
+    // What the CLI does to lower its peak memory: the volumes are freed once meshed and written
+    // (keep_volumes = false), the cloud after the splat (reconstruct(PointCloud&&)).
+    PointCloud c = sample_sphere(20000, 1.0);
+    PipelineOptions o;
+    o.splat.voxel_size = 0.03;
+    std::vector<std::string> handed;
+    const VolumeCallback seen = [&](const std::string& stage, const Volume& v) {
+        REQUIRE(v.sdf);  // alive while the callback runs
+        handed.push_back(stage);
+    };
+    PointCloud copy = c;
+    const PipelineResult kept = reconstruct(c, o);
+    o.keep_volumes = false;
+    const PipelineResult lean = reconstruct(std::move(copy), o, {}, seen);
+    REQUIRE(handed == std::vector<std::string>{"splat"});
+    REQUIRE(copy.empty());
+    REQUIRE(!lean.volume.sdf);
+    REQUIRE(!lean.closed_volume.sdf);
+    REQUIRE(kept.volume.sdf);
+    REQUIRE(lean.splat.memory_bytes == kept.volume.memory_bytes());
+    REQUIRE(lean.mesh.vertices == kept.mesh.vertices);
+    REQUIRE(lean.mesh.faces == kept.mesh.faces);
+    REQUIRE((!c.empty() && c.has_scales()));  // the lvalue overload hands the cloud back
+}
+
 TEST_CASE("automatic voxel follows the spacing; --no-vdb writes only the mesh", "[pipeline]") {
     TempDir dir;
     write_points(dir.file("s.ply"), sample_sphere(20000, 1.0));

@@ -42,9 +42,11 @@ namespace {
 /// The 3x3x3 neighbourhood of a voxel: values and active states, index (dx+1)*9 + (dy+1)*3 + dz+1.
 struct Stencil27 {
     float f[27];
-    bool on[27];
+    std::uint8_t on[27];
 
     static constexpr int at(int dx, int dy, int dz) { return (dx + 1) * 9 + (dy + 1) * 3 + dz + 1; }
+    static constexpr int kCentre = 13;
+    static constexpr int kStep[3] = {9, 3, 1};
 
     template <typename Field>
     void gather(Field& field, const openvdb::Coord& v) {
@@ -53,18 +55,6 @@ struct Stencil27 {
                 for (int dz = -1; dz <= 1; ++dz) {
                     const int i = at(dx, dy, dz);
                     on[i] = field.probeValue(v.offsetBy(dx, dy, dz), f[i]);
-                }
-            }
-        }
-    }
-    void gather(const LeafBlock& block, int centre) {
-        constexpr int n = LeafBlock::kN;
-        for (int dx = -1; dx <= 1; ++dx) {
-            for (int dy = -1; dy <= 1; ++dy) {
-                for (int dz = -1; dz <= 1; ++dz) {
-                    const int i = at(dx, dy, dz), j = centre + (dx * n + dy) * n + dz;
-                    f[i] = block.value(j);
-                    on[i] = block.on(j);
                 }
             }
         }
@@ -82,18 +72,21 @@ struct Stencil27 {
 /// so smooth curved fields keep second-order gradients. Index units; false when the voxel is
 /// inactive. `misfit` is the winner's score relative to the slope (0 for a locally linear field;
 /// large at a corner, where no stencil stays in one linear region).
-bool robust_gradient(const Stencil27& s, openvdb::Vec3d& g, double& misfit) {
-    constexpr int c0 = Stencil27::at(0, 0, 0);
-    if (!s.on[c0]) return false;
-    const double f0 = s.f[c0];
-    static constexpr int kStep[3] = {9, 3, 1};
+///
+/// The neighbourhood is read in place: `f` and `on` point at the voxel in dense arrays whose
+/// index steps along x, y and z are `step` (a Stencil27's, or a LeafBlock's for voxels inside it).
+bool robust_gradient(const float* f, const std::uint8_t* on, const int step[3], openvdb::Vec3d& g,
+                     double& misfit) {
+    if (!on[0]) return false;
+    const double f0 = f[0];
+    const int* kStep = step;
     double fm[3], fp[3];
     bool om[3], op[3];
     for (int a = 0; a < 3; ++a) {
-        om[a] = s.on[c0 - kStep[a]];
-        fm[a] = s.f[c0 - kStep[a]];
-        op[a] = s.on[c0 + kStep[a]];
-        fp[a] = s.f[c0 + kStep[a]];
+        om[a] = on[-kStep[a]];
+        fm[a] = f[-kStep[a]];
+        op[a] = on[kStep[a]];
+        fp[a] = f[kStep[a]];
     }
     // Central candidate (one-sided where a neighbour is missing) and its kink score.
     openvdb::Vec3d central(0.0);
@@ -128,7 +121,7 @@ bool robust_gradient(const Stencil27& s, openvdb::Vec3d& g, double& misfit) {
         double score = 0.0;
         int used = 0;
         for (int corner : kCorners) {
-            int i = c0;
+            int i = 0;
             double predicted = 0.0;
             for (int a = 0; a < 3; ++a) {
                 if ((corner >> a) & 1) {
@@ -136,8 +129,8 @@ bool robust_gradient(const Stencil27& s, openvdb::Vec3d& g, double& misfit) {
                     predicted += sign[a] * og[a];
                 }
             }
-            if (!s.on[i]) continue;
-            score += std::fabs(double(s.f[i]) - f0 - predicted);
+            if (!on[i]) continue;
+            score += std::fabs(double(f[i]) - f0 - predicted);
             ++used;
         }
         if (used < 3) continue;
@@ -775,16 +768,18 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                           std::uint32_t stamp = 0;
                           auto gradient = [&](const openvdb::Coord& v, openvdb::Vec3d& g,
                                               double& misfit) {
-                              Stencil27 s;
                               int i;
                               if (!block->index(v, i) || !block->interior(i)) {
+                                  Stencil27 s;
                                   s.gather(acc, v);
-                                  return robust_gradient(s, g, misfit);
+                                  return robust_gradient(s.f + Stencil27::kCentre,
+                                                         s.on + Stencil27::kCentre,
+                                                         Stencil27::kStep, g, misfit);
                               }
                               Cached& c = cache[std::size_t(i)];
                               if (c.stamp != stamp) {
-                                  s.gather(*block, i);
-                                  c.have = robust_gradient(s, c.g, c.misfit);
+                                  c.have = robust_gradient(block->values() + i, block->actives() + i,
+                                                           LeafBlock::kStep, c.g, c.misfit);
                                   c.stamp = stamp;
                               }
                               g = c.g;

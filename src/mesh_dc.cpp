@@ -31,7 +31,6 @@
 #include <array>
 #include <limits>
 #include <memory>
-#include <unordered_map>
 
 #include "detail/crossings.h"
 #include "detail/mesh_common.h"
@@ -106,39 +105,42 @@ bool robust_gradient(const float* f, const std::uint8_t* on, const int step[3], 
     misfit = slope > 0.0 ? central_score / slope : 0.0;
     if (central_score <= 0.02 * slope) return true;  // locally linear: done
     double best = central_score;
-    // The octant's corners with two or three offsets (bit a set: step along axis a).
-    static constexpr int kCorners[4] = {3, 5, 6, 7};
+    // One-sided differences f(v +- e_a) - f(v). An octant's plane predicts the corner that steps
+    // along the axes in a set as f0 plus the sum of its differences along them.
+    double dp[3], dm[3];
+    for (int a = 0; a < 3; ++a) {
+        dp[a] = fp[a] - f0;
+        dm[a] = fm[a] - f0;
+    }
     for (int octant = 0; octant < 8; ++octant) {
-        int sign[3];
-        openvdb::Vec3d og;
+        double d[3];  // the octant's difference along each axis (its gradient times the sign)
+        int off[3];
         bool ok = true;
-        for (int a = 0; a < 3 && ok; ++a) {
-            sign[a] = (octant >> a) & 1 ? 1 : -1;
-            ok = sign[a] > 0 ? op[a] : om[a];
-            og[a] = sign[a] > 0 ? fp[a] - f0 : f0 - fm[a];
+        for (int a = 0; a < 3; ++a) {
+            const bool plus = (octant >> a) & 1;
+            ok = ok && (plus ? op[a] : om[a]);
+            d[a] = plus ? dp[a] : dm[a];
+            off[a] = plus ? kStep[a] : -kStep[a];
         }
         if (!ok) continue;
+        // Its corners with two or three steps: (x, y), (x, z), (y, z) and (x, y, z).
+        const int corner[4] = {off[0] + off[1], off[0] + off[2], off[1] + off[2],
+                               off[0] + off[1] + off[2]};
+        const double predicted[4] = {d[0] + d[1], d[0] + d[2], d[1] + d[2], d[0] + d[1] + d[2]};
         double score = 0.0;
         int used = 0;
-        for (int corner : kCorners) {
-            int i = 0;
-            double predicted = 0.0;
-            for (int a = 0; a < 3; ++a) {
-                if ((corner >> a) & 1) {
-                    i += sign[a] * kStep[a];
-                    predicted += sign[a] * og[a];
-                }
-            }
-            if (!on[i]) continue;
-            score += std::fabs(double(f[i]) - f0 - predicted);
+        for (int k = 0; k < 4; ++k) {
+            if (!on[corner[k]]) continue;
+            score += std::fabs(double(f[corner[k]]) - f0 - predicted[k]);
             ++used;
         }
         if (used < 3) continue;
-        score *= 3.0 / double(used);
+        if (used == 4) score *= 0.75;  // the mean over three corners
         // An octant must beat the central difference clearly to be chosen.
         if (score < 0.5 * best) {
             best = score;
-            g = og;
+            g = openvdb::Vec3d(octant & 1 ? d[0] : -d[0], octant & 2 ? d[1] : -d[1],
+                               octant & 4 ? d[2] : -d[2]);
         }
     }
     misfit = slope > 0.0 ? best / slope : 0.0;
@@ -279,13 +281,41 @@ const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
 struct ReliableCrossings {
     std::vector<std::size_t> begin;  ///< per leaf, into ids (leafCount() + 1)
     std::vector<std::uint32_t> ids;
-    struct CoordHash {
-        std::size_t operator()(const openvdb::Coord& c) const {
-            return std::size_t(c[0]) * 73856093u ^ std::size_t(c[1]) * 19349663u ^
-                   std::size_t(c[2]) * 83492791u;
+    /// Leaf index by leaf origin: open addressing with linear probing in a table at most half
+    /// full (a lookup is a hash and a compare or two).
+    struct LeafTable {
+        std::vector<openvdb::Coord> origin;  ///< kEmpty where free
+        std::vector<std::uint32_t> index;
+        std::size_t mask = 0;
+        static constexpr int kEmpty = std::numeric_limits<int>::max();
+
+        static std::size_t hash(const openvdb::Coord& c) {
+            const std::uint64_t k = (std::uint64_t(std::uint32_t(c[0] >> 3)) << 42) ^
+                                    (std::uint64_t(std::uint32_t(c[1] >> 3)) << 21) ^
+                                    std::uint64_t(std::uint32_t(c[2] >> 3));
+            return std::size_t((k * 0x9E3779B97F4A7C15ull) >> 20);
         }
-    };
-    std::unordered_map<openvdb::Coord, std::size_t, CoordHash> leaf_index;  ///< by leaf origin
+        void build(const std::vector<const openvdb::FloatTree::LeafNodeType*>& leaves) {
+            std::size_t size = 16;
+            while (size < 2 * leaves.size()) size *= 2;
+            mask = size - 1;
+            origin.assign(size, openvdb::Coord(kEmpty));
+            index.assign(size, 0);
+            for (std::size_t L = 0; L < leaves.size(); ++L) {
+                std::size_t h = hash(leaves[L]->origin()) & mask;
+                while (origin[h][0] != kEmpty) h = (h + 1) & mask;
+                origin[h] = leaves[L]->origin();
+                index[h] = std::uint32_t(L);
+            }
+        }
+        /// The index of the leaf at `o`, or -1.
+        std::int64_t find(const openvdb::Coord& o) const {
+            for (std::size_t h = hash(o) & mask;; h = (h + 1) & mask) {
+                if (origin[h] == o) return index[h];
+                if (origin[h][0] == kEmpty) return -1;
+            }
+        }
+    } leaf_index;
 
     /// One reliable crossing near a leaf, with a key that sorts by start voxel, then axis.
     struct Near {
@@ -296,17 +326,19 @@ struct ReliableCrossings {
     /// The reliable crossings whose edge starts within kReach of the leaf at `origin`, sorted by
     /// start voxel (x, y, z) and axis: for an edge in the leaf, the order of a walk over the
     /// voxels around its start, then over axes.
+    static constexpr int kW = 8 + 2 * kReach;  ///< width of the box around() gathers from
+
     void around(const Crossings& crossings, const openvdb::Coord& origin,
                 std::vector<Near>& near) const {
-        constexpr int kW = 8 + 2 * kReach;
         const openvdb::Coord lo = origin.offsetBy(-kReach), hi = origin.offsetBy(7 + kReach);
         near.clear();
         for (int dx = -8; dx <= 8; dx += 8) {
             for (int dy = -8; dy <= 8; dy += 8) {
                 for (int dz = -8; dz <= 8; dz += 8) {
-                    const auto it = leaf_index.find(origin.offsetBy(dx, dy, dz));
-                    if (it == leaf_index.end()) continue;
-                    for (std::size_t k = begin[it->second]; k < begin[it->second + 1]; ++k) {
+                    const std::int64_t leaf = leaf_index.find(origin.offsetBy(dx, dy, dz));
+                    if (leaf < 0) continue;
+                    for (std::size_t k = begin[std::size_t(leaf)];
+                         k < begin[std::size_t(leaf) + 1]; ++k) {
                         const std::uint32_t j = ids[k];
                         const openvdb::Coord& c = crossings.start[j];
                         if (c[0] < lo[0] || c[1] < lo[1] || c[2] < lo[2] || c[0] > hi[0] ||
@@ -322,6 +354,19 @@ struct ReliableCrossings {
         }
         std::sort(near.begin(), near.end(),
                   [](const Near& a, const Near& b) { return a.key < b.key; });
+    }
+
+    /// The run of `near` (as around() left it for the leaf at `origin`) whose edges start within
+    /// kReach of voxel s along x: the key sorts by x first, so they are contiguous.
+    static std::pair<const Near*, const Near*> x_window(const std::vector<Near>& near,
+                                                        const openvdb::Coord& origin,
+                                                        const openvdb::Coord& s) {
+        const int bx = s[0] - origin[0] + kReach;  // s's x in the box
+        const std::uint32_t lo = std::uint32_t(std::max(bx - kReach, 0) * kW * kW * 3),
+                            hi = std::uint32_t((bx + kReach + 1) * kW * kW * 3);
+        const auto by_key = [](const Near& e, std::uint32_t key) { return e.key < key; };
+        const Near* first = std::lower_bound(near.data(), near.data() + near.size(), lo, by_key);
+        return {first, std::lower_bound(first, near.data() + near.size(), hi, by_key)};
     }
 };
 
@@ -375,8 +420,7 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
         rel.begin[L + 1] = rel.ids.size();
     }
     if (!any_unreliable || rel.ids.empty()) return;
-    rel.leaf_index.reserve(n_leaves);
-    for (std::size_t L = 0; L < n_leaves; ++L) rel.leaf_index.emplace(leaves[L]->origin(), L);
+    rel.leaf_index.build(leaves);
 
     struct Repair {
         std::uint32_t i, j;  ///< the crossing, and the one whose plane it takes
@@ -412,7 +456,10 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                     reliable.clear();
                     cand.clear();
                     double f0 = 0.0, f1 = 0.0;  // the ends' values in voxels, read when needed
-                    for (const ReliableCrossings::Near& e : near) {
+                    const auto window = ReliableCrossings::x_window(near, leaves[L]->origin(), s);
+                    for (const ReliableCrossings::Near* it = window.first; it != window.second;
+                         ++it) {
+                        const ReliableCrossings::Near& e = *it;
                         if (std::abs(e.start[0] - s[0]) > kReach ||
                             std::abs(e.start[1] - s[1]) > kReach ||
                             std::abs(e.start[2] - s[2]) > kReach) {
@@ -493,7 +540,7 @@ int loop_chains(const SurfaceCell& cell, int l, Field& acc, float iso, int start
     const int n = loops.size[l];
     bool cut[12] = {};  // cut after position k (between edge k and k + 1)
     int cuts = 0;
-    const unsigned twice_faces = twice_visited_faces(loops, l);
+    const unsigned twice_faces = loops.ambiguous ? twice_visited_faces(loops, l) : 0u;
     for (int f = 0; f < 6; ++f) {
         if (!((twice_faces >> f) & 1u)) continue;
         // The neighbour across face f, and the loop there that holds one of this face's crossings.
@@ -578,6 +625,24 @@ struct QefData {
     const std::vector<float>& weights;
     double truncation, bias;
 };
+
+/// The truncated solution of ata x = atb when the quadric is dominated by one direction, as for
+/// a flat patch (normals within a degree): only the largest eigenvalue lambda_1 passes the
+/// truncation (relative cutoff `truncation`^2 lambda_1) and x = (v . atb / lambda_1) v with v its
+/// eigenvector. v comes from power iteration started at the patch's mean normal `start`, which
+/// converges by a factor lambda_2 / lambda_1 <= truncation^2 per step; three steps leave an error
+/// far below float precision, where a full eigendecomposition costs several times as much. False
+/// (no solution) when the other two eigenvalues might pass the cutoff: their sum, the trace minus
+/// lambda_1, exceeds it.
+bool flat_solution(const Eigen::Matrix3d& ata, const Eigen::Vector3d& atb,
+                   const Eigen::Vector3d& start, double truncation, Eigen::Vector3d& x) {
+    Eigen::Vector3d v = start;
+    for (int step = 0; step < 3; ++step) v = (ata * v).normalized();
+    const double lambda = v.dot(ata * v);
+    if (!(lambda > 0.0) || ata.trace() - lambda > truncation * truncation * lambda) return false;
+    x = (v.dot(atb) / lambda) * v;
+    return true;
+}
 
 /// The vertex of one patch (the crossings `edges[0..n)` of `cell`), and the patch's mean normal.
 openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int n,
@@ -665,6 +730,10 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
     const int rounds = placed ? 0 : min_cos < 0.9 ? 4 : 1;
     for (int round = 0; round < rounds; ++round) {
         quadric();
+        if (rounds == 1 && flat_solution(ata, atb, mean_n, q.truncation, x)) {
+            x += mass;
+            break;
+        }
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
         es.computeDirect(ata);
         const Eigen::Vector3d lambda = es.eigenvalues();  // ascending, = singular values squared
@@ -723,18 +792,19 @@ void field_at(const SurfaceCell& cell, const openvdb::Vec3d& x, FloatAccessor& a
         t = x - c.asVec3d();
         for (int k = 0; k < 8; ++k) f[k] = acc.getValue(c.offsetBy(k & 1, (k >> 1) & 1, k >> 2));
     }
-    // Corner k = x | y << 1 | z << 2 (detail/cube.h); d/dt_a of the trilinear blend.
-    double v = 0.0;
-    openvdb::Vec3d g(0.0);
-    for (int k = 0; k < 8; ++k) {
-        const double wx = k & 1 ? t[0] : 1.0 - t[0], wy = k & 2 ? t[1] : 1.0 - t[1],
-                     wz = k & 4 ? t[2] : 1.0 - t[2];
-        const double fk = double(f[k]) - iso;
-        v += wx * wy * wz * fk;
-        g[0] += (k & 1 ? 1.0 : -1.0) * wy * wz * fk;
-        g[1] += (k & 2 ? 1.0 : -1.0) * wx * wz * fk;
-        g[2] += (k & 4 ? 1.0 : -1.0) * wx * wy * fk;
+    // Corner k = x | y << 1 | z << 2 (detail/cube.h). Blend along x, then y, then z; each
+    // derivative is the difference of the blends before the step along its axis.
+    const auto lerp = [](double a, double b, double u) { return a + u * (b - a); };
+    double fx[4], dx[4];  // per (y, z) edge along x: value at t[0], and slope
+    for (int e = 0; e < 4; ++e) {
+        const double f0 = double(f[2 * e]) - iso, f1 = double(f[2 * e + 1]) - iso;
+        fx[e] = lerp(f0, f1, t[0]);
+        dx[e] = f1 - f0;
     }
+    const double fz0 = lerp(fx[0], fx[1], t[1]), fz1 = lerp(fx[2], fx[3], t[1]);
+    const double v = lerp(fz0, fz1, t[2]);
+    const openvdb::Vec3d g(lerp(lerp(dx[0], dx[1], t[1]), lerp(dx[2], dx[3], t[1]), t[2]),
+                           lerp(fx[1] - fx[0], fx[3] - fx[2], t[2]), fz1 - fz0);
     level = float(v * inv_voxel);
     slope = openvdb::Vec3f(g * inv_voxel);
 }

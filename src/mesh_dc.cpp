@@ -472,9 +472,12 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                         const openvdb::Vec3d pj(points[j]);
                         const double t = -nj.dot(v0 - pj) / nj[axis];
                         if (!(t >= 0.0 && t <= 1.0)) continue;
-                        if (cand.empty()) {
-                            f0 = (double(acc.getValue(s)) - iso) / voxel;
-                            f1 = (double(acc.getValue(s1)) - iso) / voxel;
+                        if (cand.empty()) {  // s is in the leaf, s1 too unless past its face
+                            f0 = (double(leaves[L]->getValue(s)) - iso) / voxel;
+                            f1 = (double((s1[axis] & 7) ? leaves[L]->getValue(s1)
+                                                         : acc.getValue(s1)) -
+                                  iso) /
+                                 voxel;
                         }
                         cand.push_back({j, t, rise > 0.0 ? t : 1.0 - t, f0 - nj.dot(v0 - pj),
                                         f1 - nj.dot(v1 - pj), std::fabs(nj.dot(p - pj)),
@@ -889,6 +892,8 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     for_each_surface_cell(
         tree, crossings, iso, [&](std::size_t L, const SurfaceCell& cell, FloatAccessor& acc) {
             std::vector<PatchVertex>& out = per_leaf[L];
+            // About one vertex per crossing: one allocation per leaf, not a growth series.
+            if (out.empty()) out.reserve(crossings.leaf_begin[L + 1] - crossings.leaf_begin[L] + 8);
             for (int l = 0; l < cell.loops.count; ++l) {
                 int start[12], size[12];
                 const int chains = loop_chains(cell, l, acc, iso, start, size);

@@ -75,10 +75,12 @@ public:
                             if (nz == 8) {  // fixed-size copies, which the compiler inlines
                                 std::copy(src, src + 8, value_ + row);
                                 for (int z = 0; z < 8; ++z) on_[row + z] = (bits >> z) & 1u;
-                            } else {
-                                for (int z = 0; z < nz; ++z) {
-                                    value_[row + z] = src[z];
-                                    on_[row + z] = (bits >> z) & 1u;
+                            } else {  // the margins: one voxel before the leaf, two after
+                                value_[row] = src[0];
+                                on_[row] = bits & 1u;
+                                if (nz == 2) {
+                                    value_[row + 1] = src[1];
+                                    on_[row + 1] = (bits >> 1) & 1u;
                                 }
                             }
                         }

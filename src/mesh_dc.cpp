@@ -650,26 +650,27 @@ bool flat_solution(const Eigen::Matrix3d& ata, const Eigen::Vector3d& atb,
 /// The vertex of one patch (the crossings `edges[0..n)` of `cell`), and the patch's mean normal.
 openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int n,
                          const QefData& q, openvdb::Vec3f& normal) {
-    Eigen::Vector3d mass = Eigen::Vector3d::Zero();
+    // The patch's Hermite data, read once (the passes below each go over it).
+    Eigen::Vector3d P[12], N[12];
+    double W[12];
     for (int i = 0; i < n; ++i) {
-        const openvdb::Vec3f& p = q.points[std::size_t(cell.edge_id[edges[i]])];
-        mass += Eigen::Vector3d(p[0], p[1], p[2]);
+        const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
+        const openvdb::Vec3f &p = q.points[id], &nv = q.normals[id];
+        P[i] = Eigen::Vector3d(p[0], p[1], p[2]);
+        N[i] = Eigen::Vector3d(nv[0], nv[1], nv[2]);
+        W[i] = q.weights[id];
     }
+    Eigen::Vector3d mass = Eigen::Vector3d::Zero();
+    for (int i = 0; i < n; ++i) mass += P[i];
     mass /= double(n);
     // Spread of the normals: decides between the feature path (planes meet at an edge or corner)
     // and the smooth path (project onto the level set, below).
     double min_cos = 1.0;
     Eigen::Vector3d mean_n = Eigen::Vector3d::Zero();
-    for (int i = 0; i < n; ++i) {
-        const openvdb::Vec3f& nv = q.normals[std::size_t(cell.edge_id[edges[i]])];
-        mean_n += Eigen::Vector3d(nv[0], nv[1], nv[2]);
-    }
+    for (int i = 0; i < n; ++i) mean_n += N[i];
     mean_n.normalize();
     normal = openvdb::Vec3f(float(mean_n[0]), float(mean_n[1]), float(mean_n[2]));
-    for (int i = 0; i < n; ++i) {
-        const openvdb::Vec3f& nv = q.normals[std::size_t(cell.edge_id[edges[i]])];
-        min_cos = std::min(min_cos, mean_n.dot(Eigen::Vector3d(nv[0], nv[1], nv[2])));
-    }
+    for (int i = 0; i < n; ++i) min_cos = std::min(min_cos, mean_n.dot(N[i]));
     Eigen::Vector3d lo, hi;
     for (int a = 0; a < 3; ++a) {
         lo[a] = double(cell.origin[a]) - kCellMargin;
@@ -685,12 +686,9 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
         ata = q.bias * Eigen::Matrix3d::Identity();
         atb = Eigen::Vector3d::Zero();
         for (int i = 0; i < n; ++i) {
-            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
-            const openvdb::Vec3f& p = q.points[id];
-            const openvdb::Vec3f& nv = q.normals[id];
-            const Eigen::Vector3d nn(nv[0], nv[1], nv[2]);
-            const double b = nn.dot(Eigen::Vector3d(p[0], p[1], p[2]) - mass);
-            const double w = std::max(kMinPlaneWeight, q.weights[id]) * robust[i];
+            const Eigen::Vector3d& nn = N[i];
+            const double b = nn.dot(P[i] - mass);
+            const double w = std::max(double(kMinPlaneWeight), W[i]) * robust[i];
             ata += w * nn * nn.transpose();
             atb += w * b * nn;
         }
@@ -708,15 +706,12 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
     if (min_cos > 0.9 && min_cos < 0.9999) {
         double sum = 0.0, wsum = 0.0;
         for (int i = 0; i < n; ++i) {
-            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
-            const openvdb::Vec3f& pv = q.points[id];
-            const openvdb::Vec3f& nv = q.normals[id];
-            const Eigen::Vector3d p(pv[0], pv[1], pv[2]), nn(nv[0], nv[1], nv[2]);
+            const Eigen::Vector3d &p = P[i], &nn = N[i];
             const double cosine = nn.dot(mean_n);
             if (!(cosine > 0.5)) continue;
             const double a = nn.dot(p - mass) / cosine - 0.5 * (p - mass).dot(nn - mean_n);
-            sum += q.weights[id] * a;
-            wsum += q.weights[id];
+            sum += W[i] * a;
+            wsum += W[i];
         }
         if (wsum > 0.0) {
             x = mass + (sum / wsum) * mean_n;
@@ -753,11 +748,7 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
             break;
         }
         for (int i = 0; i < n; ++i) {
-            const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
-            const openvdb::Vec3f& p = q.points[id];
-            const openvdb::Vec3f& nv = q.normals[id];
-            const Eigen::Vector3d nn(nv[0], nv[1], nv[2]);
-            const double r = nn.dot(x + mass - Eigen::Vector3d(p[0], p[1], p[2])) / 0.02;
+            const double r = N[i].dot(x + mass - P[i]) / 0.02;
             robust[i] = 1.0 / (1.0 + r * r);
         }
     }

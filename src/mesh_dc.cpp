@@ -218,8 +218,8 @@ struct PlaneCandidate {
 /// of a walk over the voxels around the edge's start, then over axes.
 const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
                                  const std::vector<std::size_t>& reliable,
-                                 const std::vector<openvdb::Vec3f>& points,
-                                 const std::vector<openvdb::Vec3f>& normals) {
+                                 const FillLater<openvdb::Vec3f>& points,
+                                 const FillLater<openvdb::Vec3f>& normals) {
     constexpr double kMatch = 0.02;    // voxels
     constexpr double kOnPlane = 0.06;  // voxels
     constexpr double kFace = 0.005;    // voxels
@@ -406,8 +406,8 @@ struct ReliableCrossings {
 /// reliable crossings around its leaf instead of probing the 125 voxels around its edge.
 void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                     const std::vector<const openvdb::FloatTree::LeafNodeType*>& leaves,
-                    double voxel, float iso, std::vector<openvdb::Vec3f>& points,
-                    std::vector<openvdb::Vec3f>& normals, std::vector<float>& weights) {
+                    double voxel, float iso, FillLater<openvdb::Vec3f>& points,
+                    FillLater<openvdb::Vec3f>& normals, FillLater<float>& weights) {
     const std::size_t n_leaves = leaves.size();
     ReliableCrossings rel;
     rel.begin.assign(n_leaves + 1, 0);
@@ -623,9 +623,9 @@ constexpr float kMinPlaneWeight = 0.2f;
 
 /// What the vertex placement needs: Hermite data of every crossing.
 struct QefData {
-    const std::vector<openvdb::Vec3f>& points;
-    const std::vector<openvdb::Vec3f>& normals;
-    const std::vector<float>& weights;
+    const FillLater<openvdb::Vec3f>& points;
+    const FillLater<openvdb::Vec3f>& normals;
+    const FillLater<float>& weights;
     double truncation, bias;
 };
 
@@ -811,8 +811,8 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     const Crossings crossings = find_crossings(tree, iso);
 
     // Hermite data at the crossings, leaf by leaf (a crossing's stencils stay in its leaf's block).
-    std::vector<openvdb::Vec3f> points(crossings.size()), normals(crossings.size());
-    std::vector<float> weights(crossings.size());
+    FillLater<openvdb::Vec3f> points(crossings.size()), normals(crossings.size());
+    FillLater<float> weights(crossings.size());
     std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
     tree.getNodes(leaves);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
@@ -873,7 +873,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     const double inv_voxel = 1.0 / volume.sdf->voxelSize()[0];
     std::vector<std::vector<PatchVertex>> per_leaf(leaves.size());
     constexpr std::uint64_t kNone = ~std::uint64_t(0);
-    std::vector<std::array<std::uint64_t, 4>> around(crossings.size());
+    FillLater<std::array<std::uint64_t, 4>> around(crossings.size());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, around.size(), 4096),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           std::fill(around.begin() + std::ptrdiff_t(r.begin()),
@@ -917,9 +917,8 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     for (std::size_t L = 0; L < per_leaf.size(); ++L) base[L + 1] = base[L] + per_leaf[L].size();
     RawSurface raw;
     raw.points.resize(base.back());
-    std::vector<openvdb::Vec3f> patch_normal(base.back());
-    std::vector<float> level(base.back());
-    std::vector<openvdb::Vec3f> slope(base.back());
+    FillLater<openvdb::Vec3f> patch_normal(base.back()), slope(base.back());
+    FillLater<float> level(base.back());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, per_leaf.size(), 16),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t L = r.begin(); L < r.end(); ++L) {

@@ -24,8 +24,7 @@
 // Each crossed edge becomes a quad joining the vertices of its four cells (the patch of each cell
 // that contains the edge's crossing), ordered counter-clockwise around the outward direction and
 // split along the diagonal that follows a sharp edge (between vertices whose patch normals agree)
-// or, on smooth parts, whose triangles stay closer to the zero level of the SDF (by a
-// second-order estimate from the field's value and gradient at the vertices).
+// or, on smooth parts, whose triangles stay closer to the zero level of the SDF.
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <array>
@@ -507,8 +506,6 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
 struct PatchVertex {
     openvdb::Vec3f position;
     openvdb::Vec3f normal;  ///< mean normal of the patch's crossings
-    float level;            ///< the trilinear field at the vertex minus the iso-value, voxels
-    openvdb::Vec3f slope;   ///< the trilinear field's gradient there (voxels per voxel)
 };
 
 /// The face (kFaceCorner index) on which two cube edges meet, or -1.
@@ -771,37 +768,60 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
     return openvdb::Vec3d(x[0], x[1], x[2]);
 }
 
-/// The trilinear field (minus `iso`) and its gradient at the index-space point x, both in voxels,
-/// read from the corners of `cell` when x lies in it (the usual case for a vertex), else from the
-/// tree.
-void field_at(const SurfaceCell& cell, const openvdb::Vec3d& x, FloatAccessor& acc, float iso,
-              double inv_voxel, float& level, openvdb::Vec3f& slope) {
-    openvdb::Coord c = cell.origin;
-    openvdb::Vec3d t = x - c.asVec3d();
-    float f[8];
-    std::copy(cell.value, cell.value + 8, f);
-    if (!(t[0] >= 0.0 && t[0] <= 1.0 && t[1] >= 0.0 && t[1] <= 1.0 && t[2] >= 0.0 &&
-          t[2] <= 1.0)) {
-        c = openvdb::Coord(int(std::floor(x[0])), int(std::floor(x[1])), int(std::floor(x[2])));
-        t = x - c.asVec3d();
-        for (int k = 0; k < 8; ++k) f[k] = acc.getValue(c.offsetBy(k & 1, (k >> 1) & 1, k >> 2));
+/// Trilinear interpolation of the sdf at index-space points (inactive voxels read as their
+/// stored value) for the quad diagonals, which ask about points around the edges of one leaf:
+/// cells inside the leaf's LeafBlock are read from it, others from the tree, one probe per leaf
+/// the cell touches (the accessor caches a single leaf).
+class BlockTrilinear {
+  public:
+    BlockTrilinear(FloatAccessor& acc, const LeafBlock& block) : acc_(acc), block_(block) {}
+
+    double operator()(const openvdb::Vec3d& p) {
+        const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
+        double value[8];  // corner dx << 2 | dy << 1 | dz
+        int i, far;
+        if (block_.index(c.offsetBy(1), far) && block_.index(c, i)) {
+            constexpr int n = LeafBlock::kN;
+            for (int k = 0; k < 8; ++k) {
+                value[k] = double(block_.value(i + ((k >> 2) * n + ((k >> 1) & 1)) * n + (k & 1)));
+            }
+        } else {
+            load(c, value);
+        }
+        const openvdb::Vec3d t = p - c.asVec3d();
+        double v = 0.0;
+        for (int k = 0; k < 8; ++k) {
+            const int dx = k >> 2, dy = (k >> 1) & 1, dz = k & 1;
+            const double w =
+                (dx ? t[0] : 1.0 - t[0]) * (dy ? t[1] : 1.0 - t[1]) * (dz ? t[2] : 1.0 - t[2]);
+            v += w * value[k];
+        }
+        return v;
     }
-    // Corner k = x | y << 1 | z << 2 (detail/cube.h). Blend along x, then y, then z; each
-    // derivative is the difference of the blends before the step along its axis.
-    const auto lerp = [](double a, double b, double u) { return a + u * (b - a); };
-    double fx[4], dx[4];  // per (y, z) edge along x: value at t[0], and slope
-    for (int e = 0; e < 4; ++e) {
-        const double f0 = double(f[2 * e]) - iso, f1 = double(f[2 * e + 1]) - iso;
-        fx[e] = lerp(f0, f1, t[0]);
-        dx[e] = f1 - f0;
+
+  private:
+    void load(const openvdb::Coord& c, double value[8]) {
+        const int x = c[0] & 7, y = c[1] & 7, z = c[2] & 7;
+        const float* data[8];
+        bool probed[8] = {};
+        for (int k = 0; k < 8; ++k) {
+            const int dx = k >> 2, dy = (k >> 1) & 1, dz = k & 1;
+            const int part = ((x + dx) >> 3) << 2 | ((y + dy) >> 3) << 1 | ((z + dz) >> 3);
+            const openvdb::Coord q = c.offsetBy(dx, dy, dz);
+            if (!probed[part]) {
+                const auto* l = acc_.probeConstLeaf(q);
+                data[part] = l ? l->buffer().data() : nullptr;
+                probed[part] = true;
+            }
+            value[k] = double(data[part]
+                                  ? data[part][openvdb::FloatTree::LeafNodeType::coordToOffset(q)]
+                                  : acc_.getValue(q));
+        }
     }
-    const double fz0 = lerp(fx[0], fx[1], t[1]), fz1 = lerp(fx[2], fx[3], t[1]);
-    const double v = lerp(fz0, fz1, t[2]);
-    const openvdb::Vec3d g(lerp(lerp(dx[0], dx[1], t[1]), lerp(dx[2], dx[3], t[1]), t[2]),
-                           lerp(fx[1] - fx[0], fx[3] - fx[2], t[2]), fz1 - fz0);
-    level = float(v * inv_voxel);
-    slope = openvdb::Vec3f(g * inv_voxel);
-}
+
+    FloatAccessor& acc_;
+    const LeafBlock& block_;
+};
 
 }  // namespace
 
@@ -870,7 +890,6 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     // cells as (leaf, index in the leaf): every (crossing, slot) belongs to exactly one cell, so
     // there are no two writers.
     const QefData qef{points, normals, weights, options.dc_truncation, options.dc_bias};
-    const double inv_voxel = 1.0 / volume.sdf->voxelSize()[0];
     std::vector<std::vector<PatchVertex>> per_leaf(leaves.size());
     constexpr std::uint64_t kNone = ~std::uint64_t(0);
     FillLater<std::array<std::uint64_t, 4>> around(crossings.size());
@@ -894,9 +913,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                     for (int i = 0; i < size[c]; ++i)
                         chain[i] = cell.loops.edge[l][(start[c] + i) % n];
                     PatchVertex v;
-                    const openvdb::Vec3d x = solve_qef(cell, chain, size[c], qef, v.normal);
-                    v.position = openvdb::Vec3f(x);
-                    field_at(cell, x, acc, iso, inv_voxel, v.level, v.slope);
+                    v.position = openvdb::Vec3f(solve_qef(cell, chain, size[c], qef, v.normal));
                     const std::uint64_t id = (std::uint64_t(L) << 32) | out.size();
                     out.push_back(v);
                     for (int i = 0; i < size[c]; ++i) {
@@ -917,16 +934,13 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     for (std::size_t L = 0; L < per_leaf.size(); ++L) base[L + 1] = base[L] + per_leaf[L].size();
     RawSurface raw;
     raw.points.resize(base.back());
-    FillLater<openvdb::Vec3f> patch_normal(base.back()), slope(base.back());
-    FillLater<float> level(base.back());
+    FillLater<openvdb::Vec3f> patch_normal(base.back());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, per_leaf.size(), 16),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t L = r.begin(); L < r.end(); ++L) {
                               for (std::size_t k = 0; k < per_leaf[L].size(); ++k) {
                                   raw.points[base[L] + k] = per_leaf[L][k].position;
                                   patch_normal[base[L] + k] = per_leaf[L][k].normal;
-                                  level[base[L] + k] = per_leaf[L][k].level;
-                                  slope[base[L] + k] = per_leaf[L][k].slope;
                               }
                               per_leaf[L] = {};
                           }
@@ -937,8 +951,12 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     tbb::parallel_for(
         tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
         [&](const tbb::blocked_range<std::size_t>& r) {
+            FloatAccessor acc(tree);
+            auto block = std::make_unique<LeafBlock>(acc);
+            BlockTrilinear field(acc, *block);
             for (std::size_t L = r.begin(); L < r.end(); ++L) {
                 quads[L].reserve(2 * (crossings.leaf_begin[L + 1] - crossings.leaf_begin[L]));
+                bool loaded = false;  // the leaf's block, read when the field is first asked
                 for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1];
                      ++c) {
                     const auto& q = around[c];
@@ -953,27 +971,21 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                     std::array<std::int32_t, 4> v = {global(q[0]), global(q[1]), global(q[3]),
                                                      global(q[2])};
                     if (!crossings.start_inside[c]) std::reverse(v.begin(), v.end());
-                    // The field at a triangle's centroid, estimated to second order from its
-                    // vertices' field values e_i and gradients g_i (PatchVertex::level, slope):
-                    // for a quadratic f with Hessian H, f(sum_i x_i / 3) = sum_i f(x_i) / 3 -
-                    // sum_{i<j} (x_j - x_i)^T H (x_j - x_i) / 18, and (x_j - x_i) . (g_j - g_i)
-                    // equals that quadratic form. This replaces four trilinear lookups per quad
-                    // (the vertex pass had each vertex's cell corners at hand). On the bunny it
-                    // picks the other diagonal than those lookups in 20 % of the quads, 95 % of
-                    // them near-ties (estimated misfits of the splits within 0.01 voxel).
-                    const auto bend = [&](std::int32_t a, std::int32_t b) {
-                        return double((raw.points[std::size_t(b)] - raw.points[std::size_t(a)])
-                                          .dot(slope[std::size_t(b)] - slope[std::size_t(a)]));
-                    };
-                    const auto e = [&](std::int32_t a) { return double(level[std::size_t(a)]); };
                     auto off_surface = [&](std::int32_t a, std::int32_t b, std::int32_t d) {
-                        return std::fabs((e(a) + e(b) + e(d)) / 3.0 -
-                                         (bend(a, b) + bend(b, d) + bend(a, d)) / 18.0);
+                        if (!loaded) {
+                            block->load(leaves[L]->origin());
+                            loaded = true;
+                        }
+                        const openvdb::Vec3d centre = (openvdb::Vec3d(raw.points[std::size_t(a)]) +
+                                                       openvdb::Vec3d(raw.points[std::size_t(b)]) +
+                                                       openvdb::Vec3d(raw.points[std::size_t(d)])) /
+                                                      3.0;
+                        return std::fabs(field(centre) - double(iso));
                     };
                     // Next to a sharp edge the diagonal must run along it, between the two
                     // vertices whose patch normals agree, not across it (which cuts the edge
                     // off). The trilinear field cannot tell: it is rounded at the edge. Where the
-                    // normals do not discriminate, the field (its estimate) decides.
+                    // normals do not discriminate, the field decides.
                     const auto nd = [&](int a, int b) {
                         return double(patch_normal[std::size_t(v[a])].dot(
                             patch_normal[std::size_t(v[b])]));

@@ -769,58 +769,82 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
 }
 
 /// Trilinear interpolation of the sdf at index-space points (inactive voxels read as their
-/// stored value) for the quad diagonals, which ask about points around the edges of one leaf:
-/// cells inside the leaf's LeafBlock are read from it, others from the tree, one probe per leaf
-/// the cell touches (the accessor caches a single leaf).
-class BlockTrilinear {
+/// stored value) for the quad diagonals, which ask about points around the edges of one leaf.
+/// It keeps the buffers (or tile values) of the leaf and its 26 neighbours, looked up once per
+/// leaf, and reads cell corners straight from them: no copy of the neighbourhood, which costs
+/// more than all the lookups of a leaf's quads.
+class LeafTrilinear {
   public:
-    BlockTrilinear(FloatAccessor& acc, const LeafBlock& block) : acc_(acc), block_(block) {}
+    explicit LeafTrilinear(FloatAccessor& acc) : acc_(acc) {}
 
-    double operator()(const openvdb::Vec3d& p) {
-        const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
-        double value[8];  // corner dx << 2 | dy << 1 | dz
-        int i, far;
-        if (block_.index(c.offsetBy(1), far) && block_.index(c, i)) {
-            constexpr int n = LeafBlock::kN;
-            for (int k = 0; k < 8; ++k) {
-                value[k] = double(block_.value(i + ((k >> 2) * n + ((k >> 1) & 1)) * n + (k & 1)));
-            }
-        } else {
-            load(c, value);
+    /// Looks up the leaf at `origin` and its neighbours.
+    void load(const openvdb::Coord& origin) {
+        origin_ = origin;
+        for (int part = 0; part < 27; ++part) {
+            const openvdb::Coord o =
+                origin.offsetBy(8 * (part / 9 - 1), 8 * (part / 3 % 3 - 1), 8 * (part % 3 - 1));
+            const auto* leaf = acc_.probeConstLeaf(o);
+            data_[part] = leaf ? leaf->buffer().data() : nullptr;
+            tile_[part] = 0.0f;
+            if (!leaf) acc_.probeValue(o, tile_[part]);
         }
-        const openvdb::Vec3d t = p - c.asVec3d();
-        double v = 0.0;
+    }
+
+    /// The field at four points. The four blends are independent chains of additions, computed
+    /// side by side (each in the same order as for a single point, so the values are the same).
+    void operator()(const openvdb::Vec3d (&p)[4], double (&v)[4]) {
+        double value[4][8];  // per point, corner dx << 2 | dy << 1 | dz
+        openvdb::Vec3d t[4];
+        for (int j = 0; j < 4; ++j) {
+            const openvdb::Coord c(int(std::floor(p[j][0])), int(std::floor(p[j][1])),
+                                   int(std::floor(p[j][2])));
+            corners(c, value[j]);
+            t[j] = p[j] - c.asVec3d();
+            v[j] = 0.0;
+        }
         for (int k = 0; k < 8; ++k) {
             const int dx = k >> 2, dy = (k >> 1) & 1, dz = k & 1;
-            const double w =
-                (dx ? t[0] : 1.0 - t[0]) * (dy ? t[1] : 1.0 - t[1]) * (dz ? t[2] : 1.0 - t[2]);
-            v += w * value[k];
+            for (int j = 0; j < 4; ++j) {
+                const double w = (dx ? t[j][0] : 1.0 - t[j][0]) * (dy ? t[j][1] : 1.0 - t[j][1]) *
+                                 (dz ? t[j][2] : 1.0 - t[j][2]);
+                v[j] += w * value[j][k];
+            }
         }
-        return v;
     }
 
   private:
-    void load(const openvdb::Coord& c, double value[8]) {
-        const int x = c[0] & 7, y = c[1] & 7, z = c[2] & 7;
-        const float* data[8];
-        bool probed[8] = {};
-        for (int k = 0; k < 8; ++k) {
-            const int dx = k >> 2, dy = (k >> 1) & 1, dz = k & 1;
-            const int part = ((x + dx) >> 3) << 2 | ((y + dy) >> 3) << 1 | ((z + dz) >> 3);
-            const openvdb::Coord q = c.offsetBy(dx, dy, dz);
-            if (!probed[part]) {
-                const auto* l = acc_.probeConstLeaf(q);
-                data[part] = l ? l->buffer().data() : nullptr;
-                probed[part] = true;
+    /// The values at the corners of the cell at c.
+    void corners(const openvdb::Coord& c, double value[8]) {
+        const openvdb::Coord l = c - origin_;  // in the neighbourhood when in -8 .. 14
+        if (l[0] >= -8 && l[1] >= -8 && l[2] >= -8 && l[0] < 15 && l[1] < 15 && l[2] < 15) {
+            const int x = l[0] & 7, y = l[1] & 7, z = l[2] & 7;
+            const int part = ((l[0] >> 3) + 1) * 9 + ((l[1] >> 3) + 1) * 3 + (l[2] >> 3) + 1;
+            if (x < 7 && y < 7 && z < 7) {  // all eight corners in one leaf (or tile)
+                const float* d = data_[part];
+                const int o = (x << 6) | (y << 3) | z;
+                for (int k = 0; k < 8; ++k) {
+                    value[k] = double(d ? d[o + ((k >> 2) << 6) + (((k >> 1) & 1) << 3) + (k & 1)]
+                                        : tile_[part]);
+                }
+                return;
             }
-            value[k] = double(data[part]
-                                  ? data[part][openvdb::FloatTree::LeafNodeType::coordToOffset(q)]
-                                  : acc_.getValue(q));
+            for (int k = 0; k < 8; ++k) {
+                const int cx = x + (k >> 2), cy = y + ((k >> 1) & 1), cz = z + (k & 1);
+                const int q = part + (cx >> 3) * 9 + (cy >> 3) * 3 + (cz >> 3);
+                value[k] = double(data_[q] ? data_[q][((cx & 7) << 6) | ((cy & 7) << 3) | (cz & 7)]
+                                           : tile_[q]);
+            }
+            return;
+        }
+        for (int k = 0; k < 8; ++k) {
+            value[k] = double(acc_.getValue(c.offsetBy(k >> 2, (k >> 1) & 1, k & 1)));
         }
     }
 
     FloatAccessor& acc_;
-    const LeafBlock& block_;
+    openvdb::Coord origin_;
+    const float* data_[27];  ///< part (dx + 1) * 9 + (dy + 1) * 3 + dz + 1, null for a tile
+    float tile_[27];
 };
 
 }  // namespace
@@ -952,11 +976,10 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
         tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
         [&](const tbb::blocked_range<std::size_t>& r) {
             FloatAccessor acc(tree);
-            auto block = std::make_unique<LeafBlock>(acc);
-            BlockTrilinear field(acc, *block);
+            LeafTrilinear field(acc);
             for (std::size_t L = r.begin(); L < r.end(); ++L) {
                 quads[L].reserve(2 * (crossings.leaf_begin[L + 1] - crossings.leaf_begin[L]));
-                bool loaded = false;  // the leaf's block, read when the field is first asked
+                bool loaded = false;  // the leaf's neighbours, looked up when the field is asked
                 for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1];
                      ++c) {
                     const auto& q = around[c];
@@ -971,16 +994,11 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                     std::array<std::int32_t, 4> v = {global(q[0]), global(q[1]), global(q[3]),
                                                      global(q[2])};
                     if (!crossings.start_inside[c]) std::reverse(v.begin(), v.end());
-                    auto off_surface = [&](std::int32_t a, std::int32_t b, std::int32_t d) {
-                        if (!loaded) {
-                            block->load(leaves[L]->origin());
-                            loaded = true;
-                        }
-                        const openvdb::Vec3d centre = (openvdb::Vec3d(raw.points[std::size_t(a)]) +
-                                                       openvdb::Vec3d(raw.points[std::size_t(b)]) +
-                                                       openvdb::Vec3d(raw.points[std::size_t(d)])) /
-                                                      3.0;
-                        return std::fabs(field(centre) - double(iso));
+                    const auto centre = [&](std::int32_t a, std::int32_t b, std::int32_t d) {
+                        return (openvdb::Vec3d(raw.points[std::size_t(a)]) +
+                                openvdb::Vec3d(raw.points[std::size_t(b)]) +
+                                openvdb::Vec3d(raw.points[std::size_t(d)])) /
+                               3.0;
                     };
                     // Next to a sharp edge the diagonal must run along it, between the two
                     // vertices whose patch normals agree, not across it (which cuts the edge
@@ -993,8 +1011,18 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                     const double agree02 = nd(0, 2), agree13 = nd(1, 3);
                     bool use02 = agree02 > agree13;
                     if (std::fabs(agree02 - agree13) <= 0.05) {  // only then is the field asked
-                        use02 = off_surface(v[0], v[1], v[2]) + off_surface(v[0], v[2], v[3]) <=
-                                off_surface(v[0], v[1], v[3]) + off_surface(v[1], v[2], v[3]);
+                        if (!loaded) {
+                            field.load(leaves[L]->origin());
+                            loaded = true;
+                        }
+                        // The triangles' centroids: split 02, then split 13.
+                        const openvdb::Vec3d at[4] = {
+                            centre(v[0], v[1], v[2]), centre(v[0], v[2], v[3]),
+                            centre(v[0], v[1], v[3]), centre(v[1], v[2], v[3])};
+                        double f[4];
+                        field(at, f);
+                        const auto off = [&](int k) { return std::fabs(f[k] - double(iso)); };
+                        use02 = off(0) + off(1) <= off(2) + off(3);
                     }
                     std::vector<Triangle>& out = quads[L];
                     if (use02) {

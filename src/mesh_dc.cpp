@@ -336,8 +336,8 @@ struct ReliableCrossings {
                 for (int dz = -8; dz <= 8; dz += 8) {
                     const std::int64_t leaf = leaf_index.find(origin.offsetBy(dx, dy, dz));
                     if (leaf < 0) continue;
-                    for (std::size_t k = begin[std::size_t(leaf)];
-                         k < begin[std::size_t(leaf) + 1]; ++k) {
+                    for (std::size_t k = begin[std::size_t(leaf)]; k < begin[std::size_t(leaf) + 1];
+                         ++k) {
                         const std::uint32_t j = ids[k];
                         const openvdb::Coord& c = crossings.start[j];
                         if (c[0] < lo[0] || c[1] < lo[1] || c[2] < lo[2] || c[0] > hi[0] ||
@@ -474,7 +474,7 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                         if (cand.empty()) {  // s is in the leaf, s1 too unless past its face
                             f0 = (double(leaves[L]->getValue(s)) - iso) / voxel;
                             f1 = (double((s1[axis] & 7) ? leaves[L]->getValue(s1)
-                                                         : acc.getValue(s1)) -
+                                                        : acc.getValue(s1)) -
                                   iso) /
                                  voxel;
                         }
@@ -886,8 +886,9 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                               }
                               Cached& c = cache[std::size_t(i)];
                               if (c.stamp != stamp) {
-                                  c.have = robust_gradient(block->values() + i, block->actives() + i,
-                                                           LeafBlock::kStep, c.g, c.misfit);
+                                  c.have = robust_gradient(block->values() + i,
+                                                           block->actives() + i, LeafBlock::kStep,
+                                                           c.g, c.misfit);
                                   c.stamp = stamp;
                               }
                               g = c.g;

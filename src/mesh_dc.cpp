@@ -631,9 +631,9 @@ struct QefData {
 /// truncation (relative cutoff `truncation`^2 lambda_1) and x = (v . atb / lambda_1) v with v its
 /// eigenvector. v comes from power iteration started at the patch's mean normal `start`, which
 /// converges by a factor lambda_2 / lambda_1 <= truncation^2 per step; three steps leave an error
-/// far below float precision, where a full eigendecomposition costs several times as much. False
-/// (no solution) when the other two eigenvalues might pass the cutoff: their sum, the trace minus
-/// lambda_1, exceeds it.
+/// far below float precision (the bunny's mesh bytes did not change) for less work than a full
+/// eigendecomposition. False (no solution) when the other two eigenvalues might pass the cutoff:
+/// their sum, the trace minus lambda_1, exceeds it.
 bool flat_solution(const Eigen::Matrix3d& ata, const Eigen::Vector3d& atb,
                    const Eigen::Vector3d& start, double truncation, Eigen::Vector3d& x) {
     Eigen::Vector3d v = start;
@@ -771,8 +771,8 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
 /// Trilinear interpolation of the sdf at index-space points (inactive voxels read as their
 /// stored value) for the quad diagonals, which ask about points around the edges of one leaf.
 /// It keeps the buffers (or tile values) of the leaf and its 26 neighbours, looked up once per
-/// leaf, and reads cell corners straight from them: no copy of the neighbourhood, which costs
-/// more than all the lookups of a leaf's quads.
+/// leaf, and reads cell corners straight from them rather than copying the neighbourhood into a
+/// LeafBlock first (about as fast on the bunny, and no 11^3 copy).
 class LeafTrilinear {
   public:
     explicit LeafTrilinear(FloatAccessor& acc) : acc_(acc) {}

@@ -76,6 +76,9 @@ struct CellLoops {
     int count = 0;
     std::uint8_t size[4] = {0, 0, 0, 0};
     std::uint8_t edge[4][12];
+    /// Whether a face holds four crossings (two segments). Without one, every loop crosses each
+    /// face at most once.
+    bool ambiguous = false;
 };
 
 /// The oriented loops of the iso-surface in a cell with corner values f (inside: f < iso).
@@ -85,6 +88,7 @@ inline bool cell_loops_direct(const float f[8], float iso, CellLoops& out) {
     int mask = 0;
     for (int c = 0; c < 8; ++c) mask |= (f[c] < iso ? 1 : 0) << c;
     out.count = 0;
+    out.ambiguous = false;
     if (mask == 0 || mask == 255) return false;
     auto inside = [&](int c) { return (mask >> c) & 1; };
     int next[12];
@@ -104,6 +108,7 @@ inline bool cell_loops_direct(const float f[8], float iso, CellLoops& out) {
             const int in = enters[0] ? 0 : 1;
             next[edges[in]] = edges[1 - in];
         } else if (n == 4) {
+            out.ambiguous = true;
             // Two negative corners on a diagonal. Walk order: enter, leave, enter, leave (after
             // a rotation). Pair each entry with the following exit (negative corners cut off
             // separately) unless the saddle of the bilinear interpolant is negative, in which

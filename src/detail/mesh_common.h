@@ -7,6 +7,8 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
+#include <utility>
 #include <vector>
 
 #include "vdbrecon/mesh.h"
@@ -16,6 +18,32 @@ namespace vdbrecon::detail {
 
 using FloatAccessor = openvdb::tree::ValueAccessor<const openvdb::FloatTree>;
 using Vec3Accessor = openvdb::tree::ValueAccessor<const openvdb::Vec3fTree>;
+
+/// An allocator whose construct() without arguments default-initialises: a vector of trivial
+/// elements sized by its constructor or resize() is not zero-filled first. For per-element arrays
+/// that parallel loops fill anyway; the zero fill would be one serial pass over all of them.
+template <typename T>
+struct NoZeroFill : std::allocator<T> {
+    template <typename U>
+    struct rebind {
+        using other = NoZeroFill<U>;
+    };
+    NoZeroFill() = default;
+    template <typename U>
+    NoZeroFill(const NoZeroFill<U>&) noexcept {}
+    template <typename U>
+    void construct(U* p) noexcept {
+        ::new (static_cast<void*>(p)) U;
+    }
+    template <typename U, typename... Args>
+    void construct(U* p, Args&&... args) {
+        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+    }
+};
+
+/// A vector whose sized construction leaves trivial elements uninitialised (see NoZeroFill).
+template <typename T>
+using FillLater = std::vector<T, NoZeroFill<T>>;
 
 /// What a mesher produces: points in index space and triangles, counter-clockwise seen from the
 /// positive (outside) side.
@@ -47,23 +75,41 @@ public:
                 for (int dz = 0; dz < 3; ++dz) {
                     const openvdb::Coord o = origin.offsetBy(8 * (dx - 1), 8 * (dy - 1), 8 * (dz - 1));
                     const auto* leaf = acc_.probeConstLeaf(o);
-                    float tile = 0.0f;
-                    const bool tile_on = leaf ? false : acc_.probeValue(o, tile);
-                    const float* data = leaf ? leaf->buffer().data() : nullptr;
+                    const int z0 = kBegin[dz], nz = kEnd[dz] - z0, lz0 = kLocal[dz];
+                    if (!leaf) {
+                        float tile = 0.0f;
+                        const std::uint8_t tile_on = acc_.probeValue(o, tile);
+                        for (int x = kBegin[dx]; x < kEnd[dx]; ++x) {
+                            for (int y = kBegin[dy]; y < kEnd[dy]; ++y) {
+                                const int row = (x * kN + y) * kN + z0;
+                                std::fill(value_ + row, value_ + row + nz, tile);
+                                std::fill(on_ + row, on_ + row + nz, tile_on);
+                            }
+                        }
+                        continue;
+                    }
+                    const float* data = leaf->buffer().data();
+                    const auto& mask = leaf->getValueMask();
                     for (int x = kBegin[dx]; x < kEnd[dx]; ++x) {
                         const int lx = kLocal[dx] + x - kBegin[dx];
                         for (int y = kBegin[dy]; y < kEnd[dy]; ++y) {
                             const int ly = kLocal[dy] + y - kBegin[dy];
-                            const int row = (x * kN + y) * kN;
+                            const int row = (x * kN + y) * kN + z0;
                             // A z-row of a leaf: 8 consecutive values, one byte of its mask word.
+                            const float* src = data + ((lx << 6) | (ly << 3) | lz0);
                             const unsigned bits =
-                                leaf ? leaf->getValueMask().template getWord<std::uint8_t>(
-                                           openvdb::Index(lx * 8 + ly))
-                                     : 0u;
-                            for (int z = kBegin[dz]; z < kEnd[dz]; ++z) {
-                                const int lz = kLocal[dz] + z - kBegin[dz];
-                                value_[row + z] = leaf ? data[(lx << 6) | (ly << 3) | lz] : tile;
-                                on_[row + z] = leaf ? std::uint8_t((bits >> lz) & 1u) : tile_on;
+                                mask.template getWord<std::uint8_t>(openvdb::Index(lx * 8 + ly)) >>
+                                lz0;
+                            if (nz == 8) {  // fixed-size copies, which the compiler inlines
+                                std::copy(src, src + 8, value_ + row);
+                                for (int z = 0; z < 8; ++z) on_[row + z] = (bits >> z) & 1u;
+                            } else {  // the margins: one voxel before the leaf, two after
+                                value_[row] = src[0];
+                                on_[row] = bits & 1u;
+                                if (nz == 2) {
+                                    value_[row + 1] = src[1];
+                                    on_[row + 1] = (bits >> 1) & 1u;
+                                }
                             }
                         }
                     }
@@ -83,6 +129,10 @@ public:
 
     float value(int i) const { return value_[i]; }
     bool on(int i) const { return on_[i] != 0; }
+    /// The dense arrays, block index i = (x * kN + y) * kN + z (steps kStep along x, y, z).
+    const float* values() const { return value_; }
+    const std::uint8_t* actives() const { return on_; }
+    static constexpr int kStep[3] = {kN * kN, kN, 1};
     /// Whether block index i has all 26 neighbours in the block.
     static bool interior(int i) {
         const int x = i / (kN * kN), y = (i / kN) % kN, z = i % kN;

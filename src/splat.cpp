@@ -185,13 +185,16 @@ inline bool clip_to_block(const Box& b, const openvdb::Coord& o, int lo[3], int 
     return true;
 }
 
-inline std::size_t blocks_touched(const Box& b) {
-    std::size_t n = 1;
+/// The blocks box b touches, block coordinates [lo, hi] per axis; false when the box is empty
+/// (a kernel narrower than the voxel spacing can fall between voxels), which touches none. One
+/// rule for counting, ranging and listing a point's pairs, so they always agree.
+inline bool block_span(const Box& b, int lo[3], int hi[3]) {
     for (int a = 0; a < 3; ++a) {
-        if (b.hi[a] < b.lo[a]) return 0;
-        n *= std::size_t(floor_div_block(b.hi[a]) - floor_div_block(b.lo[a]) + 1);
+        if (b.hi[a] < b.lo[a]) return false;
+        lo[a] = floor_div_block(b.lo[a]);
+        hi[a] = floor_div_block(b.hi[a]);
     }
-    return n;
+    return true;
 }
 
 
@@ -448,12 +451,12 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
-            if (kernels[i].r == 0.0f) continue;
-            const Box b = support_box(kernels[i]);
+            int lo[3], hi[3];
+            if (!(kernels[i].r > 0.0f) || !block_span(support_box(kernels[i]), lo, hi)) continue;
             std::size_t o = first_pair[i];
-            for (int bx = floor_div_block(b.lo[0]); bx <= floor_div_block(b.hi[0]); ++bx) {
-                for (int by = floor_div_block(b.lo[1]); by <= floor_div_block(b.hi[1]); ++by) {
-                    for (int bz = floor_div_block(b.lo[2]); bz <= floor_div_block(b.hi[2]); ++bz) {
+            for (int bx = lo[0]; bx <= hi[0]; ++bx) {
+                for (int by = lo[1]; by <= hi[1]; ++by) {
+                    for (int bz = lo[2]; bz <= hi[2]; ++bz) {
                         pairs[o++] = {Key(codec.pack(bx, by, bz)), std::uint32_t(i)};
                     }
                 }
@@ -633,13 +636,15 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
         std::array<int, 6> r = {INT_MAX, INT_MAX, INT_MAX, INT_MIN, INT_MIN, INT_MIN};
         for (std::size_t i = begin; i < end; ++i) {
-            if (!(kernels[i].r > 0.0f)) continue;
-            const Box b = support_box(kernels[i]);
-            first_pair[i + 1] = blocks_touched(b);
+            int lo[3], hi[3];
+            if (!(kernels[i].r > 0.0f) || !block_span(support_box(kernels[i]), lo, hi)) continue;
+            std::size_t count = 1;
             for (int a = 0; a < 3; ++a) {
-                r[std::size_t(a)] = std::min(r[std::size_t(a)], floor_div_block(b.lo[a]));
-                r[std::size_t(a) + 3] = std::max(r[std::size_t(a) + 3], floor_div_block(b.hi[a]));
+                count *= std::size_t(hi[a] - lo[a] + 1);
+                r[std::size_t(a)] = std::min(r[std::size_t(a)], lo[a]);
+                r[std::size_t(a) + 3] = std::max(r[std::size_t(a) + 3], hi[a]);
             }
+            first_pair[i + 1] = count;
         }
         ranges[c] = r;
     });
@@ -651,6 +656,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
             lo = std::min(lo, r[std::size_t(a)]);
             hi = std::max(hi, r[std::size_t(a) + 3]);
         }
+        if (lo > hi) break;  // no kernel reaches a voxel: no pairs, the default codec
         codec.lo[a] = lo;
         while (std::uint32_t(hi - lo) >> codec.bits[a]) ++codec.bits[a];
     }

@@ -159,6 +159,39 @@ TEST_CASE("a scan too wide for 32-bit block keys gives the grids of its parts", 
     REQUIRE(same_leaves(*rab.volume.nearest, *rb.volume.nearest));
 }
 
+TEST_CASE("kernels too narrow to reach a voxel add nothing and break nothing", "[splat]") {
+    // sigma 0.1 voxel, support 3: a point whose centre lies 0.3-0.7 voxel from the grid on any
+    // axis reaches no voxel (an empty support box). Such points, the last one included, must
+    // list no (block, point) pair: the grids equal those of the other points alone.
+    PointCloud all, reaching;
+    for (int i = 0; i < 4000; ++i) {
+        const float x = 0.01f * float(i % 64), y = 0.01f * float(i / 64);
+        const bool empty = i % 3 == 0 || i == 3999;
+        const Vec3f p{x, y, empty ? 0.005f : 0.0f};  // 0.5 voxel off the grid in z, or on it
+        all.positions.push_back(p);
+        all.normals.push_back({0.0f, 0.0f, 1.0f});
+        if (!empty) {
+            reaching.positions.push_back(p);
+            reaching.normals.push_back({0.0f, 0.0f, 1.0f});
+        }
+    }
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    o.sigma_voxels = 0.1;
+    o.min_sigma_voxels = 0.1;
+    const SplatResult a = splat(all, o), b = splat(reaching, o);
+    REQUIRE(a.updates == b.updates);
+    REQUIRE(same_grids(*a.volume.sdf, *b.volume.sdf));
+    REQUIRE(same_grids(*a.volume.weight, *b.volume.weight));
+    // None reaches a voxel: a clear error, not an empty volume.
+    PointCloud none;
+    for (std::size_t i = 0; i < all.size(); i += 3) {
+        none.positions.push_back(all.positions[i]);
+        none.normals.push_back(all.normals[i]);
+    }
+    REQUIRE_THROWS_WITH(splat(none, o), Catch::Contains("no voxel reached the minimum weight"));
+}
+
 TEST_CASE("colour is the weighted mean of the point colours", "[splat]") {
     PointCloud plane = sample_plane(41, 0.2);
     plane.colors.assign(plane.size(), Vec3f{0.25f, 0.5f, 1.0f});

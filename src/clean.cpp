@@ -130,21 +130,16 @@ CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
     Mesh& out = r.mesh;
     out.origin = mesh.origin;
     auto kept = [&](std::size_t f) { return double(size[std::size_t(label[f])]) >= min_faces; };
-    std::vector<std::int32_t> remap(mesh.vertices.size(), -1);
     std::vector<Triangle>& faces = out.faces.edit();
     faces.reserve(nf - r.removed_faces);
     for (std::size_t f = 0; f < nf; ++f) {
-        if (!kept(f)) continue;
-        faces.push_back(mesh.faces[f]);
-        for (std::int32_t i : mesh.faces[f]) remap[std::size_t(i)] = 0;
+        if (kept(f)) faces.push_back(mesh.faces[f]);
     }
+    std::size_t nv = 0;
+    const std::vector<std::int32_t> remap =
+        detail::compact_vertices(faces, mesh.vertices.size(), &nv);
     const bool normals = mesh.normals.size() == mesh.vertices.size();
     const bool colors = mesh.colors.size() == mesh.vertices.size();
-    std::int32_t next = 0;
-    for (std::int32_t& m : remap) {
-        if (m == 0) m = next++;
-    }
-    const std::size_t nv = std::size_t(next);
     out.vertices.resize(nv);
     if (normals) out.normals.resize(nv);
     if (colors) out.colors.resize(nv);
@@ -157,9 +152,6 @@ CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
         v[j] = mesh.vertices[i];
         if (n) n[j] = mesh.normals[i];
         if (c) c[j] = mesh.colors[i];
-    }
-    for (Triangle& t : faces) {
-        for (std::int32_t& i : t) i = remap[std::size_t(i)];
     }
     r.removed_vertices = mesh.vertices.size() - out.vertices.size();
 

@@ -235,26 +235,17 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
     tris.resize(kept);
 
     // Compact: keep referenced points only, in their original order.
-    std::vector<std::int32_t> remap(npoints, -1);
-    for (const Triangle& t : tris) {
-        for (std::int32_t i : t) remap[std::size_t(i)] = 0;
-    }
+    std::size_t kept_points = 0;
+    const std::vector<std::int32_t> remap = compact_vertices(tris, npoints, &kept_points);
     Mesh& mesh = result.mesh;
     mesh.origin = volume.origin;
-    std::int32_t next = 0;
-    for (std::int32_t& r : remap) {
-        if (r == 0) r = next++;
-    }
     std::vector<Vec3f>& vertices = mesh.vertices.edit();
-    vertices.resize(std::size_t(next));  // sized first: growth by doubling would raise the peak
+    vertices.resize(kept_points);  // sized first: growth by doubling would raise the peak
     for (std::size_t i = 0; i < npoints; ++i) {
         if (remap[i] < 0) continue;
         const openvdb::Vec3f& p = raw.points[i];
         vertices[std::size_t(remap[i])] = {float(p[0] * voxel), float(p[1] * voxel),
                                            float(p[2] * voxel)};
-    }
-    for (Triangle& t : tris) {
-        for (std::int32_t& i : t) i = remap[std::size_t(i)];
     }
     mesh.faces = std::move(tris);
 

@@ -76,6 +76,23 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces,
     return parent;
 }
 
+std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::size_t vertex_count,
+                                           std::size_t* used) {
+    std::vector<std::int32_t> remap(vertex_count, -1);
+    for (const Triangle& t : faces) {
+        for (std::int32_t i : t) remap[std::size_t(i)] = 0;
+    }
+    std::int32_t next = 0;
+    for (std::int32_t& r : remap) {
+        if (r == 0) r = next++;
+    }
+    for (Triangle& t : faces) {
+        for (std::int32_t& i : t) i = remap[std::size_t(i)];
+    }
+    *used = std::size_t(next);
+    return remap;
+}
+
 std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh) {
     std::vector<std::array<double, 3>> sum(mesh.vertices.size(), {0.0, 0.0, 0.0});
     for (const Triangle& t : mesh.faces) {

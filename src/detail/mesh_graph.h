@@ -27,6 +27,12 @@ std::vector<EdgeUse> undirected_edges(Span<Triangle> faces);
 std::vector<std::int32_t> face_components(Span<Triangle> faces,
                                           std::size_t vertex_count);
 
+/// The vertices the faces use, renumbered in their original order: rewrites the faces to the new
+/// numbers and returns, per old vertex, its new index (-1 where no face uses it); *used gets
+/// their count.
+std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::size_t vertex_count,
+                                           std::size_t* used);
+
 /// Per vertex, the sum of the (unnormalised, so area-weighted) normals of the faces around it.
 std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh);
 

@@ -15,6 +15,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
 #include <iostream>
 #include <map>
 #include <sstream>
@@ -456,6 +457,32 @@ void tune_heap() {
     mallopt(M_ARENA_MAX, 1);
 }
 
+/// Backs the heap with transparent huge pages where the kernel hands them out on request (THP
+/// mode "madvise", Debian's default): glibc's tunable glibc.malloc.hugetlb=1 (glibc >= 2.35)
+/// then advises huge pages for the memory it takes from the kernel, so a run faults its heap in
+/// 2 MB at a time instead of 4 kB (bunny 0.5 mm: 34.7k -> 1.4k page faults, about 0.1-0.3 s of
+/// 1.2 s on a VM where a fault is expensive; peak memory unchanged). glibc reads tunables only
+/// when a process starts, so the CLI executes itself once more with the tunable added to
+/// GLIBC_TUNABLES. Nothing happens when GLIBC_TUNABLES already names the tunable (set it to 0
+/// to turn this off), when the kernel's mode is not "madvise" ("always" needs no advice,
+/// "never" ignores it), or when the exec fails (the run goes on as it is).
+void use_huge_pages(char** argv) {
+    const char* old = std::getenv("GLIBC_TUNABLES");
+    const std::string previous = old ? old : "";
+    if (previous.find("glibc.malloc.hugetlb") != std::string::npos) return;
+    std::ifstream thp("/sys/kernel/mm/transparent_hugepage/enabled");
+    std::string mode;
+    if (!std::getline(thp, mode) || mode.find("[madvise]") == std::string::npos) return;
+    const std::string value = (previous.empty() ? "" : previous + ":") + "glibc.malloc.hugetlb=1";
+    if (setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
+    execv("/proc/self/exe", argv);
+    if (old) {  // the exec failed: carry on in this process, environment as it was
+        setenv("GLIBC_TUNABLES", previous.c_str(), 1);
+    } else {
+        unsetenv("GLIBC_TUNABLES");
+    }
+}
+
 int main(int argc, char** argv) {
     tune_heap();
     Args args;
@@ -476,6 +503,7 @@ int main(int argc, char** argv) {
                 return kExitOk;
             }
         }
+        use_huge_pages(argv);
         if (args.argv[0] == "eval") {
             args.i = 1;
             return run_eval(args);

@@ -148,6 +148,8 @@ bool in_one_cell(const openvdb::Vec3d& p) {
 /// whenever p's nearest sample is some corner's nearest sample (the usual case).
 double nearest_sample_distance(Vec3Accessor& acc, const openvdb::Vec3d& p, double voxel) {
     const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
+    // Squared distances, one square root at the end: the same value (sqrt is monotonic and
+    // correctly rounded), without eight square roots in a dependent chain of minima.
     double best = std::numeric_limits<double>::infinity();
     for (int dx = 0; dx <= 1; ++dx) {
         for (int dy = 0; dy <= 1; ++dy) {
@@ -157,11 +159,11 @@ double nearest_sample_distance(Vec3Accessor& acc, const openvdb::Vec3d& p, doubl
                 if (!acc.probeValue(q, e)) continue;
                 // sample = corner + e (world); point = p * voxel
                 const openvdb::Vec3d d = (q.asVec3d() - p) * voxel + openvdb::Vec3d(e);
-                best = std::min(best, d.length());
+                best = std::min(best, d.lengthSqr());
             }
         }
     }
-    return best;
+    return std::sqrt(best);
 }
 
 }  // namespace

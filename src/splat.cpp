@@ -160,6 +160,68 @@ struct Kernel {
     double rho;         // exp(-2 / sigma^2), the Gaussian recurrence's ratio step
 };
 
+/// Makes a point's kernel from the cloud each time it is needed (once per piece): the cloud
+/// holds everything a kernel derives from, and an array of kernels added 64 bytes per point to
+/// the splat's peak memory (320 MB for 5 million points). Same arithmetic as that array had, so
+/// the grids are the same bit for bit.
+class Kernels {
+  public:
+    Kernels(const PointCloud& cloud, const SplatOptions& options)
+        : cloud_(cloud), options_(options), use_scale_(cloud.has_scales()) {}
+
+    std::size_t size() const { return cloud_.size(); }
+    /// Point i's kernel centre, index units.
+    openvdb::Vec3d centre(std::size_t i) const {
+        const Vec3f& p = cloud_.positions[i];
+        const double voxel = options_.voxel_size;
+        return {double(p[0]) / voxel, double(p[1]) / voxel, double(p[2]) / voxel};
+    }
+    /// The median sigma, voxels: sets every kernel's amp (called before the summation).
+    void set_median_sigma(double voxels) { median_sigma_ = voxels; }
+
+    /// Point i's kernel. Its shape (centre, sigma, support; r = 0 for a point without a usable
+    /// normal) always; with `full` also the unit normal, inv_s2, rho and amp, which only the
+    /// summation uses.
+    Kernel operator()(std::size_t i, bool full = true) const {
+        Kernel k;
+        const double voxel = options_.voxel_size;
+        const Vec3f& nr = cloud_.normals[i];
+        const double len =
+            std::sqrt(double(nr[0]) * nr[0] + double(nr[1]) * nr[1] + double(nr[2]) * nr[2]);
+        const openvdb::Vec3d c = centre(i);
+        k.cx = c[0];
+        k.cy = c[1];
+        k.cz = c[2];
+        double s = options_.sigma_voxels;
+        if (use_scale_ && cloud_.scales[i] > 0.0f) {
+            s = options_.scale_factor * double(cloud_.scales[i]) / voxel;
+        }
+        s = std::clamp(s, options_.min_sigma_voxels, options_.max_sigma_voxels);
+        k.s = float(s);
+        if (!(std::isfinite(len) && len > 1e-12)) {
+            k.r = 0.0f;  // no usable normal: skipped
+            return k;
+        }
+        k.r = float(options_.support * s);
+        if (full) {
+            k.nx = float(nr[0] / len);
+            k.ny = float(nr[1] / len);
+            k.nz = float(nr[2] / len);
+            k.inv_s2 = 1.0 / (double(k.s) * double(k.s));
+            k.rho = std::exp(-2.0 * k.inv_s2);
+            const double sm = median_sigma_;
+            k.amp = float((sm / double(k.s)) * (sm / double(k.s)));
+        }
+        return k;
+    }
+
+  private:
+    const PointCloud& cloud_;
+    const SplatOptions& options_;
+    bool use_scale_;
+    double median_sigma_ = 0.0;
+};
+
 struct Box {
     int lo[3], hi[3];
 };
@@ -335,7 +397,7 @@ __attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, Block
 /// Sums every (point, voxel) contribution of one 16^3 block, in increasing point order.
 template <bool kColors, typename P>
 void splat_block(const openvdb::Coord& o, const P* begin, const P* end,
-                 const std::vector<Kernel>& kernels, const PointCloud& cloud, double voxel,
+                 const Kernels& kernels, const PointCloud& cloud, double voxel,
                  double min_weight, float background, bool vector_rows, BlockSums& sums,
                  std::vector<ColorSums>& csums, BlockOut& out) {
     std::fill(std::begin(sums.w), std::end(sums.w), 0.0);
@@ -346,7 +408,7 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end,
     Piece p{};  // zeroed: the vector rows read (and mask out) lanes outside the box
     std::size_t updates = 0;
     for (const P* q = begin; q != end; ++q) {
-        const Kernel& k = kernels[q->point];
+        const Kernel k = kernels(q->point);
         if (!clip_to_block(support_box(k), o, p.lo, p.hi)) continue;
         const double inv_s2 = k.inv_s2, rho = k.rho;
         p.r2 = double(k.r) * double(k.r);
@@ -408,10 +470,10 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end,
                                                           double(background))));
             out.weight[s]->setValueOn(idx, float(sums.w[i]));
             // Stored as the vector from the voxel to the sample, world units.
-            const Kernel& k = kernels[sums.nearest[i]];
+            const openvdb::Vec3d k = kernels.centre(sums.nearest[i]);
             const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(idx) + lo_world;
-            const double ex = double(c[0]) - k.cx, ey = double(c[1]) - k.cy,
-                         ez = double(c[2]) - k.cz;
+            const double ex = double(c[0]) - k[0], ey = double(c[1]) - k[1],
+                         ez = double(c[2]) - k[2];
             out.nearest[s]->setValueOn(idx, openvdb::Vec3f(float(-ex * voxel), float(-ey * voxel),
                                                            float(-ez * voxel)));
             if (kColors) {
@@ -425,7 +487,7 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end,
 
 /// What sum_blocks() needs of splat().
 struct BlockSetup {
-    const std::vector<Kernel>& kernels;
+    const Kernels& kernels;
     const BlockCodec& codec;
     const PointCloud& cloud;
     const SplatOptions& options;
@@ -436,7 +498,7 @@ struct BlockSetup {
 /// checks the memory budget and sums every block: the blocks' outputs in key order.
 template <typename Key>
 std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_t> first_pair) {
-    const std::vector<Kernel>& kernels = setup.kernels;
+    const Kernels& kernels = setup.kernels;
     const BlockCodec& codec = setup.codec;
     const PointCloud& cloud = setup.cloud;
     const SplatOptions& options = setup.options;
@@ -444,7 +506,7 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
     const std::size_t n = kernels.size();
     const bool colors = cloud.has_colors();
     // Memory budget, first on the (leaf, point) index, then (below) on the distinct leaves.
-    const double point_bytes = double(n) * (sizeof(Kernel) + 64.0);  // the cloud and its kernels
+    const double point_bytes = double(n) * 64.0;  // the cloud
     check_memory(point_bytes + double(first_pair[n]) * sizeof(Pair<Key>), options,
                  "for the index of the leaves its kernels touch");
     std::vector<Pair<Key>> pairs(first_pair[n]);
@@ -452,7 +514,8 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
             int lo[3], hi[3];
-            if (!(kernels[i].r > 0.0f) || !block_span(support_box(kernels[i]), lo, hi)) continue;
+            const Kernel k = kernels(i, false);
+            if (!(k.r > 0.0f) || !block_span(support_box(k), lo, hi)) continue;
             std::size_t o = first_pair[i];
             for (int bx = lo[0]; bx <= hi[0]; ++bx) {
                 for (int by = lo[1]; by <= hi[1]; ++by) {
@@ -483,7 +546,9 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
             unsigned mask = 0;
             for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
                 int lo[3], hi[3];
-                if (!clip_to_block(support_box(kernels[pairs[j].point]), o, lo, hi)) continue;
+                if (!clip_to_block(support_box(kernels(pairs[j].point, false)), o, lo, hi)) {
+                    continue;
+                }
                 unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
                 for (int a = 0; a < 3; ++a) {
                     halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
@@ -544,51 +609,32 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     }
     const std::size_t n = cloud.size();
     const double voxel = options.voxel_size;
-    const bool use_scale = cloud.has_scales();
     const bool colors = cloud.has_colors();
     SplatResult result;
 
-    // Per-point kernels.
-    std::vector<Kernel> kernels(n);
-    const double smin = options.min_sigma_voxels, smax = options.max_sigma_voxels;
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
-            Kernel& k = kernels[i];
-            const Vec3f& p = cloud.positions[i];
-            const Vec3f& nr = cloud.normals[i];
-            const double len = std::sqrt(double(nr[0]) * nr[0] + double(nr[1]) * nr[1] +
-                                         double(nr[2]) * nr[2]);
-            k.cx = double(p[0]) / voxel;
-            k.cy = double(p[1]) / voxel;
-            k.cz = double(p[2]) / voxel;
-            double s = options.sigma_voxels;
-            if (use_scale && cloud.scales[i] > 0.0f) {
-                s = options.scale_factor * double(cloud.scales[i]) / voxel;
-            }
-            s = std::clamp(s, smin, smax);
-            k.s = float(s);
-            if (!(std::isfinite(len) && len > 1e-12)) {
-                k.r = 0.0f;  // no usable normal: skipped
-                continue;
-            }
-            k.nx = float(nr[0] / len);
-            k.ny = float(nr[1] / len);
-            k.nz = float(nr[2] / len);
-            k.r = float(options.support * s);
-            k.inv_s2 = 1.0 / (double(k.s) * double(k.s));
-            k.rho = std::exp(-2.0 * k.inv_s2);
+    // Per-point kernels, made when needed; first their range, sigmas and usable normals.
+    Kernels kernels(cloud, options);
+    const std::size_t chunks = detail::chunk_count(n);
+    std::vector<double> chunk_index(chunks, 0.0);
+    std::vector<float> chunk_r(chunks, 0.0f);
+    std::vector<std::size_t> chunk_skipped(chunks, 0);
+    std::vector<float> sigmas(n);  // voxels; -1 for a skipped point
+    detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        for (std::size_t i = begin; i < end; ++i) {
+            const Kernel k = kernels(i, false);
+            chunk_index[c] =
+                std::max({chunk_index[c], std::fabs(k.cx), std::fabs(k.cy), std::fabs(k.cz)});
+            chunk_r[c] = std::max(chunk_r[c], k.r);
+            chunk_skipped[c] += k.r == 0.0f;
+            sigmas[i] = k.r == 0.0f ? -1.0f : k.s;
         }
     });
 
     // Range check before any big allocation.
-    double max_index = 0.0;
-    float max_r = 0.0f;
-    for (const Kernel& k : kernels) {
-        max_index = std::max({max_index, std::fabs(k.cx), std::fabs(k.cy), std::fabs(k.cz)});
-        max_r = std::max(max_r, k.r);
-        if (k.r == 0.0f) ++result.skipped_points;
-    }
+    const double max_index = *std::max_element(chunk_index.begin(), chunk_index.end());
+    const float max_r = *std::max_element(chunk_r.begin(), chunk_r.end());
+    result.skipped_points =
+        std::accumulate(chunk_skipped.begin(), chunk_skipped.end(), std::size_t(0));
     if (result.skipped_points == n) {
         throw InvalidArgument("splat: none of the " + std::to_string(n) +
                               " points has a usable (non-zero, finite) normal");
@@ -610,11 +656,8 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
 
     // Sigma statistics (world units).
     {
-        std::vector<float> s;
-        s.reserve(n);
-        for (const Kernel& k : kernels) {
-            if (k.r > 0.0f) s.push_back(k.s);
-        }
+        std::vector<float> s = std::move(sigmas);
+        s.erase(std::remove(s.begin(), s.end(), -1.0f), s.end());
         std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
         result.sigma_median = double(s[s.size() / 2]) * voxel;
         const auto mm = std::minmax_element(s.begin(), s.end());
@@ -625,10 +668,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     // Area normalisation: every sample's kernel carries the same mass, so where fine and coarse
     // samples overlap the fine ones (smaller footprint, usually the more accurate, e.g. not at a
     // grazing angle) dominate -- the scale weighting of FSSR.
-    {
-        const double sm = result.sigma_median / voxel;
-        for (Kernel& k : kernels) k.amp = float((sm / double(k.s)) * (sm / double(k.s)));
-    }
+    kernels.set_median_sigma(result.sigma_median / voxel);
 
     // Blocks the kernels touch: per-point counts and the range of block coordinates.
     std::vector<std::size_t> first_pair(n + 1, 0);
@@ -637,7 +677,8 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
         std::array<int, 6> r = {INT_MAX, INT_MAX, INT_MAX, INT_MIN, INT_MIN, INT_MIN};
         for (std::size_t i = begin; i < end; ++i) {
             int lo[3], hi[3];
-            if (!(kernels[i].r > 0.0f) || !block_span(support_box(kernels[i]), lo, hi)) continue;
+            const Kernel k = kernels(i, false);
+            if (!(k.r > 0.0f) || !block_span(support_box(k), lo, hi)) continue;
             std::size_t count = 1;
             for (int a = 0; a < 3; ++a) {
                 count *= std::size_t(hi[a] - lo[a] + 1);
@@ -668,7 +709,6 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     std::vector<BlockOut> blocks = codec.total() <= 32
                                        ? sum_blocks<std::uint32_t>(setup, std::move(first_pair))
                                        : sum_blocks<std::uint64_t>(setup, std::move(first_pair));
-    kernels = {};
 
     // Assemble the trees (serial; leaves are disjoint, so the order does not matter).
     auto sdf = openvdb::FloatGrid::create(background);

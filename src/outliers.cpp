@@ -46,18 +46,30 @@ Column<T> keep_rows(const Column<T>& v, const std::vector<char>& removed, std::s
     return out;
 }
 
-}  // namespace
-
-OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options) {
-    options.validate();
-    OutlierResult r;
-    const std::size_t n = cloud.size();
-    r.removed.assign(n, 0);
-    r.cloud.origin = cloud.origin;
-    if (!options.enabled || n < std::size_t(options.k) + 1) {
-        r.cloud = cloud;  // copies owned arrays, shares borrowed ones
-        return r;
+/// Keeps the rows of `v` not removed, in place when it owns its values.
+template <typename T>
+void keep_rows_in_place(Column<T>& v, const std::vector<char>& removed, std::size_t kept) {
+    if (v.empty()) return;
+    if (v.borrowed()) {
+        v = keep_rows(v, removed, kept);
+        return;
     }
+    std::vector<T>& values = v.edit();
+    std::size_t out = 0;
+    for (std::size_t i = 0; i < values.size(); ++i) {
+        if (!removed[i]) values[out++] = values[i];
+    }
+    values.resize(kept);
+}
+
+/// Whether the removal runs at all (with fewer than k + 1 points it does not).
+bool removal_runs(const PointCloud& cloud, const OutlierOptions& options) {
+    return options.enabled && cloud.size() >= std::size_t(options.k) + 1;
+}
+
+/// The rules of remove_outliers: fills r.removed, the counts and r.neighbours (not r.cloud).
+void classify(const PointCloud& cloud, const OutlierOptions& options, OutlierResult& r) {
+    const std::size_t n = cloud.size();
 
     // Indices only: the distances are computed where needed, the same floats the search found
     // (at 5M points and k = 16 keeping them would take another 320 MB).
@@ -106,12 +118,43 @@ OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& opt
         if (rule[i] == 2) ++r.planarity;
         r.removed[i] = rule[i] != 0;
     }
-    const std::size_t kept = n - r.statistical - r.planarity;
+}
+
+}  // namespace
+
+OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options) {
+    options.validate();
+    OutlierResult r;
+    r.removed.assign(cloud.size(), 0);
+    r.cloud.origin = cloud.origin;
+    if (!removal_runs(cloud, options)) {
+        r.cloud = cloud;  // copies owned arrays, shares borrowed ones
+        return r;
+    }
+    classify(cloud, options, r);
+    const std::size_t kept = cloud.size() - r.statistical - r.planarity;
     r.cloud.positions = keep_rows(cloud.positions, r.removed, kept);
     r.cloud.normals = keep_rows(cloud.normals, r.removed, kept);
     r.cloud.colors = keep_rows(cloud.colors, r.removed, kept);
     r.cloud.scales = keep_rows(cloud.scales, r.removed, kept);
     r.cloud.confidences = keep_rows(cloud.confidences, r.removed, kept);
+    return r;
+}
+
+OutlierResult remove_outliers(PointCloud&& cloud, const OutlierOptions& options) {
+    options.validate();
+    OutlierResult r;
+    r.removed.assign(cloud.size(), 0);
+    if (removal_runs(cloud, options)) {
+        classify(cloud, options, r);
+        const std::size_t kept = cloud.size() - r.statistical - r.planarity;
+        keep_rows_in_place(cloud.positions, r.removed, kept);
+        keep_rows_in_place(cloud.normals, r.removed, kept);
+        keep_rows_in_place(cloud.colors, r.removed, kept);
+        keep_rows_in_place(cloud.scales, r.removed, kept);
+        keep_rows_in_place(cloud.confidences, r.removed, kept);
+    }
+    r.cloud = std::move(cloud);
     return r;
 }
 

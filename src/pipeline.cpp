@@ -143,7 +143,7 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
         KnnResult neighbours;  // the outlier stage's, reused by the normal stage
         if (options.outliers.enabled) {
             StageClock clock(r.timings, on_stage, "outliers");
-            r.outliers = remove_outliers(cloud, options.outliers);
+            r.outliers = remove_outliers(std::move(cloud), options.outliers);  // in place
             cloud = std::move(r.outliers.cloud);
             r.outliers.cloud = PointCloud{};
             if (cloud.empty()) throw InvalidArgument("reconstruct: every point was an outlier");

@@ -129,3 +129,44 @@ TEST_CASE("outlier options are validated", "[outliers]") {
     o.planarity_ratio = 1.0;
     REQUIRE_THROWS_AS(o.validate(), InvalidArgument);
 }
+
+TEST_CASE("outliers: the in-place removal keeps the same points as the copying one",
+          "[outliers]") {
+    PointCloud c = sample_sphere(6000, 1.0);
+    add_strays(c, 300, 1.2, 5);
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        c.colors.push_back({float(i % 7) / 7.0f, float(i % 11) / 11.0f, float(i % 13) / 13.0f});
+        c.scales.push_back(0.01f + 0.001f * float(i % 5));
+    }
+    OutlierOptions o;
+    o.enabled = true;
+    const OutlierResult copied = remove_outliers(c, o);
+    REQUIRE(copied.statistical + copied.planarity > 0);
+    const auto same = [&](const OutlierResult& r) {
+        CHECK(r.removed == copied.removed);
+        CHECK(r.neighbours.indices == copied.neighbours.indices);
+        CHECK(r.cloud.positions.to_vector() == copied.cloud.positions.to_vector());
+        CHECK(r.cloud.normals.to_vector() == copied.cloud.normals.to_vector());
+        CHECK(r.cloud.colors.to_vector() == copied.cloud.colors.to_vector());
+        CHECK(r.cloud.scales.to_vector() == copied.cloud.scales.to_vector());
+    };
+    SECTION("owned arrays are compacted in place") {
+        PointCloud owned = c;
+        const Vec3f* storage = owned.positions.data();
+        const OutlierResult r = remove_outliers(std::move(owned), o);
+        same(r);
+        CHECK(r.cloud.positions.data() == storage);  // no copy was made
+    }
+    SECTION("borrowed arrays are copied, never written") {
+        PointCloud borrowed;
+        borrowed.positions = Column<Vec3f>::borrow(c.positions.data(), c.size());
+        borrowed.normals = Column<Vec3f>::borrow(c.normals.data(), c.size());
+        borrowed.colors = Column<Vec3f>::borrow(c.colors.data(), c.size());
+        borrowed.scales = Column<float>::borrow(c.scales.data(), c.size());
+        const std::vector<Vec3f> before = c.positions.to_vector();
+        const OutlierResult r = remove_outliers(std::move(borrowed), o);
+        same(r);
+        CHECK(c.positions.to_vector() == before);
+        CHECK_FALSE(r.cloud.positions.borrowed());
+    }
+}

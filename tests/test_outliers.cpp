@@ -130,8 +130,7 @@ TEST_CASE("outlier options are validated", "[outliers]") {
     REQUIRE_THROWS_AS(o.validate(), InvalidArgument);
 }
 
-TEST_CASE("outliers: the in-place removal keeps the same points as the copying one",
-          "[outliers]") {
+TEST_CASE("outliers: the in-place removal keeps the same points as the copying one", "[outliers]") {
     PointCloud c = sample_sphere(6000, 1.0);
     add_strays(c, 300, 1.2, 5);
     for (std::size_t i = 0; i < c.size(); ++i) {

@@ -60,7 +60,7 @@ struct LeafCrossings {
 
 }  // namespace
 
-Crossings find_crossings(const openvdb::FloatTree& sdf, float iso) {
+Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_points) {
     Crossings out;
     out.ids = std::make_shared<openvdb::UInt32Tree>(sdf, 0u, openvdb::TopologyCopy());
     std::vector<const Leaf*> leaves;
@@ -115,7 +115,7 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso) {
                              " edge crossings exceed the limit of 2^29. Hint: a larger --voxel");
     }
     out.leaf_begin = count;
-    out.points.resize(total);
+    if (with_points) out.points.resize(total);
     out.start.resize(total);
     out.axis.resize(total);
     out.start_inside.resize(total);
@@ -149,20 +149,22 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso) {
                     const float fv = data[pos];
                     for (int a = 0; a < 3; ++a) {
                         if (!((mask >> a) & 1u)) continue;
-                        const int shift = 6 - 3 * a;  // +x, +y, +z: offset 64, 8, 1 in a leaf
-                        float fw;
-                        if (((pos >> shift) & 7) != 7) {
-                            fw = data[pos + (openvdb::Index(1) << shift)];
-                        } else {
-                            const openvdb::Index o = pos - (openvdb::Index(7) << shift);
-                            openvdb::Coord w1 = v;
-                            w1[a] += 1;
-                            fw = up[a] ? up[a]->buffer().data()[o] : acc.getValue(w1);
+                        if (with_points) {
+                            const int shift = 6 - 3 * a;  // +x, +y, +z: offset 64, 8, 1 in a leaf
+                            float fw;
+                            if (((pos >> shift) & 7) != 7) {
+                                fw = data[pos + (openvdb::Index(1) << shift)];
+                            } else {
+                                const openvdb::Index o = pos - (openvdb::Index(7) << shift);
+                                openvdb::Coord w1 = v;
+                                w1[a] += 1;
+                                fw = up[a] ? up[a]->buffer().data()[o] : acc.getValue(w1);
+                            }
+                            const float t = (iso - fv) / (fw - fv);
+                            openvdb::Vec3f p{float(v[0]), float(v[1]), float(v[2])};
+                            p[a] += t;
+                            out.points[id] = p;
                         }
-                        const float t = (iso - fv) / (fw - fv);
-                        openvdb::Vec3f p{float(v[0]), float(v[1]), float(v[2])};
-                        p[a] += t;
-                        out.points[id] = p;
                         out.start[id] = v;
                         out.axis[id] = std::uint8_t(a);
                         out.start_inside[id] = fv < iso;

@@ -30,6 +30,7 @@
 #include <array>
 #include <limits>
 #include <memory>
+#include <numeric>
 
 #include "detail/crossings.h"
 #include "detail/mesh_common.h"
@@ -852,7 +853,7 @@ class LeafTrilinear {
 RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     const openvdb::FloatTree& tree = volume.sdf->tree();
     const float iso = float(options.isovalue);
-    const Crossings crossings = find_crossings(tree, iso);
+    Crossings crossings = find_crossings(tree, iso, false);
 
     // Hermite data at the crossings, leaf by leaf (a crossing's stencils stay in its leaf's block).
     FillLater<openvdb::Vec3f> points(crossings.size()), normals(crossings.size());
@@ -954,6 +955,14 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
             }
         });
 
+    // What the quads no longer need goes before they are made (the mesh stage's peak memory).
+    points = {};
+    normals = {};
+    weights = {};
+    crossings.ids.reset();
+    crossings.start = {};
+    crossings.axis = {};
+
     // Global vertex numbers in leaf order.
     std::vector<std::size_t> base(per_leaf.size() + 1, 0);
     for (std::size_t L = 0; L < per_leaf.size(); ++L) base[L + 1] = base[L] + per_leaf[L].size();
@@ -971,22 +980,38 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                           }
                       });
 
-    // One quad per crossing whose four cells all have a vertex, collected per leaf.
-    std::vector<std::vector<Triangle>> quads(leaves.size());
+    // One quad per crossing whose four cells all have a vertex: counted per leaf first, so each
+    // leaf writes its triangles straight into place.
+    const auto has_quad = [&](std::size_t c) {
+        const auto& q = around[c];
+        return q[0] != kNone && q[1] != kNone && q[2] != kNone && q[3] != kNone;
+    };
+    std::vector<std::size_t> first(leaves.size() + 1, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 64),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                              std::size_t n = 0;
+                              for (std::size_t c = crossings.leaf_begin[L];
+                                   c < crossings.leaf_begin[L + 1]; ++c) {
+                                  n += has_quad(c) ? 2 : 0;
+                              }
+                              first[L + 1] = n;
+                          }
+                      });
+    std::partial_sum(first.begin(), first.end(), first.begin());
+    raw.triangles.resize(first.back());
     tbb::parallel_for(
         tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
         [&](const tbb::blocked_range<std::size_t>& r) {
             FloatAccessor acc(tree);
             LeafTrilinear field(acc);
             for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                quads[L].reserve(2 * (crossings.leaf_begin[L + 1] - crossings.leaf_begin[L]));
+                Triangle* out = raw.triangles.data() + first[L];
                 bool loaded = false;  // the leaf's neighbours, looked up when the field is asked
                 for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1];
                      ++c) {
+                    if (!has_quad(c)) continue;
                     const auto& q = around[c];
-                    if (q[0] == kNone || q[1] == kNone || q[2] == kNone || q[3] == kNone) {
-                        continue;
-                    }
                     const auto global = [&](std::uint64_t id) {
                         return std::int32_t(base[id >> 32] + (id & 0xffffffffu));
                     };
@@ -1025,27 +1050,16 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                         const auto off = [&](int k) { return std::fabs(f[k] - double(iso)); };
                         use02 = off(0) + off(1) <= off(2) + off(3);
                     }
-                    std::vector<Triangle>& out = quads[L];
                     if (use02) {
-                        out.push_back({v[0], v[1], v[2]});
-                        out.push_back({v[0], v[2], v[3]});
+                        *out++ = {v[0], v[1], v[2]};
+                        *out++ = {v[0], v[2], v[3]};
                     } else {
-                        out.push_back({v[0], v[1], v[3]});
-                        out.push_back({v[1], v[2], v[3]});
+                        *out++ = {v[0], v[1], v[3]};
+                        *out++ = {v[1], v[2], v[3]};
                     }
                 }
             }
         });
-    std::vector<std::size_t> first(quads.size() + 1, 0);
-    for (std::size_t L = 0; L < quads.size(); ++L) first[L + 1] = first[L] + quads[L].size();
-    raw.triangles.resize(first.back());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, quads.size(), 64),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                              std::copy(quads[L].begin(), quads[L].end(),
-                                        raw.triangles.begin() + std::ptrdiff_t(first[L]));
-                          }
-                      });
     return raw;
 }
 

@@ -13,7 +13,7 @@ namespace vdbrecon::detail {
 RawSurface mesh_mc(const Volume& volume, const MeshOptions& options) {
     const openvdb::FloatTree& tree = volume.sdf->tree();
     const float iso = float(options.isovalue);
-    Crossings crossings = find_crossings(tree, iso);
+    Crossings crossings = find_crossings(tree, iso, true);
     // Per leaf: triangles, and centre points of loops fanned around one. Centre points are
     // numbered after all crossings; a triangle refers to one as -(local index + 1) until then.
     struct LeafOut {

@@ -28,19 +28,21 @@ namespace vdbrecon::detail {
 struct Crossings {
     openvdb::UInt32Tree::Ptr ids;              ///< per voxel: first id | axis mask << 29, or 0
     std::vector<openvdb::Vec3f> points;        ///< index-space crossing position, per crossing
+                                               ///< (linear interpolation; empty unless asked)
     std::vector<openvdb::Coord> start;         ///< the edge's lower voxel, per crossing
     std::vector<std::uint8_t> axis;            ///< the edge's axis, per crossing
     std::vector<std::uint8_t> start_inside;    ///< 1 when the lower voxel is inside (f < iso)
     std::vector<std::size_t> leaf_begin;       ///< first id of each sdf leaf (leafCount() + 1)
 
-    std::size_t size() const { return points.size(); }
+    std::size_t size() const { return leaf_begin.empty() ? 0 : leaf_begin.back(); }
 };
 
 constexpr std::uint32_t kIdBits = 29;
 constexpr std::uint32_t kIdMask = (1u << kIdBits) - 1;
 
-/// Finds every crossing of the active voxels of `sdf` (index space, iso-value `iso`).
-Crossings find_crossings(const openvdb::FloatTree& sdf, float iso);
+/// Finds every crossing of the active voxels of `sdf` (index space, iso-value `iso`); with
+/// `with_points`, also the linearly interpolated crossing points (dual contouring places its own).
+Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_points);
 
 /// The corners of a leaf's cells -- its voxels and one layer past its upper faces, origin ..
 /// origin + 8 on each axis -- copied from up to eight leaves into dense arrays: sdf values,

@@ -1,4 +1,6 @@
 // The command line: exit codes, messages, outputs. Runs the real binary.
+#include <fstream>
+
 #include "support.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/splat.h"
@@ -43,9 +45,30 @@ TEST_CASE("cli: reconstructs, writes mesh and volume, says where", "[cli]") {
     REQUIRE_THAT(r.out, Catch::Contains("\"fscore\": 1}"));
 }
 
+TEST_CASE("cli: the huge-page re-execution changes nothing but the speed", "[cli]") {
+    // Without GLIBC_TUNABLES the CLI executes itself again with glibc.malloc.hugetlb=1 (where the
+    // kernel's THP mode is "madvise"); with the tunable named it runs as it is. Both runs must
+    // see the same arguments (a path with a space and a quote) and write the same bytes.
+    std::string mode;
+    std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), mode);
+    INFO("THP mode: " << mode);
+    TempDir dir;
+    write_points(dir.file("s.ply"), sample_sphere(20000, 1.0));
+    const auto args = [&](const std::string& out) {
+        return dir.file("s.ply") + " -o \"" + dir.file(out) + "\" --voxel 0.05 --no-vdb";
+    };
+    const CliRun again = run_cli(args("it's a.ply"), "env -u GLIBC_TUNABLES");
+    const CliRun as_is = run_cli(args("it's b.ply"), "env GLIBC_TUNABLES=glibc.malloc.hugetlb=0");
+    INFO(again.err << as_is.err);
+    REQUIRE(again.code == 0);
+    REQUIRE(as_is.code == 0);
+    REQUIRE_THAT(again.out, Catch::Contains("mesh: " + dir.file("it's a.ply")));
+    REQUIRE(file_exists(dir.file("it's a.ply")));
+    REQUIRE(read_bytes(dir.file("it's a.ply")) == read_bytes(dir.file("it's b.ply")));
+}
+
 // Bad inputs, bad --voxel values and unwritable outputs: tests/test_bad_input.cpp.
-TEST_CASE("cli: usage errors exit 2, I/O and format errors exit 3, nothing is written",
-          "[cli]") {
+TEST_CASE("cli: usage errors exit 2, I/O and format errors exit 3, nothing is written", "[cli]") {
     TempDir dir;
     write_points(dir.file("s.ply"), sample_sphere(2000, 1.0));
     const std::string in = dir.file("s.ply");

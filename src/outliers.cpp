@@ -46,20 +46,22 @@ Column<T> keep_rows(const Column<T>& v, const std::vector<char>& removed, std::s
     return out;
 }
 
-/// Keeps the rows of `v` not removed, in place when it owns its values.
+/// Keeps the rows of an owned column not removed, in place (does not throw).
 template <typename T>
-void keep_rows_in_place(Column<T>& v, const std::vector<char>& removed, std::size_t kept) {
-    if (v.empty()) return;
-    if (v.borrowed()) {
-        v = keep_rows(v, removed, kept);
-        return;
-    }
+void compact_owned(Column<T>& v, const std::vector<char>& removed, std::size_t kept) {
+    if (v.empty() || v.borrowed()) return;
     std::vector<T>& values = v.edit();
     std::size_t out = 0;
     for (std::size_t i = 0; i < values.size(); ++i) {
         if (!removed[i]) values[out++] = values[i];
     }
     values.resize(kept);
+}
+
+/// The kept rows of a borrowed column as a copy (empty for an owned one).
+template <typename T>
+Column<T> copy_borrowed(const Column<T>& v, const std::vector<char>& removed, std::size_t kept) {
+    return v.borrowed() ? keep_rows(v, removed, kept) : Column<T>{};
 }
 
 /// Whether the removal runs at all (with fewer than k + 1 points it does not).
@@ -148,11 +150,24 @@ OutlierResult remove_outliers(PointCloud&& cloud, const OutlierOptions& options)
     if (removal_runs(cloud, options)) {
         classify(cloud, options, r);
         const std::size_t kept = cloud.size() - r.statistical - r.planarity;
-        keep_rows_in_place(cloud.positions, r.removed, kept);
-        keep_rows_in_place(cloud.normals, r.removed, kept);
-        keep_rows_in_place(cloud.colors, r.removed, kept);
-        keep_rows_in_place(cloud.scales, r.removed, kept);
-        keep_rows_in_place(cloud.confidences, r.removed, kept);
+        // Borrowed columns are copied first: if a copy fails, the cloud is still whole.
+        Column<Vec3f> positions = copy_borrowed(cloud.positions, r.removed, kept);
+        Column<Vec3f> normals = copy_borrowed(cloud.normals, r.removed, kept);
+        Column<Vec3f> colors = copy_borrowed(cloud.colors, r.removed, kept);
+        Column<float> scales = copy_borrowed(cloud.scales, r.removed, kept);
+        Column<float> confidences = copy_borrowed(cloud.confidences, r.removed, kept);
+        const auto place = [&](auto& column, auto& copy) {
+            if (column.borrowed()) {
+                column = std::move(copy);
+            } else {
+                compact_owned(column, r.removed, kept);
+            }
+        };
+        place(cloud.positions, positions);
+        place(cloud.normals, normals);
+        place(cloud.colors, colors);
+        place(cloud.scales, scales);
+        place(cloud.confidences, confidences);
     }
     r.cloud = std::move(cloud);
     return r;

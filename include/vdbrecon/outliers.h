@@ -59,7 +59,8 @@ struct OutlierResult {
 /// Removes outliers (see above). With fewer than k + 1 points nothing is removed.
 OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options = {});
 /// The same, keeping the points in the given cloud's own arrays (compacted in place; borrowed
-/// ones are copied): no second copy of the cloud while the neighbour lists are alive.
+/// ones are copied): no second copy of the cloud while the neighbour lists are alive. If it
+/// throws, the cloud is as it was.
 OutlierResult remove_outliers(PointCloud&& cloud, const OutlierOptions& options = {});
 
 }  // namespace vdbrecon

@@ -92,8 +92,8 @@ PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
                            const StageCallback& on_stage = {},
                            const VolumeCallback& on_volume = {});
 
-/// The same for a cloud the caller gives up: its memory is freed once the splat has its
-/// kernels, so it does not add to the peak of the later stages.
+/// The same for a cloud the caller gives up: its memory is freed once the splat is done, so it
+/// does not add to the peak of the later stages.
 PipelineResult reconstruct(PointCloud&& cloud, const PipelineOptions& options,
                            const StageCallback& on_stage = {},
                            const VolumeCallback& on_volume = {});

@@ -34,18 +34,6 @@ void OutlierOptions::validate() const {
 
 namespace {
 
-/// The rows of `v` not removed, as a new array (v may borrow memory it must not write to).
-template <typename T>
-Column<T> keep_rows(const Column<T>& v, const std::vector<char>& removed, std::size_t kept) {
-    std::vector<T> out;
-    if (v.empty()) return out;
-    out.reserve(kept);
-    for (std::size_t i = 0; i < v.size(); ++i) {
-        if (!removed[i]) out.push_back(v[i]);
-    }
-    return out;
-}
-
 /// Keeps the rows of an owned column not removed, in place (does not throw).
 template <typename T>
 void compact_owned(Column<T>& v, const std::vector<char>& removed, std::size_t kept) {
@@ -58,15 +46,17 @@ void compact_owned(Column<T>& v, const std::vector<char>& removed, std::size_t k
     values.resize(kept);
 }
 
-/// The kept rows of a borrowed column as a copy (empty for an owned one).
+/// The kept rows of a borrowed column as a new array (empty for an owned one): borrowed memory
+/// is never written to.
 template <typename T>
 Column<T> copy_borrowed(const Column<T>& v, const std::vector<char>& removed, std::size_t kept) {
-    return v.borrowed() ? keep_rows(v, removed, kept) : Column<T>{};
-}
-
-/// Whether the removal runs at all (with fewer than k + 1 points it does not).
-bool removal_runs(const PointCloud& cloud, const OutlierOptions& options) {
-    return options.enabled && cloud.size() >= std::size_t(options.k) + 1;
+    std::vector<T> out;
+    if (!v.borrowed() || v.empty()) return out;
+    out.reserve(kept);
+    for (std::size_t i = 0; i < v.size(); ++i) {
+        if (!removed[i]) out.push_back(v[i]);
+    }
+    return out;
 }
 
 /// The rules of remove_outliers: fills r.removed, the counts and r.neighbours (not r.cloud).
@@ -125,29 +115,15 @@ void classify(const PointCloud& cloud, const OutlierOptions& options, OutlierRes
 }  // namespace
 
 OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options) {
-    options.validate();
-    OutlierResult r;
-    r.removed.assign(cloud.size(), 0);
-    r.cloud.origin = cloud.origin;
-    if (!removal_runs(cloud, options)) {
-        r.cloud = cloud;  // copies owned arrays, shares borrowed ones
-        return r;
-    }
-    classify(cloud, options, r);
-    const std::size_t kept = cloud.size() - r.statistical - r.planarity;
-    r.cloud.positions = keep_rows(cloud.positions, r.removed, kept);
-    r.cloud.normals = keep_rows(cloud.normals, r.removed, kept);
-    r.cloud.colors = keep_rows(cloud.colors, r.removed, kept);
-    r.cloud.scales = keep_rows(cloud.scales, r.removed, kept);
-    r.cloud.confidences = keep_rows(cloud.confidences, r.removed, kept);
-    return r;
+    PointCloud copy = cloud;  // copies owned arrays, shares borrowed ones (never written)
+    return remove_outliers(std::move(copy), options);
 }
 
 OutlierResult remove_outliers(PointCloud&& cloud, const OutlierOptions& options) {
     options.validate();
     OutlierResult r;
     r.removed.assign(cloud.size(), 0);
-    if (removal_runs(cloud, options)) {
+    if (options.enabled && cloud.size() >= std::size_t(options.k) + 1) {  // else nothing goes
         classify(cloud, options, r);
         const std::size_t kept = cloud.size() - r.statistical - r.planarity;
         // Borrowed columns are copied first: if a copy fails, the cloud is still whole.

@@ -460,8 +460,8 @@ void tune_heap() {
 /// Backs the heap with transparent huge pages where the kernel hands them out on request (THP
 /// mode "madvise", Debian's default): glibc's tunable glibc.malloc.hugetlb=1 (glibc >= 2.35)
 /// then advises huge pages for the memory it takes from the kernel, so a run faults its heap in
-/// 2 MB at a time instead of 4 kB (bunny 0.5 mm: 34.7k -> 1.4k page faults, about 0.1-0.3 s of
-/// 1.2 s on a VM where a fault is expensive; peak memory unchanged). glibc reads tunables only
+/// 2 MB at a time instead of 4 kB (bunny 0.5 mm on the 2-core VM, where a fault costs ~5 us:
+/// 33.8k -> 2.3k page faults, wall 1.15 -> 0.86 s; peak memory unchanged). glibc reads tunables only
 /// when a process starts, so the CLI executes itself once more with the tunable added to
 /// GLIBC_TUNABLES. Nothing happens when GLIBC_TUNABLES already names the tunable (set it to 0
 /// to turn this off), when the kernel's mode is not "madvise" ("always" needs no advice,

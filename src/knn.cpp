@@ -346,15 +346,24 @@ struct KnnIndex::Impl {
         }
     }
 
-    /// The k nearest points of queries q (excluding point self[i] when self is given), into
-    /// rows of idx/dist. `order` lists the query indices so that each run
-    /// [first[g], first[g + 1]) lies in one level-`level` cell, whose key is keys[g].
-    void search(Span<Vec3f> q, const int* self, const std::vector<std::uint32_t>& order,
-                const std::vector<std::uint32_t>& first, const std::vector<std::uint64_t>& keys,
-                int k, int* idx, float* dist) const;
+    /// Query i is excluded from its own answer: none, the point self[i], or point i itself.
+    struct Self {
+        const int* ids = nullptr;
+        bool is_query = false;
+        int of(std::size_t i) const { return is_query ? int(i) : ids ? ids[i] : -1; }
+    };
+
+    /// The k nearest points of queries q (excluding Self's point), into rows of idx/dist.
+    /// `order` lists the query indices so that each run [first[g], first[g + 1]) of it lies in
+    /// one level-`level` cell, whose key is keys[g], for the groups g in [g0, g1). Query
+    /// order[j] goes to row j - row_base, or with row_base = kByQuery to row order[j].
+    static constexpr std::size_t kByQuery = ~std::size_t(0);
+    void search(Span<Vec3f> q, Self self, const int* order, const std::uint32_t* first,
+                const std::uint64_t* keys, std::size_t g0, std::size_t g1, int k, int* idx,
+                float* dist, std::size_t row_base = kByQuery) const;
 
     /// search() for arbitrary queries: groups them by cell first.
-    void search(Span<Vec3f> q, const int* self, int k, int* idx, float* dist) const;
+    void search(Span<Vec3f> q, Self self, int k, int* idx, float* dist) const;
 };
 
 KnnIndex::KnnIndex(Span<Vec3f> points) : impl_(std::make_unique<Impl>()) {
@@ -465,12 +474,11 @@ KnnIndex::~KnnIndex() = default;
 
 std::size_t KnnIndex::size() const { return impl_->n; }
 
-void KnnIndex::Impl::search(Span<Vec3f> q, const int* self,
-                            const std::vector<std::uint32_t>& order,
-                            const std::vector<std::uint32_t>& first,
-                            const std::vector<std::uint64_t>& keys, int k, int* idx,
-                            float* dist) const {
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, keys.size(), 16),
+void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
+                            const std::uint32_t* first, const std::uint64_t* keys, std::size_t g0,
+                            std::size_t g1, int k, int* idx, float* dist,
+                            std::size_t row_base) const {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(g0, g1, 16),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         Block block, alone;
         Best best(k);
@@ -483,9 +491,9 @@ void KnnIndex::Impl::search(Span<Vec3f> q, const int* self,
             const float* prev = nullptr;
             float prev_worst = 0.0f;
             for (std::uint32_t j = first[g]; j < first[g + 1]; ++j) {
-                const std::size_t i = order[j];
+                const std::size_t i = std::size_t(order[j]);
                 const float* p = q[i].data();
-                const int s = self ? self[i] : -1;
+                const int s = self.of(i);
                 float bound = std::numeric_limits<float>::infinity();
                 if (prev) {
                     const float ex = p[0] - prev[0], ey = p[1] - prev[1], ez = p[2] - prev[2];
@@ -495,7 +503,9 @@ void KnnIndex::Impl::search(Span<Vec3f> q, const int* self,
                 measure(block, p, s, bound, best);
                 if (!best.full()) measure(block, p, s, std::numeric_limits<float>::infinity(), best);
                 if (!settled(best, level, c, p)) answer_alone(p, s, level - 1, alone, best);
-                write_row(best, k, idx + i * std::size_t(k), dist ? dist + i * std::size_t(k) : nullptr);
+                const std::size_t row = row_base == kByQuery ? i : j - row_base;
+                write_row(best, k, idx + row * std::size_t(k),
+                          dist ? dist + row * std::size_t(k) : nullptr);
                 prev = p;
                 prev_worst = best.worst();
             }
@@ -503,7 +513,7 @@ void KnnIndex::Impl::search(Span<Vec3f> q, const int* self,
     });
 }
 
-void KnnIndex::Impl::search(Span<Vec3f> q, const int* self, int k, int* idx, float* dist) const {
+void KnnIndex::Impl::search(Span<Vec3f> q, Self self, int k, int* idx, float* dist) const {
     std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(q.size());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, q.size(), 8192),
                       [&](const tbb::blocked_range<std::size_t>& r) {
@@ -512,17 +522,18 @@ void KnnIndex::Impl::search(Span<Vec3f> q, const int* self, int k, int* idx, flo
         }
     });
     detail::radix_sort(keyed, 3 * level, [](const auto& e) { return e.first; });
-    std::vector<std::uint32_t> order(q.size()), first;
+    std::vector<int> order(q.size());
+    std::vector<std::uint32_t> first;
     std::vector<std::uint64_t> keys;
     for (std::size_t i = 0; i < keyed.size(); ++i) {
-        order[i] = keyed[i].second;
+        order[i] = int(keyed[i].second);
         if (i == 0 || keyed[i].first != keys.back()) {
             keys.push_back(keyed[i].first);
             first.push_back(std::uint32_t(i));
         }
     }
     first.push_back(std::uint32_t(q.size()));
-    search(q, self, order, first, keys, k, idx, dist);
+    search(q, self, order.data(), first.data(), keys.data(), 0, keys.size(), k, idx, dist);
 }
 
 KnnResult KnnIndex::self_neighbours(int k, bool distances) const {
@@ -534,14 +545,47 @@ KnnResult KnnIndex::self_neighbours(int k, bool distances) const {
     if (distances) out.sq_distances.resize(out.indices.size());
     // The queries are the points themselves, taken in the index's order, whose runs are its
     // cells; each answer goes straight to the point's row.
-    std::vector<std::uint32_t> order(m.n);
-    std::vector<int> self(m.n);
-    for (std::size_t i = 0; i < m.n; ++i) {
-        order[i] = std::uint32_t(m.id[i]);
-        self[i] = int(i);
-    }
-    m.search(m.points, self.data(), order, m.cell_first, m.cell_key, out.k, out.indices.data(),
+    m.search(m.points, Impl::Self{nullptr, true}, m.id.data(), m.cell_first.data(),
+             m.cell_key.data(), 0, m.cell_key.size(), out.k, out.indices.data(),
              distances ? out.sq_distances.data() : nullptr);
+    return out;
+}
+
+void KnnIndex::visit_self_neighbours(int k, std::size_t batch, const BatchVisitor& visit) const {
+    const Impl& m = *impl_;
+    k = std::max(0, std::min<int>(k, int(m.n) - 1));
+    if (k == 0) return;
+    batch = std::max<std::size_t>(batch, 1);
+    std::vector<int> idx;
+    for (std::size_t g0 = 0; g0 < m.cell_key.size();) {
+        // Whole cells, at least `batch` points (or the rest).
+        const std::size_t p0 = m.cell_first[g0];
+        const auto end = std::lower_bound(m.cell_first.begin() + std::ptrdiff_t(g0),
+                                          m.cell_first.end() - 1, std::uint32_t(p0 + batch));
+        const std::size_t g1 = std::max(g0 + 1, std::size_t(end - m.cell_first.begin()));
+        const std::size_t count = m.cell_first[g1] - p0;
+        idx.resize(count * std::size_t(k));
+        m.search(m.points, Impl::Self{nullptr, true}, m.id.data(), m.cell_first.data(),
+                 m.cell_key.data(), g0, g1, k, idx.data(), nullptr, p0);
+        visit(m.id.data() + p0, count, k, idx.data());
+        g0 = g1;
+    }
+}
+
+KnnResult KnnIndex::self_neighbours_of(const std::vector<std::size_t>& rows, int k) const {
+    const Impl& m = *impl_;
+    KnnResult out;
+    out.k = std::max(0, std::min<int>(k, int(m.n) - 1));
+    if (out.k == 0 || rows.empty()) return out;
+    std::vector<Vec3f> q(rows.size());
+    std::vector<int> self(rows.size());
+    for (std::size_t j = 0; j < rows.size(); ++j) {
+        q[j] = m.points[rows[j]];
+        self[j] = int(rows[j]);
+    }
+    out.indices.resize(rows.size() * std::size_t(out.k));
+    out.sq_distances.resize(out.indices.size());
+    m.search(q, Impl::Self{self.data(), false}, out.k, out.indices.data(), out.sq_distances.data());
     return out;
 }
 
@@ -551,7 +595,7 @@ KnnResult KnnIndex::query(Span<Vec3f> queries, int k) const {
     if (r.k == 0 || queries.empty()) return r;
     r.indices.resize(queries.size() * std::size_t(r.k));
     r.sq_distances.resize(r.indices.size());
-    impl_->search(queries, nullptr, r.k, r.indices.data(), r.sq_distances.data());
+    impl_->search(queries, Impl::Self{}, r.k, r.indices.data(), r.sq_distances.data());
     return r;
 }
 
@@ -629,23 +673,12 @@ KnnResult KnnResult::subset(const std::vector<char>& removed, Span<Vec3f> kept_p
 
 void KnnIndex::fill_rows(KnnResult& r, const std::vector<std::size_t>& rows) const {
     if (rows.empty() || r.k == 0) return;
-    const Impl& m = *impl_;
-    std::vector<Vec3f> q(rows.size());
-    std::vector<int> self(rows.size());
-    for (std::size_t j = 0; j < rows.size(); ++j) {
-        q[j] = m.points[rows[j]];
-        self[j] = int(rows[j]);
-    }
-    std::vector<int> idx(rows.size() * std::size_t(r.k));
-    std::vector<float> dist(idx.size());
-    m.search(q, self.data(), r.k, idx.data(), dist.data());
+    const KnnResult found = self_neighbours_of(rows, r.k);
     const bool with_d2 = r.has_distances();
+    const std::size_t k = std::size_t(r.k);
     for (std::size_t j = 0; j < rows.size(); ++j) {
-        std::copy_n(&idx[j * std::size_t(r.k)], r.k, &r.indices[rows[j] * std::size_t(r.k)]);
-        if (with_d2) {
-            std::copy_n(&dist[j * std::size_t(r.k)], r.k,
-                        &r.sq_distances[rows[j] * std::size_t(r.k)]);
-        }
+        std::copy_n(found.neighbours(j), k, &r.indices[rows[j] * k]);
+        if (with_d2) std::copy_n(found.sq_dists(j), k, &r.sq_distances[rows[j] * k]);
     }
 }
 

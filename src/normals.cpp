@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <queue>
 
 #include "detail/pca.h"
@@ -159,8 +160,24 @@ std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
 
 namespace {
 
+}  // namespace
+
+bool scales_need_neighbours(const PointCloud& cloud, const NormalOptions& options) {
+    if (options.scale == ScaleMode::knn) return true;
+    return options.scale == ScaleMode::automatic &&
+           (!cloud.has_scales() || std::any_of(cloud.scales.begin(), cloud.scales.end(),
+                                               [](float s) { return !(s > 0.0f); }));
+}
+
+namespace {
+
+/// Whether every point's normal is to be estimated (not only the zero ones).
+bool estimates_all(const PointCloud& cloud, const NormalOptions& options) {
+    return options.mode == NormalMode::estimate || !cloud.has_normals();
+}
+
 NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions& options,
-                                   const KnnResult* known) {
+                                   const KnnResult* known, const std::vector<float>* spacing) {
     options.validate();
     const std::size_t n = cloud.size();
     NormalResult result;
@@ -171,8 +188,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
             "normals: the input has no normals and --normals keep was given. Hint: --normals "
             "estimate");
     }
-    const bool estimate_all =
-        options.mode == NormalMode::estimate || !cloud.has_normals();
+    const bool estimate_all = estimates_all(cloud, options);
     std::vector<char> needs(n, 0);
     std::size_t needed = 0;
     if (estimate_all) {
@@ -186,14 +202,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
             }
         }
     }
-    bool need_scale = false;
-    if (options.scale == ScaleMode::knn) {
-        need_scale = true;
-    } else if (options.scale == ScaleMode::automatic) {
-        need_scale = !cloud.has_scales() ||
-                     std::any_of(cloud.scales.begin(), cloud.scales.end(),
-                                 [](float s) { return !(s > 0.0f); });
-    }
+    const bool need_scale = scales_need_neighbours(cloud, options);
 
     // Kept arrays are Column copies: a borrowed input is shared, not copied, until written.
     if (estimate_all) {
@@ -218,15 +227,19 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
                              " point(s) are too few to estimate normals or spacing");
     }
 
-    // The k nearest neighbours: given, or from a kd-tree built here.
-    KnnResult own;
+    // The k nearest neighbours: given, or searched here. Only normals need whole lists; for the
+    // scale alone each point's are summed as their batch is searched, none kept.
     const int want = std::min<int>(options.k, int(n) - 1);
-    if (!(known && known->k == want && known->indices.size() == n * std::size_t(want))) {
-        own = KnnIndex(cloud.positions).self_neighbours(options.k);
-        known = &own;
-    }
+    const bool given = known && known->k == want && known->indices.size() == n * std::size_t(want);
+    if (spacing && spacing->size() != n) spacing = nullptr;
+    const bool search = !given && (needed > 0 || !spacing);
+    const std::unique_ptr<KnnIndex> index =
+        search ? std::make_unique<KnnIndex>(cloud.positions) : nullptr;
+    KnnResult own;
+    if (!given && needed > 0) own = index->self_neighbours(options.k);
+    if (!given) known = &own;
     const KnnResult& knn = *known;
-    const int k = knn.k;
+    const int k = want;
 
     // PCA normals where needed.
     std::vector<char> degenerate(n, 0);
@@ -291,17 +304,43 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     if (need_scale) {
         if (result.scales.empty()) result.scales.assign(n, 0.0f);
         std::vector<float>& scales = result.scales.edit();
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                if (options.scale == ScaleMode::automatic && scales[i] > 0.0f) continue;
-                double s = 0.0;
-                for (int j = 0; j < k; ++j) {
-                    s += std::sqrt(double(knn.sq_dist(cloud.positions, i, j)));
-                }
-                scales[i] = float(s / double(k));
+        // Mean distance from point i to its neighbours nb[0..k).
+        const auto scale = [&](std::size_t i, const int* nb, const float* d2) {
+            if (options.scale == ScaleMode::automatic && scales[i] > 0.0f) return;
+            double s = 0.0;
+            for (int j = 0; j < k; ++j) {
+                s += std::sqrt(double(d2 ? d2[j]
+                                         : KnnResult::squared_distance(
+                                               cloud.positions[i],
+                                               cloud.positions[std::size_t(nb[j])])));
             }
-        });
+            scales[i] = float(s / double(k));
+        };
+        if (spacing && knn.k != k) {
+            for (std::size_t i = 0; i < n; ++i) {
+                if (!(options.scale == ScaleMode::automatic && scales[i] > 0.0f)) {
+                    scales[i] = (*spacing)[i];
+                }
+            }
+        } else if (knn.k == k) {
+            tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                              [&](const tbb::blocked_range<std::size_t>& r) {
+                for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                    scale(i, knn.neighbours(i), knn.has_distances() ? knn.sq_dists(i) : nullptr);
+                }
+            });
+        } else {
+            index->visit_self_neighbours(
+                k, std::max<std::size_t>(std::size_t(1) << 16, n / 16),
+                [&](const int* rows, std::size_t count, int, const int* idx) {
+                    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
+                                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t t = r.begin(); t < r.end(); ++t) {
+                            scale(std::size_t(rows[t]), idx + t * std::size_t(k), nullptr);
+                        }
+                    });
+                });
+        }
     }
     median_scale();
     return result;
@@ -309,13 +348,24 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
 
 }  // namespace
 
+bool normals_need_neighbours(const PointCloud& cloud, const NormalOptions& options) {
+    return estimates_all(cloud, options) ||
+           std::any_of(cloud.normals.begin(), cloud.normals.end(),
+                       [](const Vec3f& v) { return is_zero(v); });
+}
+
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options) {
-    return estimate_normals_with(cloud, options, nullptr);
+    return estimate_normals_with(cloud, options, nullptr, nullptr);
 }
 
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options,
                               const KnnResult& known_neighbours) {
-    return estimate_normals_with(cloud, options, &known_neighbours);
+    return estimate_normals_with(cloud, options, &known_neighbours, nullptr);
+}
+
+NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options,
+                              const std::vector<float>& known_spacing) {
+    return estimate_normals_with(cloud, options, nullptr, &known_spacing);
 }
 
 }  // namespace vdbrecon

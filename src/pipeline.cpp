@@ -140,22 +140,34 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
     if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
     PipelineResult r;
     in_arena(options.threads, [&] {
-        KnnResult neighbours;  // the outlier stage's, reused by the normal stage
+        KnnResult neighbours;  // the outlier stage's, reused by a normal estimation
         if (options.outliers.enabled) {
             StageClock clock(r.timings, on_stage, "outliers");
-            r.outliers = remove_outliers(std::move(cloud), options.outliers);  // in place
+            // Its lists are kept (64 bytes a point) only for a normal estimation to reuse; the
+            // kNN scale alone it hands over without them.
+            OutlierHandOver hand_over;
+            hand_over.lists = normals_need_neighbours(cloud, options.normals);
+            if (!hand_over.lists && scales_need_neighbours(cloud, options.normals)) {
+                hand_over.spacing_k = options.normals.k;
+            }
+            r.outliers = remove_outliers(std::move(cloud), options.outliers, hand_over);
             cloud = std::move(r.outliers.cloud);
             r.outliers.cloud = PointCloud{};
             if (cloud.empty()) throw InvalidArgument("reconstruct: every point was an outlier");
             const int k = std::min<int>(options.normals.k, int(cloud.size()) - 1);
-            neighbours =
-                std::move(r.outliers.neighbours).subset(r.outliers.removed, cloud.positions, k);
+            if (hand_over.lists) {
+                neighbours = std::move(r.outliers.neighbours)
+                                 .subset(r.outliers.removed, cloud.positions, k);
+            }
             r.outliers.neighbours = KnnResult{};
         }
         {
             StageClock clock(r.timings, on_stage, "normals");
-            r.normals = estimate_normals(cloud, options.normals, neighbours);
+            r.normals = r.outliers.spacing.empty()
+                            ? estimate_normals(cloud, options.normals, neighbours)
+                            : estimate_normals(cloud, options.normals, r.outliers.spacing);
             neighbours = KnnResult{};  // #P x k lists: not kept through the splat
+            r.outliers.spacing = {};
             cloud.normals = std::move(r.normals.normals);
             cloud.scales = std::move(r.normals.scales);
             r.normals.normals.clear();

@@ -104,6 +104,46 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
     }
 }
 
+TEST_CASE("kNN: the batched self-neighbours are the full lists, each row once", "[normals]") {
+    // A dense patch and far strays (rows that fall back to coarser levels), batches much smaller
+    // than the cloud: every row is visited once, with the lists self_neighbours() gives, and
+    // self_neighbours_of() gives the same rows again; at 1 and 2 threads.
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    std::vector<Vec3f> pts;
+    for (int i = 0; i < 20000; ++i) pts.push_back({u(rng), u(rng), 0.01f * u(rng)});
+    for (int i = 0; i < 200; ++i) pts.push_back({40.0f * u(rng), 40.0f * u(rng), 40.0f * u(rng)});
+    const int k = 9;
+    const KnnIndex index(pts);
+    const KnnResult full = index.self_neighbours(k);
+    for (int threads : {1, 2}) {
+        tbb::global_control c(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
+        std::vector<int> seen(pts.size(), 0), lists(pts.size() * std::size_t(k), -1);
+        std::size_t batches = 0;
+        index.visit_self_neighbours(k, 3000, [&](const int* rows, std::size_t count, int kk,
+                                                 const int* idx) {
+            REQUIRE(kk == k);
+            ++batches;
+            for (std::size_t t = 0; t < count; ++t) {
+                const std::size_t i = std::size_t(rows[t]);
+                ++seen[i];
+                std::copy_n(idx + t * std::size_t(k), k, lists.begin() + std::ptrdiff_t(i * k));
+            }
+        });
+        REQUIRE(batches >= 4);
+        REQUIRE(std::all_of(seen.begin(), seen.end(), [](int v) { return v == 1; }));
+        REQUIRE(lists == full.indices);
+    }
+    const std::vector<std::size_t> rows = {0, 20005, 7, 20199, 12345};
+    const KnnResult some = index.self_neighbours_of(rows, k);
+    for (std::size_t j = 0; j < rows.size(); ++j) {
+        for (int m = 0; m < k; ++m) {
+            REQUIRE(some.neighbours(j)[m] == full.neighbours(rows[j])[m]);
+            REQUIRE(some.sq_dists(j)[m] == full.sq_dists(rows[j])[m]);
+        }
+    }
+}
+
 TEST_CASE("kNN: the neighbours of a subset come from those of the whole set", "[normals]") {
     // What the pipeline does after outlier removal: the normal stage's neighbours are taken
     // from the outlier stage's lists, and the few incomplete rows are queried anew.

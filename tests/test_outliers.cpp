@@ -4,6 +4,8 @@
 #include "support.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
+#include "vdbrecon/knn.h"
+#include "vdbrecon/normals.h"
 #include "vdbrecon/outliers.h"
 #include "vdbrecon/pipeline.h"
 
@@ -139,8 +141,10 @@ TEST_CASE("outliers: the in-place removal keeps the same points as the copying o
     }
     OutlierOptions o;
     o.enabled = true;
-    const OutlierResult copied = remove_outliers(c, o);
+    const OutlierResult copied = remove_outliers(c, o, OutlierHandOver{true, 0});
     REQUIRE(copied.statistical + copied.planarity > 0);
+    // The kept lists are the full search's.
+    REQUIRE(copied.neighbours.indices == KnnIndex(c.positions).self_neighbours(o.k).indices);
     const auto same = [&](const OutlierResult& r) {
         CHECK(r.removed == copied.removed);
         CHECK(r.neighbours.indices == copied.neighbours.indices);
@@ -152,9 +156,17 @@ TEST_CASE("outliers: the in-place removal keeps the same points as the copying o
     SECTION("owned arrays are compacted in place") {
         PointCloud owned = c;
         const Vec3f* storage = owned.positions.data();
-        const OutlierResult r = remove_outliers(std::move(owned), o);
+        const OutlierResult r = remove_outliers(std::move(owned), o, OutlierHandOver{true, 0});
         same(r);
         CHECK(r.cloud.positions.data() == storage);  // no copy was made
+    }
+    SECTION("without kept lists (searched a batch at a time) the same points go") {
+        const OutlierResult r = remove_outliers(c, o);
+        CHECK(r.neighbours.indices.empty());
+        CHECK(r.statistical == copied.statistical);
+        CHECK(r.planarity == copied.planarity);
+        CHECK(r.removed == copied.removed);
+        CHECK(r.cloud.positions.to_vector() == copied.cloud.positions.to_vector());
     }
     SECTION("borrowed arrays are copied, never written") {
         PointCloud borrowed;
@@ -163,9 +175,73 @@ TEST_CASE("outliers: the in-place removal keeps the same points as the copying o
         borrowed.colors = Column<Vec3f>::borrow(c.colors.data(), c.size());
         borrowed.scales = Column<float>::borrow(c.scales.data(), c.size());
         const std::vector<Vec3f> before = c.positions.to_vector();
-        const OutlierResult r = remove_outliers(std::move(borrowed), o);
+        const OutlierResult r = remove_outliers(std::move(borrowed), o, OutlierHandOver{true, 0});
         same(r);
         CHECK(c.positions.to_vector() == before);
         CHECK_FALSE(r.cloud.positions.borrowed());
     }
+}
+
+TEST_CASE("outliers: batches of the neighbour search give the rules of the whole lists",
+          "[outliers]") {
+    // Large enough for several batches (rows whose neighbours come in later batches wait for
+    // them), with strays for both rules and a patch of scattered points (planarity).
+    PointCloud c = sample_sphere(200000, 1.0);
+    add_strays(c, 2000, 1.3, 9);
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(-0.02f, 0.02f);
+    for (int i = 0; i < 300; ++i) {
+        c.positions.push_back({1.05f + u(rng), u(rng), u(rng)});
+        c.normals.push_back({1.0f, 0.0f, 0.0f});
+    }
+    OutlierOptions o;
+    const OutlierResult kept = remove_outliers(c, o, OutlierHandOver{true, 0});
+    const OutlierResult batched = remove_outliers(c, o, OutlierHandOver{false, 10});
+    REQUIRE(kept.statistical > 0);
+    REQUIRE(kept.planarity > 0);
+    CHECK(batched.statistical == kept.statistical);
+    CHECK(batched.planarity == kept.planarity);
+    CHECK(batched.removed == kept.removed);
+    CHECK(batched.neighbours.indices.empty());
+
+    // The rules straight from the whole lists (outliers.h): the statistical removals exactly,
+    // and planarity removals only among the points spaced beyond planarity_spacing x median.
+    const std::size_t n = c.size();
+    const KnnResult all = KnnIndex(c.positions).self_neighbours(o.k);
+    std::vector<double> d(n, 0.0);
+    for (std::size_t i = 0; i < n; ++i) {
+        for (int j = 0; j < o.k; ++j) d[i] += std::sqrt(double(all.sq_dists(i)[j]));
+        d[i] /= o.k;
+    }
+    std::vector<double> sorted = d;
+    std::nth_element(sorted.begin(), sorted.begin() + std::ptrdiff_t(n / 2), sorted.end());
+    const double median = sorted[n / 2];
+    std::size_t statistical = 0, wrong = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+        double local = 0.0;
+        for (int j = 0; j < o.k; ++j) local += d[std::size_t(all.neighbours(i)[j])];
+        local /= o.k;
+        const bool stat = local > 0.0 && d[i] / local > o.statistical_ratio;
+        const bool candidate = !stat && local > 0.0 && d[i] > o.planarity_spacing * median;
+        statistical += stat;
+        wrong += stat ? !batched.removed[i] : (batched.removed[i] && !candidate);
+    }
+    CHECK(batched.statistical == statistical);
+    CHECK(wrong == 0);
+
+    // The spacing handed over is the normal stage's kNN scale of the kept points, bit for bit
+    // (its own search there), also next to removed points and where a list kept too few.
+    NormalOptions no;
+    no.k = 10;
+    no.scale = ScaleMode::knn;
+    const NormalResult own = estimate_normals(batched.cloud, no);
+    REQUIRE(batched.spacing.size() == batched.cloud.size());
+    CHECK(batched.spacing == own.scales.to_vector());
+    CHECK(estimate_normals(batched.cloud, no, batched.spacing).scales.to_vector() ==
+          own.scales.to_vector());
+    // The statistical rule alone (no planarity candidates to point at the lists to redo).
+    o.planarity_ratio = 0.0;
+    const OutlierResult stat_only = remove_outliers(c, o, OutlierHandOver{false, 10});
+    REQUIRE(stat_only.statistical > 0);
+    CHECK(stat_only.spacing == estimate_normals(stat_only.cloud, no).scales.to_vector());
 }

@@ -1,7 +1,8 @@
-// k-nearest-neighbour queries over a fixed point set. The kd-tree backend (FLANN's exact
-// single-tree index) is hidden behind this class so it can be swapped without an API change.
+// k-nearest-neighbour queries over a fixed point set: an exact search on a Morton-ordered cell
+// grid (knn.cpp), hidden behind this class so it can be swapped without an API change.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -61,6 +62,21 @@ public:
     /// count. `k` is clamped to size() - 1. Without `distances` only the indices are kept (half
     /// the memory; KnnResult::sq_dist computes a distance when asked).
     KnnResult self_neighbours(int k, bool distances = true) const;
+
+    /// Called with a batch of self-neighbour rows: `count` point indices (`rows`) and their k
+    /// neighbours each (`idx`, row-major, nearest first).
+    using BatchVisitor =
+        std::function<void(const int* rows, std::size_t count, int k, const int* idx)>;
+
+    /// The same lists as self_neighbours(k), handed to `visit` a batch at a time and not kept:
+    /// batches of whole cells of at least `batch` points, in the index's spatial order, each
+    /// searched in parallel, visited one after the other in a fixed order (so what the visitor
+    /// computes does not depend on the thread count). Memory: one batch of lists, not #P.
+    void visit_self_neighbours(int k, std::size_t batch, const BatchVisitor& visit) const;
+
+    /// The self-neighbour rows of the given points only (row j for point rows[j]), with
+    /// distances: the same lists as those rows of self_neighbours(k).
+    KnnResult self_neighbours_of(const std::vector<std::size_t>& rows, int k) const;
 
     /// The k nearest indexed points of arbitrary query points, in parallel.
     KnnResult query(Span<Vec3f> queries, int k) const;

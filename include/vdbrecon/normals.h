@@ -58,6 +58,13 @@ struct NormalResult {
     double median_scale = 0.0;   ///< median of `scales` (0 when none), world units
 };
 
+/// Whether estimate_normals() will estimate any normal, which needs every point's neighbour
+/// lists (the kNN scale alone does not: it is summed as the neighbours are searched).
+bool normals_need_neighbours(const PointCloud& cloud, const NormalOptions& options = {});
+
+/// Whether estimate_normals() will compute any kNN scale.
+bool scales_need_neighbours(const PointCloud& cloud, const NormalOptions& options = {});
+
 /// Estimates (or checks) normals and per-point scale. Deterministic for any thread count.
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options = {});
 
@@ -67,5 +74,11 @@ NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& opti
 /// exactly equal distances).
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options,
                               const KnnResult& known_neighbours);
+
+/// The same, with each point's kNN scale already known (the mean distance to its options.k
+/// nearest neighbours, e.g. OutlierResult::spacing; one per point): used for the scale, and
+/// neighbours are searched only when normals are to be estimated.
+NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options,
+                              const std::vector<float>& known_spacing);
 
 }  // namespace vdbrecon

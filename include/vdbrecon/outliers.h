@@ -14,7 +14,7 @@
 //    while sharp corners and thin ridges of real geometry, which are non-planar too but densely
 //    sampled, stay.
 //
-// Both rules look at the cloud as given (one kd-tree, one pass), so the result does not depend
+// Both rules look at the cloud as given (one neighbour search), so the result does not depend
 // on the order in which points are tested, nor on the thread count.
 #pragma once
 
@@ -45,22 +45,40 @@ struct OutlierOptions {
     void validate() const;
 };
 
+/// What remove_outliers hands on from its neighbour search, so that the normal stage need not
+/// search again.
+struct OutlierHandOver {
+    /// Every input point's k nearest neighbours (OutlierResult::neighbours): 64 bytes per point
+    /// at k = 16, 320 MB for 5 million points. A normal estimation needs them.
+    bool lists = false;
+    /// > 0 (and <= k): each kept point's mean distance to its spacing_k nearest kept points
+    /// (OutlierResult::spacing), the kNN scale of normals.h. Costs no lists.
+    int spacing_k = 0;
+};
+
 struct OutlierResult {
     PointCloud cloud;                ///< the kept points, all attributes, input order
     std::size_t statistical = 0;     ///< removed by the statistical rule
     std::size_t planarity = 0;       ///< removed by the planarity rule (and not the first)
     std::vector<char> removed;       ///< #P flags of the input points, 1 = removed
-    /// The k nearest neighbours of every point of the input, computed for the rules (empty
-    /// when the removal did not run), indices only (KnnResult::sq_dist gives a distance): the
-    /// normal stage takes its own from them (KnnResult::subset) instead of a second search.
+    /// With OutlierHandOver::lists: the k nearest neighbours of every point of the input,
+    /// indices only (KnnResult::sq_dist gives a distance), for the normal stage to take its own
+    /// from (KnnResult::subset). Empty otherwise, or when the removal did not run.
     KnnResult neighbours;
+    /// With OutlierHandOver::spacing_k: one value per kept point (cloud order). Empty otherwise,
+    /// or when the removal did not run.
+    std::vector<float> spacing;
 };
 
 /// Removes outliers (see above). With fewer than k + 1 points nothing is removed.
-OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options = {});
+///
+/// The neighbour lists are searched a batch at a time and, unless handed over, not kept: they
+/// are the stage's largest memory.
+OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options = {},
+                              const OutlierHandOver& hand_over = {});
 /// The same, keeping the points in the given cloud's own arrays (compacted in place; borrowed
-/// ones are copied): no second copy of the cloud while the neighbour lists are alive. If it
-/// throws, the cloud is as it was.
-OutlierResult remove_outliers(PointCloud&& cloud, const OutlierOptions& options = {});
+/// ones are copied): no second copy of the cloud. If it throws, the cloud is as it was.
+OutlierResult remove_outliers(PointCloud&& cloud, const OutlierOptions& options = {},
+                              const OutlierHandOver& hand_over = {});
 
 }  // namespace vdbrecon

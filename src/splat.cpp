@@ -13,6 +13,7 @@
 
 #include <openvdb/tools/SignedFloodFill.h>
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -494,10 +495,45 @@ struct BlockSetup {
     float background;  ///< the sdf's background, world units
 };
 
-/// Lists the (block, point) pairs (first_pair: each point's first, prefix sums), sorts them,
-/// checks the memory budget and sums every block: the blocks' outputs in key order.
+/// The (block, point) pairs are listed, sorted and summed one slab of block x-coordinates at a
+/// time, a slab holding at most this many pairs (or one x-column): a sorted list of 8-byte
+/// pairs and the radix sort's copy of it are then at most 8 bytes per point of the cloud (its
+/// own memory is 24 or more), instead of ~40 for all pairs at once; a cloud of up to 4M pairs
+/// (the bunny scans: 1M) is one slab. Keys sort x first, so the slabs' blocks in slab order
+/// are all blocks in key order: the result does not depend on the slabs.
+std::size_t slab_pairs(std::size_t n, const SplatOptions& options) {
+    if (options.slab_pairs > 0) return options.slab_pairs;
+    return std::max<std::size_t>(std::size_t(1) << 22, n / 2);
+}
+
+/// The pairs of point i's kernel with blocks whose x-coordinate is in [x0, x1]: calls
+/// fn(bx, by, bz) for each, in (bx, by, bz) order; returns their count.
+template <typename Fn>
+std::size_t for_each_pair(const Kernels& kernels, std::size_t i, int x0, int x1, Fn&& fn) {
+    int lo[3], hi[3];
+    const Kernel k = kernels(i, false);
+    if (!(k.r > 0.0f) || !block_span(support_box(k), lo, hi)) return 0;
+    lo[0] = std::max(lo[0], x0);
+    hi[0] = std::min(hi[0], x1);
+    std::size_t count = 0;
+    for (int bx = lo[0]; bx <= hi[0]; ++bx) {
+        for (int by = lo[1]; by <= hi[1]; ++by) {
+            for (int bz = lo[2]; bz <= hi[2]; ++bz) {
+                fn(bx, by, bz);
+                ++count;
+            }
+        }
+    }
+    return count;
+}
+
+/// Lists the (block, point) pairs, sorts them, checks the memory budget and sums every block,
+/// a slab of blocks at a time (see slab_pairs): the blocks' outputs in key order.
+/// `chunk_pairs`: the pairs of the points of each chunk (detail::for_each_chunk), `x_hi` the
+/// highest block x-coordinate.
 template <typename Key>
-std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_t> first_pair) {
+std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_t> chunk_pairs,
+                                 int x_hi) {
     const Kernels& kernels = setup.kernels;
     const BlockCodec& codec = setup.codec;
     const PointCloud& cloud = setup.cloud;
@@ -505,95 +541,154 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
     const float background = setup.background;
     const std::size_t n = kernels.size();
     const bool colors = cloud.has_colors();
-    // Memory budget, first on the (leaf, point) index, then (below) on the distinct leaves.
+    const std::size_t total = std::accumulate(chunk_pairs.begin(), chunk_pairs.end(), std::size_t(0));
+
+    // Slabs: consecutive x-columns of blocks, from the pairs each column holds.
+    const int x_lo = codec.lo[0];
+    std::vector<std::pair<int, int>> slabs;  // [x0, x1]
+    std::size_t largest = total;
+    const std::size_t limit = slab_pairs(n, options);
+    if (total <= limit) {
+        slabs.push_back({x_lo, x_hi});
+    } else {
+        // Per-thread counts, added up (integers: the same for any thread count).
+        const std::size_t columns = std::size_t(x_hi - x_lo + 1);
+        tbb::enumerable_thread_specific<std::vector<std::size_t>> per_thread(
+            [columns] { return std::vector<std::size_t>(columns, 0); });
+        detail::for_each_chunk(n, [&](std::size_t, std::size_t begin, std::size_t end) {
+            std::vector<std::size_t>& column = per_thread.local();
+            for (std::size_t i = begin; i < end; ++i) {
+                for_each_pair(kernels, i, x_lo, x_hi,
+                              [&](int bx, int, int) { ++column[std::size_t(bx - x_lo)]; });
+            }
+        });
+        std::vector<std::size_t> column(columns, 0);
+        for (const auto& local : per_thread) {
+            for (std::size_t x = 0; x < columns; ++x) column[x] += local[x];
+        }
+        largest = 0;
+        std::size_t in_slab = 0;
+        for (int x = x_lo; x <= x_hi; ++x) {
+            const std::size_t c = column[std::size_t(x - x_lo)];
+            if (in_slab > 0 && in_slab + c > limit) {
+                largest = std::max(largest, in_slab);
+                in_slab = 0;
+            }
+            if (in_slab == 0) slabs.push_back({x, x});
+            slabs.back().second = x;
+            in_slab += c;
+        }
+        largest = std::max(largest, in_slab);
+    }
+    // Memory budget, first on the (block, point) pairs of a slab and the sort's copy of them,
+    // then (below) on the distinct leaves.
     const double point_bytes = double(n) * 64.0;  // the cloud
-    check_memory(point_bytes + double(first_pair[n]) * sizeof(Pair<Key>), options,
+    check_memory(point_bytes + 2.0 * double(largest) * sizeof(Pair<Key>), options,
                  "for the index of the leaves its kernels touch");
-    std::vector<Pair<Key>> pairs(first_pair[n]);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
-            int lo[3], hi[3];
-            const Kernel k = kernels(i, false);
-            if (!(k.r > 0.0f) || !block_span(support_box(k), lo, hi)) continue;
-            std::size_t o = first_pair[i];
-            for (int bx = lo[0]; bx <= hi[0]; ++bx) {
-                for (int by = lo[1]; by <= hi[1]; ++by) {
-                    for (int bz = lo[2]; bz <= hi[2]; ++bz) {
-                        pairs[o++] = {Key(codec.pack(bx, by, bz)), std::uint32_t(i)};
-                    }
-                }
-            }
-        }
-    });
-    first_pair = {};
-    // A stable radix sort of pairs made in point order: (key, point) order.
-    detail::radix_sort(pairs, codec.total(), [](const Pair<Key>& p) { return p.key; });
 
-    // Block ranges.
-    std::vector<std::size_t> block_begin;
-    for (std::size_t i = 0; i < pairs.size(); ++i) {
-        if (i == 0 || pairs[i].key != pairs[i - 1].key) block_begin.push_back(i);
-    }
-    block_begin.push_back(pairs.size());
-    const std::size_t num_blocks = block_begin.size() - 1;
-    // The 8^3 leaves the kernels touch (of each block's eight), for the memory estimate.
-    std::vector<std::uint8_t> touched_leaves(num_blocks, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 64),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
-            const openvdb::Coord o = codec.origin(pairs[block_begin[B]].key);
-            unsigned mask = 0;
-            for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
-                int lo[3], hi[3];
-                if (!clip_to_block(support_box(kernels(pairs[j].point, false)), o, lo, hi)) {
-                    continue;
-                }
-                unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
-                for (int a = 0; a < 3; ++a) {
-                    halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
-                }
-                for (int leaf = 0; leaf < 8; ++leaf) {
-                    if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
-                        (halves[2] >> (leaf & 1) & 1u)) {
-                        mask |= 1u << leaf;
-                    }
-                }
-            }
-            touched_leaves[B] = std::uint8_t(mask);
-        }
-    });
+    std::vector<BlockOut> blocks;
     std::size_t num_leaves = 0;
-    for (std::uint8_t m : touched_leaves) num_leaves += std::size_t(__builtin_popcount(m));
-    touched_leaves = {};
-    {
-        std::ostringstream what;
-        what << num_leaves << " leaves of 8^3 voxels";
-        check_memory(point_bytes + double(num_leaves) * double(SplatOptions::kBytesPerLeaf),
-                     options, what.str().c_str());
-    }
-
-    std::vector<BlockOut> blocks(num_blocks);
     const double min_weight = options.min_weight, voxel = options.voxel_size;
     const bool vector_rows = detail::vector_loops();  // colourless clouds only
-
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 1),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        auto sums = std::make_unique<BlockSums>();
-        std::vector<ColorSums> csums;
-        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
-            const Pair<Key>* b = pairs.data() + block_begin[B];
-            const Pair<Key>* e = pairs.data() + block_begin[B + 1];
-            BlockOut& out = blocks[B];
-            if (colors) {
-                splat_block<true>(codec.origin(b->key), b, e, kernels, cloud, voxel, min_weight,
-                                  background, vector_rows, *sums, csums, out);
-            } else {
-                splat_block<false>(codec.origin(b->key), b, e, kernels, cloud, voxel, min_weight,
-                                   background, vector_rows, *sums, csums, out);
+    // The pairs of each chunk in each slab (one pass for all slabs).
+    const std::size_t chunks = chunk_pairs.size();
+    std::vector<std::size_t> in_slab(chunks * slabs.size(), 0);  // [chunk][slab]
+    if (slabs.size() == 1) {
+        in_slab = std::move(chunk_pairs);
+    } else {
+        detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+            std::size_t* count = &in_slab[c * slabs.size()];
+            std::size_t s = 0;  // the slab of the last column seen (columns come in order)
+            for (std::size_t i = begin; i < end; ++i) {
+                for_each_pair(kernels, i, x_lo, x_hi, [&](int bx, int, int) {
+                    while (bx > slabs[s].second) ++s;
+                    while (bx < slabs[s].first) --s;
+                    ++count[s];
+                });
             }
+        });
+    }
+    chunk_pairs = {};
+    for (std::size_t slab = 0; slab < slabs.size(); ++slab) {
+        const auto [x0, x1] = slabs[slab];
+        std::vector<std::size_t> chunk_first(chunks + 1, 0);
+        for (std::size_t c = 0; c < chunks; ++c) {
+            chunk_first[c + 1] = chunk_first[c] + in_slab[c * slabs.size() + slab];
         }
-    });
+        std::vector<Pair<Key>> pairs(chunk_first.back());
+        detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+            std::size_t o = chunk_first[c];
+            for (std::size_t i = begin; i < end; ++i) {
+                for_each_pair(kernels, i, x0, x1, [&](int bx, int by, int bz) {
+                    pairs[o++] = {Key(codec.pack(bx, by, bz)), std::uint32_t(i)};
+                });
+            }
+        });
+        // A stable radix sort of pairs made in point order: (key, point) order.
+        detail::radix_sort(pairs, codec.total(), [](const Pair<Key>& p) { return p.key; });
+
+        // Block ranges.
+        std::vector<std::size_t> block_begin;
+        for (std::size_t i = 0; i < pairs.size(); ++i) {
+            if (i == 0 || pairs[i].key != pairs[i - 1].key) block_begin.push_back(i);
+        }
+        block_begin.push_back(pairs.size());
+        const std::size_t num_blocks = block_begin.size() - 1;
+        // The 8^3 leaves the kernels touch (of each block's eight), for the memory estimate.
+        std::vector<std::uint8_t> touched_leaves(num_blocks, 0);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 64),
+                          [&](const tbb::blocked_range<std::size_t>& rg) {
+            for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
+                const openvdb::Coord o = codec.origin(pairs[block_begin[B]].key);
+                unsigned mask = 0;
+                for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
+                    int lo[3], hi[3];
+                    if (!clip_to_block(support_box(kernels(pairs[j].point, false)), o, lo, hi)) {
+                        continue;
+                    }
+                    unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
+                    for (int a = 0; a < 3; ++a) {
+                        halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
+                    }
+                    for (int leaf = 0; leaf < 8; ++leaf) {
+                        if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
+                            (halves[2] >> (leaf & 1) & 1u)) {
+                            mask |= 1u << leaf;
+                        }
+                    }
+                }
+                touched_leaves[B] = std::uint8_t(mask);
+            }
+        });
+        for (std::uint8_t m : touched_leaves) num_leaves += std::size_t(__builtin_popcount(m));
+        touched_leaves = {};
+        {
+            std::ostringstream what;
+            what << num_leaves << " leaves of 8^3 voxels";
+            check_memory(point_bytes + double(num_leaves) * double(SplatOptions::kBytesPerLeaf),
+                         options, what.str().c_str());
+        }
+
+        const std::size_t first_block = blocks.size();
+        blocks.resize(first_block + num_blocks);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 1),
+                          [&](const tbb::blocked_range<std::size_t>& rg) {
+            auto sums = std::make_unique<BlockSums>();
+            std::vector<ColorSums> csums;
+            for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
+                const Pair<Key>* b = pairs.data() + block_begin[B];
+                const Pair<Key>* e = pairs.data() + block_begin[B + 1];
+                BlockOut& out = blocks[first_block + B];
+                if (colors) {
+                    splat_block<true>(codec.origin(b->key), b, e, kernels, cloud, voxel,
+                                      min_weight, background, vector_rows, *sums, csums, out);
+                } else {
+                    splat_block<false>(codec.origin(b->key), b, e, kernels, cloud, voxel,
+                                       min_weight, background, vector_rows, *sums, csums, out);
+                }
+            }
+        });
+    }
     return blocks;
 }
 
@@ -670,11 +765,12 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     // grazing angle) dominate -- the scale weighting of FSSR.
     kernels.set_median_sigma(result.sigma_median / voxel);
 
-    // Blocks the kernels touch: per-point counts and the range of block coordinates.
-    std::vector<std::size_t> first_pair(n + 1, 0);
+    // Blocks the kernels touch: per-chunk pair counts and the range of block coordinates.
+    std::vector<std::size_t> chunk_pairs(detail::chunk_count(n), 0);
     std::vector<std::array<int, 6>> ranges(detail::chunk_count(n));
     detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
         std::array<int, 6> r = {INT_MAX, INT_MAX, INT_MAX, INT_MIN, INT_MIN, INT_MIN};
+        std::size_t pairs = 0;
         for (std::size_t i = begin; i < end; ++i) {
             int lo[3], hi[3];
             const Kernel k = kernels(i, false);
@@ -685,12 +781,13 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
                 r[std::size_t(a)] = std::min(r[std::size_t(a)], lo[a]);
                 r[std::size_t(a) + 3] = std::max(r[std::size_t(a) + 3], hi[a]);
             }
-            first_pair[i + 1] = count;
+            pairs += count;
         }
+        chunk_pairs[c] = pairs;
         ranges[c] = r;
     });
-    std::partial_sum(first_pair.begin(), first_pair.end(), first_pair.begin());
     BlockCodec codec;
+    int x_hi = 0;
     for (int a = 0; a < 3; ++a) {
         int lo = INT_MAX, hi = INT_MIN;
         for (const auto& r : ranges) {
@@ -699,6 +796,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
         }
         if (lo > hi) break;  // no kernel reaches a voxel: no pairs, the default codec
         codec.lo[a] = lo;
+        if (a == 0) x_hi = hi;
         while (std::uint32_t(hi - lo) >> codec.bits[a]) ++codec.bits[a];
     }
 
@@ -706,9 +804,9 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     const double half_width = std::max(3.0, std::ceil(double(max_r)));
     const float background = float(half_width * voxel);
     BlockSetup setup{kernels, codec, cloud, options, background};
-    std::vector<BlockOut> blocks = codec.total() <= 32
-                                       ? sum_blocks<std::uint32_t>(setup, std::move(first_pair))
-                                       : sum_blocks<std::uint64_t>(setup, std::move(first_pair));
+    std::vector<BlockOut> blocks =
+        codec.total() <= 32 ? sum_blocks<std::uint32_t>(setup, std::move(chunk_pairs), x_hi)
+                            : sum_blocks<std::uint64_t>(setup, std::move(chunk_pairs), x_hi);
 
     // Assemble the trees (serial; leaves are disjoint, so the order does not matter).
     auto sdf = openvdb::FloatGrid::create(background);

@@ -57,6 +57,10 @@ struct SplatOptions {
     /// grids, splat() counts the 8^3 leaves the kernels touch and refuses (InvalidArgument, with
     /// a voxel size that would fit) when about kBytesPerLeaf per leaf plus the points exceed it.
     std::size_t max_memory = 0;
+    /// (Kernel, block) pairs listed and sorted at once, at most (0: automatic, half a pair per
+    /// point and at least 4M); more are summed a slab of blocks at a time. Only memory and time
+    /// depend on it, never the grids.
+    std::size_t slab_pairs = 0;
 
     /// Smallest voxel splat() accepts: OpenVDB's linear transforms refuse voxel^3 < 3e-15.
     static constexpr double kMinVoxelSize = 1.5e-5;

@@ -16,6 +16,7 @@
 #include <utility>
 
 #include "detail/io_common.h"
+#include "detail/release.h"
 #include "detail/temp_files.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
@@ -173,7 +174,7 @@ namespace {
 std::vector<Vec3f> take_rows(std::vector<float>&& flat, std::size_t rows) {
     std::vector<Vec3f> out(flat.empty() ? 0 : rows);
     if (!out.empty()) std::memcpy(out.data(), flat.data(), rows * sizeof(Vec3f));
-    flat = {};
+    detail::release(flat);
     return out;
 }
 
@@ -214,7 +215,7 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         }
         ++kept;
     }
-    raw.xyz = {};
+    detail::release(raw.xyz);
     positions.resize(kept);
     cloud.positions = std::move(positions);
     result.dropped_nonfinite = rows - kept;
@@ -499,7 +500,13 @@ Mesh read_mesh_from_memory(std::string_view bytes, const std::string& name) {
 }
 
 ReadResult read_points(const std::string& path, const ReadOptions& options) {
-    return read_points_from_memory(detail::read_file(path), path, options);
+    std::string format;
+    detail::RawPoints raw;
+    {
+        const std::string bytes = detail::read_file(path);
+        raw = read_raw(bytes, path, false, format);
+    }  // the file's bytes are freed before the cloud is made from the rows
+    return detail::finalize_points(std::move(raw), path, format, options);
 }
 
 Mesh read_mesh(const std::string& path) {

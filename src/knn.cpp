@@ -551,11 +551,11 @@ KnnResult KnnIndex::self_neighbours(int k, bool distances) const {
     return out;
 }
 
-void KnnIndex::visit_self_neighbours(int k, std::size_t batch, const BatchVisitor& visit) const {
+void KnnIndex::visit_self_neighbours(int k, const BatchVisitor& visit, std::size_t batch) const {
     const Impl& m = *impl_;
     k = std::max(0, std::min<int>(k, int(m.n) - 1));
     if (k == 0) return;
-    batch = std::max<std::size_t>(batch, 1);
+    if (batch == 0) batch = std::max<std::size_t>(std::size_t(1) << 16, m.n / 32);
     std::vector<int> idx;
     for (std::size_t g0 = 0; g0 < m.cell_key.size();) {
         // Whole cells, at least `batch` points (or the rest).

@@ -11,6 +11,7 @@
 
 #include "detail/mesh_common.h"
 #include "detail/mesh_graph.h"
+#include "detail/release.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -265,7 +266,7 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
             }
         });
     }
-    raw.points = {};  // not needed from here on: less to hold while the normals are made
+    release(raw.points);  // not needed from here on: less to hold while the normals are made
     if (options.normals && !mesh.vertices.empty()) {
         // Normalised SDF gradient; area-weighted face normals where it vanishes or disagrees.
         const std::vector<std::array<double, 3>> face_n = face_normal_sums(mesh);

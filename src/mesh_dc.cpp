@@ -34,6 +34,7 @@
 
 #include "detail/crossings.h"
 #include "detail/mesh_common.h"
+#include "detail/release.h"
 
 namespace vdbrecon::detail {
 namespace {
@@ -956,12 +957,12 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
         });
 
     // What the quads no longer need goes before they are made (the mesh stage's peak memory).
-    points = {};
-    normals = {};
-    weights = {};
+    release(points);
+    release(normals);
+    release(weights);
     crossings.ids.reset();
-    crossings.start = {};
-    crossings.axis = {};
+    release(crossings.start);
+    release(crossings.axis);
 
     // Global vertex numbers in leaf order.
     std::vector<std::size_t> base(per_leaf.size() + 1, 0);
@@ -976,7 +977,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                                   raw.points[base[L] + k] = per_leaf[L][k].position;
                                   patch_normal[base[L] + k] = per_leaf[L][k].normal;
                               }
-                              per_leaf[L] = {};
+                              release(per_leaf[L]);
                           }
                       });
 

@@ -331,8 +331,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
             });
         } else {
             index->visit_self_neighbours(
-                k, std::max<std::size_t>(std::size_t(1) << 16, n / 16),
-                [&](const int* rows, std::size_t count, int, const int* idx) {
+                k, [&](const int* rows, std::size_t count, int, const int* idx) {
                     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
                                       [&](const tbb::blocked_range<std::size_t>& r) {
                         for (std::size_t t = r.begin(); t < r.end(); ++t) {

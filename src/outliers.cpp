@@ -6,10 +6,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
 #include <string>
 
 #include "detail/pca.h"
+#include "detail/release.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
 
@@ -64,67 +67,94 @@ Column<T> copy_borrowed(const Column<T>& v, const std::vector<char>& removed, st
     return out;
 }
 
-/// Rows per batch of the neighbour search: the lists of one batch, and of the rows still
-/// waiting for their neighbours (below), are all that is held of them (unless handed over).
-std::size_t batch_rows(std::size_t n) {
-    return std::max<std::size_t>(std::size_t(1) << 16, n / 16);
+/// The element of rank n / 2 of v (what std::nth_element puts there), without a copy of v:
+/// values >= 0 order like their bit patterns, so a histogram of the top 20 bits finds the
+/// bucket that holds that rank, and only that bucket's values are copied and selected.
+double median_of(const std::vector<double>& v) {
+    const std::size_t n = v.size(), rank = n / 2;
+    constexpr int kShift = 64 - 20;
+    const auto bucket = [](double x) {
+        std::uint64_t bits;
+        std::memcpy(&bits, &x, sizeof bits);
+        return std::size_t(bits >> kShift);
+    };
+    std::vector<std::size_t> count(std::size_t(1) << 20, 0);
+    for (double x : v) ++count[bucket(x)];
+    std::size_t b = 0, below = 0;
+    while (below + count[b] <= rank) below += count[b++];
+    std::vector<double> in;
+    in.reserve(count[b]);
+    for (double x : v) {
+        if (bucket(x) == b) in.push_back(x);
+    }
+    std::nth_element(in.begin(), in.begin() + std::ptrdiff_t(rank - below), in.end());
+    return in[rank - below];
 }
 
-/// Neighbour lists of rows that wait for something of their neighbours; resolve() drops the
-/// rows whose neighbours are ready, in parallel, keeping the others in order.
+/// Rows whose neighbour lists wait for something of their neighbours (see classify), with the
+/// first `width` entries of each list.
 struct Waiting {
-    std::size_t k = 0;
+    std::size_t width = 0;
     std::vector<int> rows, lists;
-    std::vector<char> done;
-
-    void add(const int* r, std::size_t count, const int* idx) {
-        rows.insert(rows.end(), r, r + count);
-        lists.insert(lists.end(), idx, idx + count * k);
+    void add(int row, const int* nb) {
+        rows.push_back(row);
+        lists.insert(lists.end(), nb, nb + width);
     }
-    /// `try_row(row, list)` returns whether the row was resolved; `then(row, list)` sees each
-    /// resolved row before it is dropped (serially, in order).
-    template <typename Try, typename Then>
-    void resolve(const Try& try_row, const Then& then) {
-        const std::size_t waiting = rows.size();
-        done.assign(waiting, 0);
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, waiting, 2048),
-                          [&](const tbb::blocked_range<std::size_t>& rg) {
-            for (std::size_t e = rg.begin(); e < rg.end(); ++e) {
-                done[e] = try_row(std::size_t(rows[e]), lists.data() + e * k) ? 1 : 0;
-            }
-        });
-        std::size_t out = 0;
-        for (std::size_t e = 0; e < waiting; ++e) {
-            if (done[e]) {
-                then(rows[e], lists.data() + e * k);
-                continue;
-            }
-            rows[out] = rows[e];
-            std::copy_n(lists.data() + e * k, k, lists.data() + out * k);
-            ++out;
-        }
-        rows.resize(out);
-        lists.resize(out * k);
-    }
+    const int* list(std::size_t e) const { return lists.data() + e * width; }
 };
+
+/// A row and its neighbour list, wherever the list is held.
+struct RowList {
+    int row;
+    const int* nb;
+};
+
+/// try_row(row, nb) on every entry of `work`, in parallel: whether each was resolved.
+template <typename Try>
+std::vector<char> try_rows(const std::vector<RowList>& work, const Try& try_row) {
+    std::vector<char> done(work.size(), 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, work.size(), 2048),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t e = rg.begin(); e < rg.end(); ++e) {
+            done[e] = try_row(std::size_t(work[e].row), work[e].nb) ? 1 : 0;
+        }
+    });
+    return done;
+}
+
+/// The upper bound of a non-negative value that largest_code() gives (infinite for 254).
+double largest_bound(std::uint8_t code) {
+    if (code == 0) return 0.0;
+    if (code >= 254) return std::numeric_limits<double>::infinity();
+    return std::exp2(double(code) / 4.0 - 32.0);
+}
+
+/// A byte that bounds v >= 0 from above, within a factor 2^(1/4) (see largest_bound).
+std::uint8_t largest_code(double v) {
+    if (!(v > 0.0)) return 0;
+    int code = int(std::clamp(std::ceil((std::log2(v) + 32.0) * 4.0), 1.0, 254.0));
+    while (code < 254 && largest_bound(std::uint8_t(code)) < v) ++code;
+    return std::uint8_t(code);
+}
 
 /// The rules of remove_outliers: fills r.removed, the counts, and what is handed over
 /// (r.neighbours; r.spacing for every input point, compacted by the caller).
 ///
 /// One neighbour search, visited a batch at a time (in the index's spatial order). Each batch
-/// gives its points' d_i. A point's local average is taken as soon as all its neighbours have
-/// their d_j, so its list waits until then (few wait long). The planarity rule needs the median
-/// d first, so its candidates' lists are searched again at the end: a few per cent of the
-/// points, and the same lists (the search is exact and breaks ties by index).
+/// gives its points' d_i. A point's local average, and with it the statistical rule, is taken
+/// as soon as all its neighbours have their d_j, so its list waits until then (few wait long).
+/// The planarity rule needs the median d first, so its candidates' lists are searched again at
+/// the end: a few per cent of the points, and the same lists (the search is exact and breaks
+/// ties by index).
 ///
 /// The spacing handed over is the mean distance to the spacing_k nearest *kept* points. It is
 /// taken from the point's own list, whose first spacing_k points are its nearest kept ones
 /// unless one of them goes. Which ones go is known only at the end, so the list waits a second
-/// time, until its first spacing_k neighbours have their local averages: it then records
-/// whether one of them fails the statistical rule and the largest d_j among them (a planarity
+/// time, until its first spacing_k neighbours have met the statistical rule: it then records
+/// whether one of them failed it, else a bound of the largest d_j among them (a planarity
 /// removal needs d_j above planarity_spacing x median). Those points are searched again at the
-/// end, as KnnResult::subset does: the first spacing_k kept points of their list, or a search
-/// among the kept points when fewer than spacing_k of their k are kept.
+/// end, as KnnResult::subset does: the first spacing_k kept points of their list, or of a longer
+/// one when fewer than spacing_k of their k are kept.
 void classify(const PointCloud& cloud, const OutlierOptions& options,
               const OutlierHandOver& hand_over, OutlierResult& r) {
     const std::size_t n = cloud.size();
@@ -137,17 +167,15 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
         r.neighbours.k = k;
         r.neighbours.indices.resize(n * ku);
     }
-    const double nan = std::numeric_limits<double>::quiet_NaN();
-    std::vector<double> spacing(n, -1.0);  // d_i (-1 until its batch is searched)
-    std::vector<double> local(n, nan);     // the mean d_j of i's neighbours (NaN until known)
-    const auto stat_fails = [&](std::size_t j) {
-        return local[j] > 0.0 && options.statistical_ratio > 0.0 &&
-               spacing[j] / local[j] > options.statistical_ratio;
-    };
-    // For the spacing: its value from the first ks of all points, whether one of those fails
-    // the statistical rule, and their largest d_j (rounded up).
-    std::vector<float> first_spacing(ks > 0 ? n : 0), largest(ks > 0 ? n : 0);
-    std::vector<char> touched(ks > 0 ? n : 0, 0);
+    // Per point: d_i (-1 until its batch is searched), and the statistical rule's verdict.
+    enum : char { kUnknown, kFails, kPasses, kNoLocal };  // kNoLocal: coincident neighbours
+    std::vector<double> spacing(n, -1.0);
+    std::vector<char> verdict(n, kUnknown);
+    // For the spacing: its value from the first ks of all points, and whether one of those may
+    // go (kTouched: one fails the statistical rule; else largest_code of their largest d_j).
+    constexpr std::uint8_t kTouched = 255, kWaiting = 0;
+    std::vector<float> first_spacing(ks > 0 ? n : 0);
+    std::vector<std::uint8_t> near_code(ks > 0 ? n : 0, kWaiting);
     const auto mean_distance = [&](std::size_t i, const int* nb, int count) {
         double s = 0.0;
         for (int j = 0; j < count; ++j) {
@@ -155,9 +183,42 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
         }
         return s;
     };
-    Waiting for_spacing{ku, {}, {}, {}}, for_local{ku, {}, {}, {}};
-    index.visit_self_neighbours(k, batch_rows(n), [&](const int* rows, std::size_t count, int,
-                                                      const int* idx) {
+    // The statistical rule, once every neighbour has its d_j.
+    const auto try_verdict = [&](std::size_t i, const int* nb) {
+        double sum = 0.0;
+        for (int j = 0; j < k; ++j) {
+            const double d = spacing[std::size_t(nb[j])];
+            if (d < 0.0) return false;
+            sum += d;
+        }
+        const double local = sum / k;
+        if (!(local > 0.0)) {
+            verdict[i] = kNoLocal;  // nothing to compare with
+        } else {
+            verdict[i] = options.statistical_ratio > 0.0 &&
+                                 spacing[i] / local > options.statistical_ratio
+                             ? kFails
+                             : kPasses;
+        }
+        return true;
+    };
+    // What may take a near neighbour away, once the first ks neighbours have their verdicts.
+    const auto try_near = [&](std::size_t i, const int* nb) {
+        double most = 0.0;
+        bool fails = false;
+        for (int j = 0; j < ks; ++j) {
+            const std::size_t m = std::size_t(nb[j]);
+            if (verdict[m] == kUnknown) return false;
+            fails = fails || verdict[m] == kFails;
+            most = std::max(most, spacing[m]);
+        }
+        near_code[i] = fails ? kTouched : std::max<std::uint8_t>(1, largest_code(most));
+        return true;
+    };
+    Waiting for_spacing{ku, {}, {}}, for_verdicts{std::size_t(ks), {}, {}};
+    std::vector<RowList> work, work_near;
+    // The lists of one batch, and of the rows still waiting, are all that is held of them.
+    index.visit_self_neighbours(k, [&](const int* rows, std::size_t count, int, const int* idx) {
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
                           [&](const tbb::blocked_range<std::size_t>& rg) {
             for (std::size_t t = rg.begin(); t < rg.end(); ++t) {
@@ -168,63 +229,60 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
                 if (hand_over.lists) std::copy_n(nb, ku, r.neighbours.indices.data() + i * ku);
             }
         });
-        for_spacing.add(rows, count, idx);
-        for_spacing.resolve(
-            [&](std::size_t i, const int* nb) {
-                double sum = 0.0;
-                for (int j = 0; j < k; ++j) {
-                    const double d = spacing[std::size_t(nb[j])];
-                    if (d < 0.0) return false;
-                    sum += d;
-                }
-                local[i] = sum / k;
-                return true;
-            },
-            [&](int i, const int* nb) {
-                if (ks > 0) for_local.add(&i, 1, nb);
-            });
-        if (ks == 0) return;
-        for_local.resolve(
-            [&](std::size_t i, const int* nb) {
-                double most = 0.0;
-                bool fails = false;
-                for (int j = 0; j < ks; ++j) {
-                    const std::size_t m = std::size_t(nb[j]);
-                    if (std::isnan(local[m])) return false;
-                    fails = fails || stat_fails(m);
-                    most = std::max(most, spacing[m]);
-                }
-                touched[i] = fails ? 1 : 0;
-                largest[i] = std::nextafter(float(most), std::numeric_limits<float>::infinity());
-                return true;
-            },
-            [](int, const int*) {});
+        // Verdicts of the batch's rows and of the waiting ones (two parallel passes, so no row
+        // reads a verdict while it is written); the rows still short of something wait.
+        work.clear();
+        for (std::size_t t = 0; t < count; ++t) work.push_back({rows[t], idx + t * ku});
+        for (std::size_t e = 0; e < for_spacing.rows.size(); ++e) {
+            work.push_back({for_spacing.rows[e], for_spacing.list(e)});
+        }
+        const std::vector<char> done = try_rows(work, try_verdict);
+        Waiting still{ku, {}, {}};
+        work_near.clear();
+        for (std::size_t e = 0; e < work.size(); ++e) {
+            if (!done[e]) {
+                still.add(work[e].row, work[e].nb);
+            } else if (ks > 0) {
+                work_near.push_back(work[e]);
+            }
+        }
+        if (ks > 0) {
+            for (std::size_t e = 0; e < for_verdicts.rows.size(); ++e) {
+                work_near.push_back({for_verdicts.rows[e], for_verdicts.list(e)});
+            }
+            const std::vector<char> near_done = try_rows(work_near, try_near);
+            Waiting near_still{std::size_t(ks), {}, {}};
+            for (std::size_t e = 0; e < work_near.size(); ++e) {
+                if (!near_done[e]) near_still.add(work_near[e].row, work_near[e].nb);
+            }
+            for_verdicts = std::move(near_still);
+        }
+        for_spacing = std::move(still);
     });
-    // After the last batch every d_j, and then every local average, is known: nothing waits.
-    if (!for_spacing.rows.empty() || !for_local.rows.empty()) {
+    // After the last batch every d_j, and then every verdict, is known: nothing waits.
+    if (!for_spacing.rows.empty() || !for_verdicts.rows.empty()) {
         throw Error("outliers: internal error: unresolved neighbour lists");
     }
     for_spacing = {};
-    for_local = {};
+    for_verdicts = {};
+    work = {};
+    work_near = {};
 
-    std::vector<double> sorted = spacing;
-    std::nth_element(sorted.begin(), sorted.begin() + std::ptrdiff_t(n / 2), sorted.end());
-    const double median = sorted[n / 2];
-    sorted = {};
+    const double median = median_of(spacing);
     // 1 = statistical, 2 = planarity (0 = kept); 3 = a planarity candidate, decided below.
     std::vector<char> rule(n, 0);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
-            if (!(local[i] > 0.0)) continue;  // coincident points: nothing to compare with
-            if (stat_fails(i)) {
+            if (verdict[i] == kFails) {
                 rule[i] = 1;
-            } else if (options.planarity_ratio > 0.0 &&
+            } else if (verdict[i] == kPasses && options.planarity_ratio > 0.0 &&
                        spacing[i] > options.planarity_spacing * median) {
                 rule[i] = 3;
             }
         }
     });
+    detail::release(verdict);
     std::vector<std::size_t> candidates;
     for (std::size_t i = 0; i < n; ++i) {
         if (rule[i] == 3) candidates.push_back(i);
@@ -254,11 +312,10 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     std::vector<std::size_t> again;
     for (std::size_t i = 0; i < n; ++i) {
         const bool planar_near = options.planarity_ratio > 0.0 &&
-                                 double(largest[i]) > options.planarity_spacing * median;
-        if (rule[i] == 0 && (touched[i] || planar_near)) again.push_back(i);
+                                 largest_bound(near_code[i]) > options.planarity_spacing * median;
+        if (rule[i] == 0 && (near_code[i] == kTouched || planar_near)) again.push_back(i);
     }
-    touched = {};
-    largest = {};
+    detail::release(near_code);
     // Their spacing from the first ks kept points of their K nearest: the nearest ks kept ones,
     // ties broken by index as among the kept points alone. K grows (from k) for the few rows
     // whose K nearest hold fewer than ks kept points; with K = n - 1 all do, as more than ks

@@ -13,6 +13,7 @@
 #include <sstream>
 
 #include "detail/io_common.h"
+#include "detail/release.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/log.h"
 
@@ -167,7 +168,7 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
                             ? estimate_normals(cloud, options.normals, neighbours)
                             : estimate_normals(cloud, options.normals, r.outliers.spacing);
             neighbours = KnnResult{};  // #P x k lists: not kept through the splat
-            r.outliers.spacing = {};
+            detail::release(r.outliers.spacing);
             cloud.normals = std::move(r.normals.normals);
             cloud.scales = std::move(r.normals.scales);
             r.normals.normals.clear();

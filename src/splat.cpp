@@ -31,6 +31,7 @@
 #endif
 
 #include "detail/radix_sort.h"
+#include "detail/release.h"
 #include "detail/simd.h"
 #include "vdbrecon/error.h"
 
@@ -608,7 +609,7 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
             }
         });
     }
-    chunk_pairs = {};
+    detail::release(chunk_pairs);
     for (std::size_t slab = 0; slab < slabs.size(); ++slab) {
         const auto [x0, x1] = slabs[slab];
         std::vector<std::size_t> chunk_first(chunks + 1, 0);
@@ -661,7 +662,7 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
             }
         });
         for (std::uint8_t m : touched_leaves) num_leaves += std::size_t(__builtin_popcount(m));
-        touched_leaves = {};
+        detail::release(touched_leaves);
         {
             std::ostringstream what;
             what << num_leaves << " leaves of 8^3 voxels";

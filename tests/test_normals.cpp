@@ -120,8 +120,8 @@ TEST_CASE("kNN: the batched self-neighbours are the full lists, each row once", 
         tbb::global_control c(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
         std::vector<int> seen(pts.size(), 0), lists(pts.size() * std::size_t(k), -1);
         std::size_t batches = 0;
-        index.visit_self_neighbours(k, 3000, [&](const int* rows, std::size_t count, int kk,
-                                                 const int* idx) {
+        index.visit_self_neighbours(k, [&](const int* rows, std::size_t count, int kk,
+                                           const int* idx) {
             REQUIRE(kk == k);
             ++batches;
             for (std::size_t t = 0; t < count; ++t) {
@@ -129,7 +129,7 @@ TEST_CASE("kNN: the batched self-neighbours are the full lists, each row once", 
                 ++seen[i];
                 std::copy_n(idx + t * std::size_t(k), k, lists.begin() + std::ptrdiff_t(i * k));
             }
-        });
+        }, 3000);
         REQUIRE(batches >= 4);
         REQUIRE(std::all_of(seen.begin(), seen.end(), [](int v) { return v == 1; }));
         REQUIRE(lists == full.indices);

@@ -69,10 +69,11 @@ public:
         std::function<void(const int* rows, std::size_t count, int k, const int* idx)>;
 
     /// The same lists as self_neighbours(k), handed to `visit` a batch at a time and not kept:
-    /// batches of whole cells of at least `batch` points, in the index's spatial order, each
-    /// searched in parallel, visited one after the other in a fixed order (so what the visitor
-    /// computes does not depend on the thread count). Memory: one batch of lists, not #P.
-    void visit_self_neighbours(int k, std::size_t batch, const BatchVisitor& visit) const;
+    /// batches of whole cells of at least `batch` points (0: 1/32 of them, at least 65536), in
+    /// the index's spatial order, each searched in parallel, visited one after the other in a
+    /// fixed order (so what the visitor computes does not depend on the thread count). Memory:
+    /// one batch of lists, not #P.
+    void visit_self_neighbours(int k, const BatchVisitor& visit, std::size_t batch = 0) const;
 
     /// The self-neighbour rows of the given points only (row j for point rows[j]), with
     /// distances: the same lists as those rows of self_neighbours(k).

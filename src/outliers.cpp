@@ -68,17 +68,17 @@ Column<T> copy_borrowed(const Column<T>& v, const std::vector<char>& removed, st
 }
 
 /// The element of rank n / 2 of v (what std::nth_element puts there), without a copy of v:
-/// values >= 0 order like their bit patterns, so a histogram of the top 20 bits finds the
+/// values >= 0 order like their bit patterns, so a histogram of the top 16 bits finds the
 /// bucket that holds that rank, and only that bucket's values are copied and selected.
 double median_of(const std::vector<double>& v) {
     const std::size_t n = v.size(), rank = n / 2;
-    constexpr int kShift = 64 - 20;
+    constexpr int kShift = 64 - 16;
     const auto bucket = [](double x) {
         std::uint64_t bits;
         std::memcpy(&bits, &x, sizeof bits);
         return std::size_t(bits >> kShift);
     };
-    std::vector<std::size_t> count(std::size_t(1) << 20, 0);
+    std::vector<std::size_t> count(std::size_t(1) << 16, 0);
     for (double x : v) ++count[bucket(x)];
     std::size_t b = 0, below = 0;
     while (below + count[b] <= rank) below += count[b++];
@@ -224,8 +224,15 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
             for (std::size_t t = rg.begin(); t < rg.end(); ++t) {
                 const std::size_t i = std::size_t(rows[t]);
                 const int* nb = idx + t * ku;
-                spacing[i] = mean_distance(i, nb, k) / k;
-                if (ks > 0) first_spacing[i] = float(mean_distance(i, nb, ks) / double(ks));
+                // The sum over the first ks neighbours is a prefix of the one over all k.
+                double s = 0.0;
+                for (int j = 0; j < k; ++j) {
+                    if (ks > 0 && j == ks) first_spacing[i] = float(s / double(ks));
+                    s += std::sqrt(double(
+                        KnnResult::squared_distance(pts[i], pts[std::size_t(nb[j])])));
+                }
+                if (ks > 0 && ks == k) first_spacing[i] = float(s / double(ks));
+                spacing[i] = s / k;
                 if (hand_over.lists) std::copy_n(nb, ku, r.neighbours.indices.data() + i * ku);
             }
         });

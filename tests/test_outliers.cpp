@@ -239,6 +239,11 @@ TEST_CASE("outliers: batches of the neighbour search give the rules of the whole
     CHECK(batched.spacing == own.scales.to_vector());
     CHECK(estimate_normals(batched.cloud, no, batched.spacing).scales.to_vector() ==
           own.scales.to_vector());
+    // The spacing over all k neighbours (spacing_k = k).
+    no.k = o.k;
+    const OutlierResult all_k = remove_outliers(c, o, OutlierHandOver{false, o.k});
+    CHECK(all_k.spacing == estimate_normals(all_k.cloud, no).scales.to_vector());
+    no.k = 10;
     // The statistical rule alone (no planarity candidates to point at the lists to redo).
     o.planarity_ratio = 0.0;
     const OutlierResult stat_only = remove_outliers(c, o, OutlierHandOver{false, 10});

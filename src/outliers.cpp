@@ -122,19 +122,22 @@ std::vector<char> try_rows(const std::vector<RowList>& work, const Try& try_row)
     return done;
 }
 
-/// The upper bound of a non-negative value that largest_code() gives (infinite for 254).
-double largest_bound(std::uint8_t code) {
+/// Codes of a bound (largest_code); kInfinite and above are no finite bound.
+constexpr std::uint16_t kInfinite = 65534;
+
+/// The upper bound of a non-negative value that largest_code() gives.
+double largest_bound(std::uint16_t code) {
     if (code == 0) return 0.0;
-    if (code >= 254) return std::numeric_limits<double>::infinity();
-    return std::exp2(double(code) / 4.0 - 32.0);
+    if (code >= kInfinite) return std::numeric_limits<double>::infinity();
+    return std::exp2(double(code) / 64.0 - 512.0);
 }
 
-/// A byte that bounds v >= 0 from above, within a factor 2^(1/4) (see largest_bound).
-std::uint8_t largest_code(double v) {
+/// 16 bits that bound v >= 0 from above, within a factor 2^(1/64) (see largest_bound).
+std::uint16_t largest_code(double v) {
     if (!(v > 0.0)) return 0;
-    int code = int(std::clamp(std::ceil((std::log2(v) + 32.0) * 4.0), 1.0, 254.0));
-    while (code < 254 && largest_bound(std::uint8_t(code)) < v) ++code;
-    return std::uint8_t(code);
+    int code = int(std::clamp(std::ceil((std::log2(v) + 512.0) * 64.0), 1.0, double(kInfinite)));
+    while (code < kInfinite && largest_bound(std::uint16_t(code)) < v) ++code;
+    return std::uint16_t(code);
 }
 
 /// The rules of remove_outliers: fills r.removed, the counts, and what is handed over
@@ -173,9 +176,9 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     std::vector<char> verdict(n, kUnknown);
     // For the spacing: its value from the first ks of all points, and whether one of those may
     // go (kTouched: one fails the statistical rule; else largest_code of their largest d_j).
-    constexpr std::uint8_t kTouched = 255, kWaiting = 0;
+    constexpr std::uint16_t kTouched = 65535, kWaiting = 0;
     std::vector<float> first_spacing(ks > 0 ? n : 0);
-    std::vector<std::uint8_t> near_code(ks > 0 ? n : 0, kWaiting);
+    std::vector<std::uint16_t> near_code(ks > 0 ? n : 0, kWaiting);
     const auto mean_distance = [&](std::size_t i, const int* nb, int count) {
         double s = 0.0;
         for (int j = 0; j < count; ++j) {
@@ -212,7 +215,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
             fails = fails || verdict[m] == kFails;
             most = std::max(most, spacing[m]);
         }
-        near_code[i] = fails ? kTouched : std::max<std::uint8_t>(1, largest_code(most));
+        near_code[i] = fails ? kTouched : std::max<std::uint16_t>(1, largest_code(most));
         return true;
     };
     Waiting for_spacing{ku, {}, {}}, for_verdicts{std::size_t(ks), {}, {}};

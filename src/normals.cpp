@@ -158,10 +158,6 @@ std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
 
 }  // namespace
 
-namespace {
-
-}  // namespace
-
 bool scales_need_neighbours(const PointCloud& cloud, const NormalOptions& options) {
     if (options.scale == ScaleMode::knn) return true;
     return options.scale == ScaleMode::automatic &&
@@ -304,9 +300,13 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     if (need_scale) {
         if (result.scales.empty()) result.scales.assign(n, 0.0f);
         std::vector<float>& scales = result.scales.edit();
+        // A file's scale stays in automatic mode.
+        const auto keeps = [&](std::size_t i) {
+            return options.scale == ScaleMode::automatic && scales[i] > 0.0f;
+        };
         // Mean distance from point i to its neighbours nb[0..k).
         const auto scale = [&](std::size_t i, const int* nb, const float* d2) {
-            if (options.scale == ScaleMode::automatic && scales[i] > 0.0f) return;
+            if (keeps(i)) return;
             double s = 0.0;
             for (int j = 0; j < k; ++j) {
                 s += std::sqrt(double(d2 ? d2[j]
@@ -318,9 +318,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
         };
         if (spacing && knn.k != k) {
             for (std::size_t i = 0; i < n; ++i) {
-                if (!(options.scale == ScaleMode::automatic && scales[i] > 0.0f)) {
-                    scales[i] = (*spacing)[i];
-                }
+                if (!keeps(i)) scales[i] = (*spacing)[i];
             }
         } else if (knn.k == k) {
             tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),

@@ -179,9 +179,9 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     constexpr std::uint16_t kTouched = 65535, kWaiting = 0;
     std::vector<float> first_spacing(ks > 0 ? n : 0);
     std::vector<std::uint16_t> near_code(ks > 0 ? n : 0, kWaiting);
-    const auto mean_distance = [&](std::size_t i, const int* nb, int count) {
-        double s = 0.0;
-        for (int j = 0; j < count; ++j) {
+    // s plus the distances from point i to its neighbours nb[from..to), in that order.
+    const auto add_distances = [&](std::size_t i, const int* nb, int from, int to, double s) {
+        for (int j = from; j < to; ++j) {
             s += std::sqrt(double(KnnResult::squared_distance(pts[i], pts[std::size_t(nb[j])])));
         }
         return s;
@@ -228,14 +228,9 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
                 const std::size_t i = std::size_t(rows[t]);
                 const int* nb = idx + t * ku;
                 // The sum over the first ks neighbours is a prefix of the one over all k.
-                double s = 0.0;
-                for (int j = 0; j < k; ++j) {
-                    if (ks > 0 && j == ks) first_spacing[i] = float(s / double(ks));
-                    s += std::sqrt(double(
-                        KnnResult::squared_distance(pts[i], pts[std::size_t(nb[j])])));
-                }
-                if (ks > 0 && ks == k) first_spacing[i] = float(s / double(ks));
-                spacing[i] = s / k;
+                const double first = add_distances(i, nb, 0, ks, 0.0);
+                if (ks > 0) first_spacing[i] = float(first / double(ks));
+                spacing[i] = add_distances(i, nb, ks, k, first) / k;
                 if (hand_over.lists) std::copy_n(nb, ku, r.neighbours.indices.data() + i * ku);
             }
         });
@@ -275,8 +270,8 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     }
     for_spacing = {};
     for_verdicts = {};
-    work = {};
-    work_near = {};
+    detail::release(work);  // (work = {} would keep the memory)
+    detail::release(work_near);
 
     const double median = median_of(spacing);
     // 1 = statistical, 2 = planarity (0 = kept); 3 = a planarity candidate, decided below.
@@ -347,7 +342,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
                     short_row[a] = 1;
                 } else {
                     first_spacing[rows[a]] =
-                        float(mean_distance(rows[a], kept_nb.data(), ks) / double(ks));
+                        float(add_distances(rows[a], kept_nb.data(), 0, ks, 0.0) / double(ks));
                 }
             }
         });

@@ -155,8 +155,8 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
             cloud = std::move(r.outliers.cloud);
             r.outliers.cloud = PointCloud{};
             if (cloud.empty()) throw InvalidArgument("reconstruct: every point was an outlier");
-            const int k = std::min<int>(options.normals.k, int(cloud.size()) - 1);
             if (hand_over.lists) {
+                const int k = std::min<int>(options.normals.k, int(cloud.size()) - 1);
                 neighbours = std::move(r.outliers.neighbours)
                                  .subset(r.outliers.removed, cloud.positions, k);
             }

@@ -186,7 +186,13 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
         for (std::int32_t v : t) used[std::size_t(v)] = 1;
     }
     std::vector<char> point_ok(npoints, 0);
-    std::vector<openvdb::Vec3f> grad(npoints, openvdb::Vec3f(0.0f));
+    // The vertex normals before the face-normal fallback: the mesher's own, or the SDF gradient
+    // (trilinear blend of central differences), which needs a stencil around each point.
+    const bool own_normals = raw.normals.size() == npoints && npoints > 0;
+    std::vector<openvdb::Vec3f> grad =
+        own_normals ? std::move(raw.normals)
+                    : std::vector<openvdb::Vec3f>(npoints, openvdb::Vec3f(0.0f));
+    const bool need_stencil = raw.check_cells || !own_normals;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 4096),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         FloatAccessor acc(sdf.tree());
@@ -202,13 +208,15 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
             const openvdb::Vec3d p(raw.points[i]);
             const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])),
                                    int(std::floor(p[2])));
-            stencil.load(acc, c);
-            if (raw.check_cells &&
-                !(in_one_cell(p) ? stencil.valid() : point_in_valid_cells(acc, p))) {
-                continue;
+            if (need_stencil) {
+                stencil.load(acc, c);
+                if (raw.check_cells &&
+                    !(in_one_cell(p) ? stencil.valid() : point_in_valid_cells(acc, p))) {
+                    continue;
+                }
+                if (!own_normals) grad[i] = openvdb::Vec3f(stencil.gradient(p - c.asVec3d()));
             }
             point_ok[i] = 1;
-            grad[i] = openvdb::Vec3f(stencil.gradient(p - c.asVec3d()));
             if (facc && point_in_valid_cells(*facc, p)) continue;  // a closing vouches for it
             if (trim_weight &&
                 openvdb::tools::BoxSampler::sample(*wacc, p) < options.min_surface_weight) {

@@ -50,6 +50,9 @@ using FillLater = std::vector<T, NoZeroFill<T>>;
 struct RawSurface {
     std::vector<openvdb::Vec3f> points;
     std::vector<Triangle> triangles;
+    /// Per point, the mesher's own vertex normal (unit, or zero where it has none), or empty:
+    /// finish_mesh() then takes the SDF gradient at the point.
+    std::vector<openvdb::Vec3f> normals;
     /// True when points may lie in cells with invalid corners (volumeToMesh does not know the
     /// validity mask); finish_mesh() then drops the faces there.
     bool check_cells = false;

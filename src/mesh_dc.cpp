@@ -205,6 +205,13 @@ void hermite(Field& acc, Gradient&& gradient, const openvdb::Coord& v0, int axis
     weight = float(1.0 / (1.0 + std::pow(m / 0.05, 2)));
 }
 
+/// The Hermite data of one crossing (index space), kept together: the passes below read all three.
+struct HermiteSample {
+    openvdb::Vec3f point;
+    openvdb::Vec3f normal;  ///< unit, or zero where the field gave no gradient
+    float weight;           ///< 0..1: how well the gradient fitted the data (see hermite())
+};
+
 /// Thresholds of repair_hermite (see there).
 constexpr float kUnreliable = 0.5f, kReliable = 0.9f;
 constexpr int kReach = 2;  // voxels, between edge start voxels (Chebyshev)
@@ -221,8 +228,7 @@ struct PlaneCandidate {
 /// of a walk over the voxels around the edge's start, then over axes.
 const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
                                  const std::vector<std::size_t>& reliable,
-                                 const FillLater<openvdb::Vec3f>& points,
-                                 const FillLater<openvdb::Vec3f>& normals) {
+                                 const FillLater<HermiteSample>& data) {
     constexpr double kMatch = 0.02;    // voxels
     constexpr double kOnPlane = 0.06;  // voxels
     constexpr double kFace = 0.005;    // voxels
@@ -251,12 +257,13 @@ const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
     if (pick) return pick;
     // Rule 3: the first root of a confirmed face below the field.
     const auto is_face = [&](std::size_t j) {
-        const openvdb::Vec3d nj(normals[j]), pj(points[j]);
+        const openvdb::Vec3d nj(data[j].normal), pj(data[j].point);
         openvdb::Vec3d first(0.0);
         bool have_first = false;
         for (std::size_t k : reliable) {
-            const openvdb::Vec3d d = openvdb::Vec3d(points[k]) - pj;
-            if (!(openvdb::Vec3d(normals[k]).dot(nj) > 0.9999 && std::fabs(nj.dot(d)) <= kFace)) {
+            const openvdb::Vec3d d = openvdb::Vec3d(data[k].point) - pj;
+            if (!(openvdb::Vec3d(data[k].normal).dot(nj) > 0.9999 &&
+                  std::fabs(nj.dot(d)) <= kFace)) {
                 continue;
             }
             // Points a voxel apart in two directions: a flat patch, not the band along which a
@@ -409,16 +416,15 @@ struct ReliableCrossings {
 /// reliable crossings around its leaf instead of probing the 125 voxels around its edge.
 void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                     const std::vector<const openvdb::FloatTree::LeafNodeType*>& leaves,
-                    double voxel, float iso, FillLater<openvdb::Vec3f>& points,
-                    FillLater<openvdb::Vec3f>& normals, FillLater<float>& weights) {
+                    double voxel, float iso, FillLater<HermiteSample>& data) {
     const std::size_t n_leaves = leaves.size();
     ReliableCrossings rel;
     rel.begin.assign(n_leaves + 1, 0);
     bool any_unreliable = false;
     for (std::size_t L = 0; L < n_leaves; ++L) {
         for (std::size_t i = crossings.leaf_begin[L]; i < crossings.leaf_begin[L + 1]; ++i) {
-            if (weights[i] >= kReliable) rel.ids.push_back(std::uint32_t(i));
-            any_unreliable |= weights[i] < kUnreliable;
+            if (data[i].weight >= kReliable) rel.ids.push_back(std::uint32_t(i));
+            any_unreliable |= data[i].weight < kUnreliable;
         }
         rel.begin[L + 1] = rel.ids.size();
     }
@@ -440,16 +446,16 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
             for (std::size_t L = r.begin(); L < r.end(); ++L) {
                 const std::size_t begin = crossings.leaf_begin[L],
                                   end = crossings.leaf_begin[L + 1];
-                if (std::none_of(weights.begin() + std::ptrdiff_t(begin),
-                                 weights.begin() + std::ptrdiff_t(end),
-                                 [](float w) { return w < kUnreliable; })) {
+                if (std::none_of(data.begin() + std::ptrdiff_t(begin),
+                                 data.begin() + std::ptrdiff_t(end),
+                                 [](const HermiteSample& h) { return h.weight < kUnreliable; })) {
                     continue;
                 }
                 rel.around(crossings, leaves[L]->origin(), near);
                 if (near.empty()) continue;
                 for (std::size_t i = begin; i < end; ++i) {
-                    if (!(weights[i] < kUnreliable)) continue;
-                    const openvdb::Vec3d p(points[i]), n(normals[i]);
+                    if (!(data[i].weight < kUnreliable)) continue;
+                    const openvdb::Vec3d p(data[i].point), n(data[i].normal);
                     const int axis = crossings.axis[i];
                     const openvdb::Coord& s = crossings.start[i];
                     openvdb::Coord s1 = s;
@@ -470,9 +476,9 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                         }
                         const std::size_t j = e.j;
                         reliable.push_back(j);
-                        const openvdb::Vec3d nj(normals[j]);
+                        const openvdb::Vec3d nj(data[j].normal);
                         if (!(rise * nj[axis] > 0.05)) continue;
-                        const openvdb::Vec3d pj(points[j]);
+                        const openvdb::Vec3d pj(data[j].point);
                         const double t = -nj.dot(v0 - pj) / nj[axis];
                         if (!(t >= 0.0 && t <= 1.0)) continue;
                         if (cand.empty()) {  // s is in the leaf, s1 too unless past its face
@@ -486,7 +492,7 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                                         f1 - nj.dot(v1 - pj), std::fabs(nj.dot(p - pj)),
                                         nj.dot(n)});
                     }
-                    if (const PlaneCandidate* pick = pick_plane(cand, reliable, points, normals)) {
+                    if (const PlaneCandidate* pick = pick_plane(cand, reliable, data)) {
                         repairs[L].push_back({std::uint32_t(i), std::uint32_t(pick->j), pick->t});
                     }
                 }
@@ -497,10 +503,10 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                           for (std::size_t L = r.begin(); L < r.end(); ++L) {
                               for (const Repair& e : repairs[L]) {
                                   const int axis = crossings.axis[e.i];
-                                  points[e.i][axis] =
+                                  data[e.i].point[axis] =
                                       float(double(crossings.start[e.i][axis]) + e.t);
-                                  normals[e.i] = normals[e.j];
-                                  weights[e.i] = weights[e.j];
+                                  data[e.i].normal = data[e.j].normal;
+                                  data[e.i].weight = data[e.j].weight;
                               }
                           }
                       });
@@ -625,9 +631,7 @@ constexpr float kMinPlaneWeight = 0.2f;
 
 /// What the vertex placement needs: Hermite data of every crossing.
 struct QefData {
-    const FillLater<openvdb::Vec3f>& points;
-    const FillLater<openvdb::Vec3f>& normals;
-    const FillLater<float>& weights;
+    const FillLater<HermiteSample>& data;
     double truncation, bias;
 };
 
@@ -657,10 +661,11 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
     double W[12];
     for (int i = 0; i < n; ++i) {
         const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
-        const openvdb::Vec3f &p = q.points[id], &nv = q.normals[id];
+        const HermiteSample& h = q.data[id];
+        const openvdb::Vec3f &p = h.point, &nv = h.normal;
         P[i] = Eigen::Vector3d(p[0], p[1], p[2]);
         N[i] = Eigen::Vector3d(nv[0], nv[1], nv[2]);
-        W[i] = q.weights[id];
+        W[i] = h.weight;
     }
     Eigen::Vector3d mass = Eigen::Vector3d::Zero();
     for (int i = 0; i < n; ++i) mass += P[i];
@@ -808,8 +813,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     Crossings crossings = find_crossings(tree, iso, false);
 
     // Hermite data at the crossings, leaf by leaf (a crossing's stencils stay in its leaf's block).
-    FillLater<openvdb::Vec3f> points(crossings.size()), normals(crossings.size());
-    FillLater<float> weights(crossings.size());
+    FillLater<HermiteSample> data(crossings.size());
     std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
     tree.getNodes(leaves);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
@@ -857,17 +861,16 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                               for (std::size_t i = begin; i < end; ++i) {
                                   openvdb::Vec3d p;
                                   hermite(*block, gradient, crossings.start[i], crossings.axis[i],
-                                          iso, p, normals[i], weights[i]);
-                                  points[i] = openvdb::Vec3f(p);
+                                          iso, p, data[i].normal, data[i].weight);
+                                  data[i].point = openvdb::Vec3f(p);
                               }
                           }
                       });
-    repair_hermite(crossings, tree, leaves, volume.sdf->voxelSize()[0], iso, points, normals,
-                   weights);
+    repair_hermite(crossings, tree, leaves, volume.sdf->voxelSize()[0], iso, data);
     // One vertex per chain, collected per leaf. Each crossing learns the vertices of its four
     // cells as (leaf, index in the leaf): every (crossing, slot) belongs to exactly one cell, so
     // there are no two writers.
-    const QefData qef{points, normals, weights, options.dc_truncation, options.dc_bias};
+    const QefData qef{data, options.dc_truncation, options.dc_bias};
     const double inv_voxel = 1.0 / volume.sdf->voxelSize()[0];
     std::vector<std::vector<PatchVertex>> per_leaf(leaves.size());
     constexpr std::uint64_t kNone = ~std::uint64_t(0);
@@ -911,9 +914,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
         });
 
     // What the quads no longer need goes before they are made (the mesh stage's peak memory).
-    release(points);
-    release(normals);
-    release(weights);
+    release(data);
     crossings.ids.reset();
     release(crossings.start);
     release(crossings.axis);

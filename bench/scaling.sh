@@ -5,7 +5,8 @@
 # bench/synth.py and kept in bench/out). All at --voxel 0.0005, so the surface and the mesh stay
 # about the same while the points grow; each mesh is scored against the bunny reference. Then the
 # bunny subsamples once more at 2 threads with the automatic voxel (2 x the median spacing, the
-# default without --voxel), where the volume follows the sampling density: the linear-cost case.
+# default without --voxel), where the volume follows the sampling density: the linear-cost case
+# (best of AUTO_REPEAT=5 runs each).
 # Prints one markdown table for bench/RESULTS.md; "grids MB" and "points MB" are the memory of the
 # splatted grids and of the cloud as read, from vdbrecon's log (the .vdb is written: the default).
 #   BIN=build/vdbrecon bench/scaling.sh    (QUICK=1: a 1M-point synthetic scan, 200k samples)
@@ -55,13 +56,38 @@ for entry in "${inputs[@]}"; do
   done
   cmp -s "$OUT/$slug.t1.ply" "$OUT/$slug.t2.ply" || identical=no
 done
+# The automatic-voxel runs take 0.1-1 s, so one run's noise (the VM's other tenants) is as large
+# as the differences in time per point they are there to show: each is the best of AUTO_REPEAT
+# runs by the sum of its stage times, the inputs taking turns.
+AUTO_REPEAT=${AUTO_REPEAT:-5}
+stage_sum() {
+  sed -n 's/.*time: read \([0-9.]*\) s, outliers \([0-9.]*\) s, normals \([0-9.]*\) s, splat \([0-9.]*\) s, mesh \([0-9.]*\) s.*/\1 \2 \3 \4 \5/p' "$1" |
+    awk '{print $1 + $2 + $3 + $4 + $5}'
+}
+declare -A best_sum best_row
+for round in $(seq "$AUTO_REPEAT"); do
+  for entry in "${inputs[@]}"; do
+    IFS='|' read -r label input <<<"$entry"
+    [ "$label" = synthetic ] && continue
+    points=$(grep -a -m1 '^element vertex' "$input" | cut -d' ' -f3)
+    slug=$(echo "$label" | tr -d ' %')-auto
+    echo "bench: $label ($points points), automatic voxel, run $round of $AUTO_REPEAT ..." >&2
+    timed "$OUT/$slug.try.log" "$BIN" "$input" -o "$OUT/$slug.ply" --threads 2
+    sum=$(stage_sum "$OUT/$slug.try.log")
+    [ "$RC" -eq 0 ] && [ -n "$sum" ] || sum=1e9
+    if [ -z "${best_sum[$slug]:-}" ] || awk -v a="$sum" -v b="${best_sum[$slug]}" 'BEGIN {exit !(a < b)}'; then
+      best_sum[$slug]=$sum
+      mv "$OUT/$slug.try.log" "$OUT/$slug.log"
+      best_row[$slug]="$RC $WALL $CPU $RSS"
+    fi
+  done
+done
 for entry in "${inputs[@]}"; do
   IFS='|' read -r label input <<<"$entry"
   [ "$label" = synthetic ] && continue
   points=$(grep -a -m1 '^element vertex' "$input" | cut -d' ' -f3)
   slug=$(echo "$label" | tr -d ' %')-auto
-  echo "bench: $label ($points points), automatic voxel ..." >&2
-  timed "$OUT/$slug.log" "$BIN" "$input" -o "$OUT/$slug.ply" --threads 2
+  read -r RC WALL CPU RSS <<<"${best_row[$slug]}"
   json=-
   if [ "$RC" -eq 0 ]; then json=$OUT/$slug.json; score "$OUT/$slug.ply" "$json" "$GT"; fi
   add_row "$label" "2, auto voxel" "auto" "$OUT/$slug.log" "$json" "$points"
@@ -71,7 +97,8 @@ machine_line
 echo
 $PY bench/table.py scaling "$ROWS"
 echo
-echo "One run each, --voxel 0.0005 (or the automatic voxel), .vdb written; times in seconds"
+echo "One run each at --voxel 0.0005, best of $AUTO_REPEAT (by the stages' sum) with the automatic voxel;"
+echo ".vdb written; times in seconds"
 echo "(the stage columns from vdbrecon's log); meshes scored against bun_zipper_gt.ply"
 echo "($SAMPLES samples). Meshes identical for 1 and 2 threads: $identical. Synthetic scan: $(grep -a -m1 '^comment' "$synth" | cut -d' ' -f2-)."
 echo

@@ -11,14 +11,34 @@ source bench/common.sh
 
 machine_line
 echo
-echo "Bunny scans, --voxel 0.0005, --no-vdb; best of $REPEAT runs; times in seconds."
+echo "Bunny scans, --voxel 0.0005, --no-vdb; times in seconds. The meshers take turns (vdb, mc, dc,"
+echo "vdb, ...; $REPEAT rounds per thread count), and each row is its run with the fastest mesh stage,"
+echo "so a slow spell of the VM does not fall on one mesher only."
 echo
 echo "| mesher | threads | mesh stage s | wall s | peak RSS MB | faces | comps | boundary edges | non-manifold edges | F@0.5mm | F@1mm | Chamfer-L1 um |"
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
+declare -A best wall rss
 for threads in 2 1; do
+  for ((k = 0; k < REPEAT; ++k)); do
+    for m in vdb mc dc; do
+      /usr/bin/time -f "%e %M" -o "$OUT/time.txt" "$BIN" "$BUNNY" -o "$OUT/mesher-$m.ply" \
+        --threads "$threads" --voxel 0.0005 --no-vdb --mesher "$m" 2>"$OUT/try.log" >/dev/null
+      read -r w r <"$OUT/time.txt"
+      t=$(stage_times "$OUT/try.log" mesh)
+      key=$m.$threads
+      if [ -z "${best[$key]:-}" ] || awk -v a="$t" -v b="${best[$key]}" 'BEGIN {exit !(a < b)}'; then
+        best[$key]=$t
+        wall[$key]=$w
+        rss[$key]=$((r / 1024))
+        cp "$OUT/try.log" "$OUT/mesher-$m.$threads.log"
+      fi
+    done
+  done
   for m in vdb mc dc; do
-    run "mesher-$m" "$threads" --voxel 0.0005 --no-vdb --mesher "$m"
-    /usr/bin/python3 - "$OUT/mesher-$m.json" "$m" "$threads" "$(stage_times "$OUT/mesher-$m.$threads.log" mesh)" "$WALL" "$RSS" <<'PY'
+    key=$m.$threads
+    # The meshes do not depend on the thread count: scored once.
+    [ "$threads" = 2 ] && "$BIN" eval "$OUT/mesher-$m.ply" "$GT" --tau 0.0005,0.001 >"$OUT/mesher-$m.json"
+    /usr/bin/python3 - "$OUT/mesher-$m.json" "$m" "$threads" "${best[$key]}" "${wall[$key]}" "${rss[$key]}" <<'PY'
 import json, sys
 d = json.load(open(sys.argv[1])); f = d["fscore"]; t = d["recon"]
 print("| %s | %s | %s | %s | %s | %d | %d | %d | %d | %.4f | %.4f | %.1f |" % (

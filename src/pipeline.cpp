@@ -285,8 +285,8 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     std::vector<StageTiming> timings;
     PointCloud cloud;
     // TBB sets itself up at a process's first parallel loop: it loads its allocator library,
-    // looks for a resource manager and starts the worker threads (about 10 ms on the 2-core VM,
-    // strace). Done here, that start-up is not charged to the first stage's work.
+    // looks for a resource manager and starts the worker threads (2-3 ms on the 2-core VM). Done
+    // here, that start-up is not charged to the first stage's work.
     tbb::parallel_for(0, 2, [](int) {});
     {
         StageClock clock(timings, on_stage, "read");

@@ -227,6 +227,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     // scale alone each point's are summed as their batch is searched, none kept.
     const int want = std::min<int>(options.k, int(n) - 1);
     const bool given = known && known->k == want && known->indices.size() == n * std::size_t(want);
+    const bool have_lists = given || needed > 0;  // every point's, given or searched below
     if (spacing && spacing->size() != n) spacing = nullptr;
     const bool search = !given && (needed > 0 || !spacing);
     const std::unique_ptr<KnnIndex> index =
@@ -316,17 +317,17 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
             }
             scales[i] = float(s / double(k));
         };
-        if (spacing && knn.k != k) {
-            for (std::size_t i = 0; i < n; ++i) {
-                if (!keeps(i)) scales[i] = (*spacing)[i];
-            }
-        } else if (knn.k == k) {
+        if (have_lists) {
             tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                               [&](const tbb::blocked_range<std::size_t>& r) {
                 for (std::size_t i = r.begin(); i < r.end(); ++i) {
                     scale(i, knn.neighbours(i), knn.has_distances() ? knn.sq_dists(i) : nullptr);
                 }
             });
+        } else if (spacing) {
+            for (std::size_t i = 0; i < n; ++i) {
+                if (!keeps(i)) scales[i] = (*spacing)[i];
+            }
         } else {
             index->visit_self_neighbours(
                 k, [&](const int* rows, std::size_t count, int, const int* idx) {

@@ -13,6 +13,11 @@ machine_line() {
   echo "commit: $(git rev-parse --short HEAD 2>/dev/null || echo unknown)  date: $(date -u +%F)"
 }
 
+# better NEW BEST: whether the time NEW beats BEST (true when there is no BEST yet).
+better() {
+  [ -z "$2" ] || awk -v a="$1" -v b="$2" 'BEGIN {exit !(a < b)}'
+}
+
 # run LABEL THREADS ARGS...: leaves $OUT/LABEL.ply, $OUT/LABEL.THREADS.log (stderr of the best
 # run), $OUT/LABEL.json (eval at tau 0.5 mm and 1 mm) and sets WALL (s) and RSS (MB).
 run() {
@@ -21,7 +26,7 @@ run() {
   for ((k = 0; k < REPEAT; ++k)); do
     /usr/bin/time -f "%e %M" -o "$OUT/time.txt" "$BIN" "$BUNNY" -o "$OUT/$label.ply" --threads "$threads" "$@" 2>"$OUT/try.log" >/dev/null
     read -r w r < "$OUT/time.txt"
-    if [ -z "$best" ] || awk "BEGIN {exit !($w < $best)}"; then best=$w; WALL=$w; RSS=$((r / 1024)); cp "$OUT/try.log" "$log"; fi
+    if better "$w" "$best"; then best=$w; WALL=$w; RSS=$((r / 1024)); cp "$OUT/try.log" "$log"; fi
   done
   "$BIN" eval "$OUT/$label.ply" "$GT" --tau 0.0005,0.001 > "$OUT/$label.json"
 }

@@ -26,7 +26,7 @@ for threads in 2 1; do
       read -r w r <"$OUT/time.txt"
       t=$(stage_times "$OUT/try.log" mesh)
       key=$m.$threads
-      if [ -z "${best[$key]:-}" ] || awk -v a="$t" -v b="${best[$key]}" 'BEGIN {exit !(a < b)}'; then
+      if better "$t" "${best[$key]:-}"; then
         best[$key]=$t
         wall[$key]=$w
         rss[$key]=$((r / 1024))

@@ -61,8 +61,8 @@ done
 # runs by the sum of its stage times, the inputs taking turns.
 AUTO_REPEAT=${AUTO_REPEAT:-5}
 stage_sum() {
-  sed -n 's/.*time: read \([0-9.]*\) s, outliers \([0-9.]*\) s, normals \([0-9.]*\) s, splat \([0-9.]*\) s, mesh \([0-9.]*\) s.*/\1 \2 \3 \4 \5/p' "$1" |
-    awk '{print $1 + $2 + $3 + $4 + $5}'
+  stage_times "$1" read outliers normals splat mesh |
+    awk -F'|' '{for (i = 1; i <= NF; ++i) if ($i == "-") exit; print $1 + $2 + $3 + $4 + $5}'
 }
 declare -A best_sum best_row
 for round in $(seq "$AUTO_REPEAT"); do
@@ -75,7 +75,7 @@ for round in $(seq "$AUTO_REPEAT"); do
     timed "$OUT/$slug.try.log" "$BIN" "$input" -o "$OUT/$slug.ply" --threads 2
     sum=$(stage_sum "$OUT/$slug.try.log")
     [ "$RC" -eq 0 ] && [ -n "$sum" ] || sum=1e9
-    if [ -z "${best_sum[$slug]:-}" ] || awk -v a="$sum" -v b="${best_sum[$slug]}" 'BEGIN {exit !(a < b)}'; then
+    if better "$sum" "${best_sum[$slug]:-}"; then
       best_sum[$slug]=$sum
       mv "$OUT/$slug.try.log" "$OUT/$slug.log"
       best_row[$slug]="$RC $WALL $CPU $RSS"

@@ -388,10 +388,11 @@ int run_reconstruct(Args& args) {
             s << p.normals.estimated << " estimated (k=" << o.normals.k
               << "), oriented by MST in " << p.normals.components << " component(s)";
         }
-        s << "; median spacing " << p.normals.median_scale << "\n";
+        s << "; median scale " << p.normals.median_scale << "\n";
         s << "vdbrecon: voxel " << p.voxel_size;
         if (p.voxel_chosen) {
-            s << " (chosen: " << o.auto_voxel_factor << " x median spacing; set --voxel to override)";
+            s << " (chosen: " << o.auto_voxel_factor << " x median spacing " << p.spacing
+              << "; set --voxel to override)";
         }
         s << "\n";
         s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max

@@ -4,7 +4,7 @@
 # 5-million-point scan (48 noisy virtual range scans of the bunny's reference mesh, made once by
 # bench/synth.py and kept in bench/out). All at --voxel 0.0005, so the surface and the mesh stay
 # about the same while the points grow; each mesh is scored against the bunny reference. Then the
-# bunny subsamples once more at 2 threads with the automatic voxel (2 x the median spacing, the
+# bunny subsamples once more at 2 threads with the automatic voxel (1.4 x the median sample spacing, the
 # default without --voxel), where the volume follows the sampling density: the linear-cost case
 # (best of AUTO_REPEAT=5 runs each).
 # Prints one markdown table for bench/RESULTS.md; "grids MB" and "points MB" are the memory of the

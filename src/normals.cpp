@@ -237,6 +237,11 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     if (!given) known = &own;
     const KnnResult& knn = *known;
     const int k = want;
+    // Squared distances to the k-th neighbour, for the density spacing, when searched here.
+    std::vector<float> kth_sq(search ? n : 0);
+    if (search && needed > 0) {
+        for (std::size_t i = 0; i < n; ++i) kth_sq[i] = knn.sq_dist(cloud.positions, i, k - 1);
+    }
 
     // PCA normals where needed.
     std::vector<char> degenerate(n, 0);
@@ -334,13 +339,18 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
                     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
                                       [&](const tbb::blocked_range<std::size_t>& r) {
                         for (std::size_t t = r.begin(); t < r.end(); ++t) {
-                            scale(std::size_t(rows[t]), idx + t * std::size_t(k), nullptr);
+                            const std::size_t i = std::size_t(rows[t]);
+                            const int* nb = idx + t * std::size_t(k);
+                            scale(i, nb, nullptr);
+                            kth_sq[i] = KnnResult::squared_distance(
+                                cloud.positions[i], cloud.positions[std::size_t(nb[k - 1])]);
                         }
                     });
                 });
         }
     }
     median_scale();
+    result.density_spacing = median_density_spacing(kth_sq, k);
     return result;
 }
 

@@ -178,6 +178,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     // go (kTouched: one fails the statistical rule; else largest_code of their largest d_j).
     constexpr std::uint16_t kTouched = 65535, kWaiting = 0;
     std::vector<float> first_spacing(ks > 0 ? n : 0);
+    std::vector<float> kth_sq(n);  // squared distance to the k-th neighbour: the density
     std::vector<std::uint16_t> near_code(ks > 0 ? n : 0, kWaiting);
     // s plus the distances from point i to its neighbours nb[from..to), in that order.
     const auto add_distances = [&](std::size_t i, const int* nb, int from, int to, double s) {
@@ -231,6 +232,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
                 const double first = add_distances(i, nb, 0, ks, 0.0);
                 if (ks > 0) first_spacing[i] = float(first / double(ks));
                 spacing[i] = add_distances(i, nb, ks, k, first) / k;
+                kth_sq[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k - 1])]);
                 if (hand_over.lists) std::copy_n(nb, ku, r.neighbours.indices.data() + i * ku);
             }
         });
@@ -311,6 +313,9 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
         r.removed[i] = rule[i] != 0;
     }
     const std::size_t kept_count = n - r.statistical - r.planarity;
+    compact(kth_sq, r.removed, kept_count);
+    r.density_spacing = median_density_spacing(kth_sq, k);
+    detail::release(kth_sq);
     if (ks == 0 || kept_count <= std::size_t(ks)) return;  // too few kept: no spacing
 
     // The spacing: kept points whose first ks neighbours may have lost one are searched again.

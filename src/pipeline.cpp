@@ -48,10 +48,9 @@ void PipelineOptions::validate() const {
     }
 }
 
-double choose_voxel_size(const PointCloud& cloud, double median_scale,
-                         const PipelineOptions& options) {
+double choose_voxel_size(const PointCloud& cloud, double spacing, const PipelineOptions& options) {
     const double diag = bounding_box(cloud.positions).diagonal();
-    double voxel = options.auto_voxel_factor * median_scale;
+    double voxel = options.auto_voxel_factor * spacing;
     if (!(voxel > 0.0)) voxel = diag / 300.0;  // no spacing information
     voxel = std::max(voxel, diag / options.auto_voxel_max_cells);
     if (!(voxel > 0.0)) {
@@ -135,6 +134,14 @@ bool same_file(const std::string& a, const std::string& b) {
 
 namespace {
 
+/// The median sample spacing for the automatic voxel: from the first stage that searched
+/// neighbours, else the per-point scales' median.
+double sample_spacing(const PipelineResult& r) {
+    if (r.outliers.density_spacing > 0.0) return r.outliers.density_spacing;
+    if (r.normals.density_spacing > 0.0) return r.normals.density_spacing;
+    return r.normals.median_scale;
+}
+
 /// reconstruct(); `consume`: free the cloud after the splat.
 PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const PipelineOptions& options,
                                  const StageCallback& on_stage, const VolumeCallback& on_volume) {
@@ -177,7 +184,8 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
         }
         SplatOptions splat_options = options.splat;
         if (splat_options.voxel_size == 0.0) {
-            splat_options.voxel_size = choose_voxel_size(cloud, r.normals.median_scale, options);
+            r.spacing = sample_spacing(r);
+            splat_options.voxel_size = choose_voxel_size(cloud, r.spacing, options);
             r.voxel_chosen = true;
         }
         r.voxel_size = splat_options.voxel_size;

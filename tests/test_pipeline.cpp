@@ -6,6 +6,7 @@
 #include "vdbrecon/io.h"
 #include "vdbrecon/knn.h"
 #include "vdbrecon/normals.h"
+#include "vdbrecon/outliers.h"
 #include "vdbrecon/pipeline.h"
 
 using namespace vdbrecon;
@@ -156,10 +157,74 @@ TEST_CASE("automatic voxel follows the spacing; --no-vdb writes only the mesh", 
     o.write_vdb = false;
     const RunResult r = run(dir.file("s.ply"), dir.file("m.obj"), o);
     REQUIRE(r.result.voxel_chosen);
-    REQUIRE(r.result.voxel_size == Approx(r.result.normals.median_scale));
+    REQUIRE(r.result.spacing == r.result.outliers.density_spacing);
+    REQUIRE(r.result.voxel_size == Approx(o.auto_voxel_factor * r.result.spacing));
     REQUIRE(r.vdb_path.empty());
     REQUIRE(count_files(dir.path()) == 2);  // input + mesh, nothing else
     REQUIRE(read_mesh(dir.file("m.obj")).faces.size() == r.result.mesh.faces.size());
+}
+
+namespace {
+
+/// `n` x `n` points of the plane z = 0 on a square raster of pitch h (normal +z), or, with a
+/// seed, as many uniform random points over the same square: the same density, 1 / h^2.
+PointCloud plane_samples(int n, double h, unsigned seed = 0) {
+    PointCloud c;
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(0.0, h * n);
+    for (int i = 0; i < n; ++i) {
+        for (int j = 0; j < n; ++j) {
+            c.positions.push_back(seed == 0 ? Vec3f{float(h * i), float(h * j), 0.0f}
+                                            : Vec3f{float(u(rng)), float(u(rng)), 0.0f});
+            c.normals.push_back({0.0f, 0.0f, 1.0f});
+        }
+    }
+    return c;
+}
+
+/// A random `fraction` of the points (with their normals).
+PointCloud random_subset(const PointCloud& c, double fraction, unsigned seed) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    PointCloud s;
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        if (u(rng) >= fraction) continue;
+        s.positions.push_back(c.positions[i]);
+        s.normals.push_back(c.normals[i]);
+    }
+    return s;
+}
+
+}  // namespace
+
+TEST_CASE("automatic voxel: the sample density decides it, not how regular the sampling is",
+          "[pipeline]") {
+    // The same density as a raster, as random points, and a random tenth of the raster (a
+    // tenth of the density): the voxel must follow the density alone, so the tenth's is
+    // sqrt(10) times the raster's. The mean distance to the k nearest, the voxel's source
+    // before, gave the tenth only 2.84x the raster's (random points cluster).
+    const double h = 0.01;
+    const PointCloud raster = plane_samples(300, h), random = plane_samples(300, h, 3);
+    const PointCloud tenth = random_subset(raster, 0.1, 4);
+    OutlierOptions o;
+    const double s_raster = remove_outliers(raster, o).density_spacing;
+    const double s_random = remove_outliers(random, o).density_spacing;
+    const double s_tenth = remove_outliers(tenth, o).density_spacing;
+    CHECK(s_raster == Approx(h).epsilon(0.03));
+    CHECK(s_random == Approx(h).epsilon(0.03));
+    CHECK(s_tenth / s_raster == Approx(std::sqrt(10.0)).epsilon(0.03));
+
+    // Without the outlier stage, the normal stage measures it from its own neighbours (k = 10):
+    // exact for random points; on a raster its tenth neighbour sits on a shell edge (12 % high).
+    PipelineOptions p;
+    p.outliers.enabled = false;
+    p.write_vdb = false;
+    const PipelineResult r = reconstruct(random_subset(random, 0.25, 5), p);
+    REQUIRE(r.voxel_chosen);
+    CHECK(r.outliers.density_spacing == 0.0);
+    CHECK(r.spacing == r.normals.density_spacing);
+    CHECK(r.spacing == Approx(2.0 * h).epsilon(0.03));
+    CHECK(r.voxel_size == Approx(p.auto_voxel_factor * r.spacing));
 }
 
 TEST_CASE("run refuses to overwrite its input and reports bad paths", "[pipeline]") {

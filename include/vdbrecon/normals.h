@@ -56,6 +56,10 @@ struct NormalResult {
     std::size_t components = 0;  ///< kNN-graph components oriented separately (MST mode)
     bool oriented_to_viewpoint = false;
     double median_scale = 0.0;   ///< median of `scales` (0 when none), world units
+    /// The median sample spacing from the density of each point's k nearest (see
+    /// median_density_spacing in knn.h) when this stage searched neighbours itself, else 0;
+    /// world units.
+    double density_spacing = 0.0;
 };
 
 /// Whether estimate_normals() will estimate any normal, which needs every point's neighbour

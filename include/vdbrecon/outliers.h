@@ -68,6 +68,10 @@ struct OutlierResult {
     /// With OutlierHandOver::spacing_k: one value per kept point (cloud order). Empty otherwise,
     /// or when the removal did not run.
     std::vector<float> spacing;
+    /// The kept points' median sample spacing from the density of their k nearest (see
+    /// median_density_spacing in knn.h), world units; 0 when the removal did not run. The
+    /// pipeline's automatic voxel is taken from it.
+    double density_spacing = 0.0;
 };
 
 /// Removes outliers (see above). With fewer than k + 1 points nothing is removed.

@@ -44,6 +44,9 @@ void bind_normals(py::module_& m) {
         .def_readonly("oriented_to_viewpoint", &NormalResult::oriented_to_viewpoint)
         .def_readonly("median_scale", &NormalResult::median_scale,
                       "Median of `scales`, world units (0 when none).")
+        .def_readonly("density_spacing", &NormalResult::density_spacing,
+                      "Median sample spacing from the neighbours' density when this stage "
+                      "searched them, else 0; world units.")
         .def("__repr__", [](const NormalResult& r) {
             return "NormalResult(" + std::to_string(r.normals.size()) +
                    " normals, estimated=" + std::to_string(r.estimated) +

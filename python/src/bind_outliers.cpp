@@ -43,6 +43,9 @@ void bind_outliers(py::module_& m) {
                       "Points removed by the statistical rule, count.")
         .def_readonly("planarity", &OutlierResult::planarity,
                       "Points removed by the planarity rule (and not the statistical one), count.")
+        .def_readonly("density_spacing", &OutlierResult::density_spacing,
+                      "The kept points' median sample spacing from their neighbours' density, "
+                      "world units (0 when the removal did not run).")
         .def_property_readonly(
             "removed",
             [](py::object self) { return view_flags(self.cast<OutlierResult&>().removed, self); },

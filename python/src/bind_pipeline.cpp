@@ -39,7 +39,8 @@ void bind_pipeline(py::module_& m) {
                "Return the splatted (and closed) volumes in the result; False frees them once "
                "the mesh is made (lower peak memory; the CLI sets False).")
         .field("auto_voxel_factor", &PipelineOptions::auto_voxel_factor,
-               "Automatic voxel = auto_voxel_factor * median per-point scale, dimensionless.")
+               "Automatic voxel = auto_voxel_factor * the median sample spacing (from the "
+               "density of each point's nearest neighbours), dimensionless.")
         .field("auto_voxel_max_cells", &PipelineOptions::auto_voxel_max_cells,
                "The automatic voxel is never finer than the bounding-box diagonal / this, count.");
     o.finish();
@@ -78,6 +79,8 @@ void bind_pipeline(py::module_& m) {
         .def_readonly("voxel_size", &PipelineResult::voxel_size, "The voxel used, world units.")
         .def_readonly("voxel_chosen", &PipelineResult::voxel_chosen,
                       "True when the voxel was picked automatically.")
+        .def_readonly("spacing", &PipelineResult::spacing,
+                      "The median sample spacing it was picked from, world units.")
         .def_readonly("timings", &PipelineResult::timings, "StageTiming per stage.")
         .def("__repr__", [](const PipelineResult& r) {
             return "PipelineResult(" + std::to_string(r.mesh.faces.size()) +

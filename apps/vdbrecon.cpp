@@ -467,6 +467,11 @@ void tune_heap() {
 /// GLIBC_TUNABLES. Nothing happens when GLIBC_TUNABLES already names the tunable (set it to 0
 /// to turn this off), when the kernel's mode is not "madvise" ("always" needs no advice,
 /// "never" ignores it), or when the exec fails (the run goes on as it is).
+///
+/// glibc advises only heap growths of at least 2 MB, and the kernel gives a huge page only to an
+/// aligned 2 MB range inside the heap, so a small run's heap, grown 128 kB at a time, never
+/// gets one. glibc.malloc.top_pad=64 MB grows it 64 MB (of address space) at a time from the
+/// start: bunny 10 % (36k points), 2100 -> 1200-1500 page faults, read stage 9-11 -> 3-7 ms.
 void use_huge_pages(char** argv) {
     const char* old = std::getenv("GLIBC_TUNABLES");
     const std::string previous = old ? old : "";
@@ -474,7 +479,9 @@ void use_huge_pages(char** argv) {
     std::ifstream thp("/sys/kernel/mm/transparent_hugepage/enabled");
     std::string mode;
     if (!std::getline(thp, mode) || mode.find("[madvise]") == std::string::npos) return;
-    const std::string value = (previous.empty() ? "" : previous + ":") + "glibc.malloc.hugetlb=1";
+    const std::string value = (previous.empty() ? "" : previous + ":") +
+                              "glibc.malloc.hugetlb=1:glibc.malloc.top_pad=" +
+                              std::to_string(64 << 20);
     if (setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
     execv("/proc/self/exe", argv);
     if (old) {  // the exec failed: carry on in this process, environment as it was

@@ -410,6 +410,10 @@ int run_reconstruct(Args& args) {
             s << "vdbrecon: close-solid: " << p.close.solid_voxels_before << " -> "
               << p.close.solid_voxels_after << " voxels inside\n";
         }
+        if (r.vdb_grid_bytes) {
+            s << "vdbrecon: vdb: grids written " << fmt_megabytes(r.vdb_grid_bytes)
+              << " in memory (the splat's and the density grid made for the file)\n";
+        }
         s << "vdbrecon: mesh: " << p.mesh.vertices.size() << " vertices, " << p.mesh.faces.size()
           << " triangles (" << p.mesh_stats.dropped_faces << " dropped outside valid cells, "
           << p.mesh_stats.trimmed_faces << " trimmed for low weight)\n";

@@ -8,7 +8,8 @@
 # default without --voxel), where the volume follows the sampling density: the linear-cost case
 # (best of AUTO_REPEAT=5 runs each).
 # Prints one markdown table for bench/RESULTS.md; "grids MB" and "points MB" are the memory of the
-# splatted grids and of the cloud as read, from vdbrecon's log (the .vdb is written: the default).
+# grids written to the .vdb (the splat's three and the density grid made for the file) and of the
+# cloud as read, from vdbrecon's log (the .vdb is written: the default).
 #   BIN=build/vdbrecon bench/scaling.sh    (QUICK=1: a 1M-point synthetic scan, 200k samples)
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -81,7 +81,10 @@ def log_memory(log):
         return None, None, None
     voxel = re.search(r"vdbrecon: voxel ([0-9.e+-]+)", text)
     points = re.search(r"rows \([^)]*\), ([0-9.]+) MB in memory", text)
-    grids = re.search(r"grids ([0-9.]+) MB in memory", text)
+    # The grids written to the .vdb (the splat's and the density grid made for the file), else
+    # (older logs, or --no-vdb) the splat's grids.
+    grids = re.search(r"grids written ([0-9.]+) MB", text) or re.search(
+        r"grids ([0-9.]+) MB in memory", text)
     return tuple(float(m[1]) if m else None for m in (voxel, points, grids))
 
 

@@ -312,11 +312,13 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         if (!out.closed_vdb_path.empty()) closed_vdb_temp = staged.stage(out.closed_vdb_path);
         write_vdb = [&](const std::string& stage, const Volume& v) {
             const auto start = std::chrono::steady_clock::now();
-            write_volume(stage == "closed" ? closed_vdb_temp : vdb_temp, v);
+            const std::size_t bytes =
+                write_volume(stage == "closed" ? closed_vdb_temp : vdb_temp, v);
             const double s =
                 std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
             std::lock_guard<std::mutex> lock(vdb_mutex);
             vdb_seconds += s;
+            out.vdb_grid_bytes += bytes;
         };
     }
     // Errors of the computing stages name the input they are about ("scan.ply: splat: ...").

@@ -128,14 +128,15 @@ void make_uuid_deterministic(const std::string& file) {
 
 }  // namespace
 
-void write_volume(const std::string& path, const Volume& volume) {
+std::size_t write_volume(const std::string& path, const Volume& volume) {
     initialize_openvdb();
     if (!volume.sdf) throw InvalidArgument("write_volume: the volume has no sdf grid");
     openvdb::GridPtrVec grids;
     grids.push_back(volume.sdf);
     if (volume.weight) grids.push_back(volume.weight);
     if (volume.nearest) grids.push_back(volume.nearest);
-    grids.push_back(make_density(*volume.sdf));
+    const openvdb::FloatGrid::Ptr density = make_density(*volume.sdf);
+    grids.push_back(density);
     if (volume.color) grids.push_back(volume.color);
     if (volume.fill) grids.push_back(volume.fill);
 
@@ -160,6 +161,7 @@ void write_volume(const std::string& path, const Volume& volume) {
     }
     make_uuid_deterministic(file.temp_path());
     file.commit();
+    return volume.memory_bytes() + std::size_t(density->memUsage());
 }
 
 Volume read_volume(const std::string& path) {

@@ -41,6 +41,12 @@ TEST_CASE("file-to-file run is byte-identical for 1 and 2 threads", "[pipeline]"
     REQUIRE(v.nearest);
     REQUIRE(v.voxel_size == Approx(a.result.voxel_size));
     REQUIRE(v.sdf->activeVoxelCount() == a.result.volume.sdf->activeVoxelCount());
+
+    // The run reports the memory of the grids it wrote: the splat's and the density grid.
+    const std::size_t density = std::size_t(make_density(*a.result.volume.sdf)->memUsage());
+    REQUIRE(density > 0);
+    REQUIRE(a.vdb_grid_bytes == a.result.volume.memory_bytes() + density);
+    REQUIRE(write_volume(dir.file("c.vdb"), v) == v.memory_bytes() + density);
 }
 
 TEST_CASE("every mesher and closing mode is byte-identical for 1 and 2 threads", "[pipeline]") {

@@ -112,6 +112,8 @@ struct RunResult {
     std::string mesh_path;
     std::string vdb_path;       ///< <out>.splat.vdb; empty when no .vdb was written
     std::string closed_vdb_path;  ///< <out>.closed.vdb; empty without closing or .vdb output
+    /// Memory of the grids written to the .vdb files (write_volume's sum), bytes; 0 without them.
+    std::size_t vdb_grid_bytes = 0;
 };
 
 /// Reads `input`, reconstructs and writes `output` (.ply or .obj), <output stem>.splat.vdb and,

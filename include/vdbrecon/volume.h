@@ -49,9 +49,10 @@ void initialize_openvdb();
 /// The fog grid written as "density": 0 outside, rising linearly to 1 at one half-width inside.
 openvdb::FloatGrid::Ptr make_density(const openvdb::FloatGrid& sdf);
 
-/// Writes the volume's grids (sdf, weight, density, color, fill) with metadata to a .vdb file,
-/// atomically (temp file + rename). Throws IoError.
-void write_volume(const std::string& path, const Volume& volume);
+/// Writes the volume's grids (sdf, weight, nearest, density, color, fill) with metadata to a .vdb
+/// file, atomically (temp file + rename). Throws IoError. Returns the memory of the grids written
+/// (the volume's and the density grid made for the file), bytes.
+std::size_t write_volume(const std::string& path, const Volume& volume);
 
 /// Reads a volume written by write_volume (or any file with a level-set "sdf" grid; "weight"
 /// "color" and "fill" are optional). Throws IoError / FormatError.

@@ -240,10 +240,11 @@ void bind_volume(py::module_& m) {
     m.def(
         "write_volume",
         [](const std::string& path, const Volume& v) {
-            without_gil([&] { write_volume(path, v); });
+            return without_gil([&] { return write_volume(path, v); });
         },
         py::arg("path"), py::arg("volume"),
-        "Writes sdf, weight, nearest, density, color and fill to a .vdb file, atomically.");
+        "Writes sdf, weight, nearest, density, color and fill to a .vdb file, atomically; "
+        "returns the grids' memory, bytes.");
 }
 
 }  // namespace vdbrecon::python

@@ -6,9 +6,13 @@
 // leaf's face supplying the bits past the leaf's upper faces.
 #include "detail/crossings.h"
 
+#include <algorithm>
 #include <array>
+#include <limits>
 #include <numeric>
+#include <utility>
 
+#include "detail/release.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon::detail {
@@ -62,10 +66,38 @@ struct LeafCrossings {
 
 Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_points) {
     Crossings out;
-    out.ids = std::make_shared<openvdb::UInt32Tree>(sdf, 0u, openvdb::TopologyCopy());
     std::vector<const Leaf*> leaves;
     sdf.getNodes(leaves);
     const std::size_t n = leaves.size();
+    if (n > std::size_t(std::numeric_limits<std::int32_t>::max())) {
+        throw NumericalError("meshing: too many leaves (" + std::to_string(n) + ")");
+    }
+
+    // Each leaf's upper neighbours, found by pointer among the leaves sorted by address.
+    std::vector<std::pair<const Leaf*, std::int32_t>> by_address(n);
+    for (std::size_t L = 0; L < n; ++L) by_address[L] = {leaves[L], std::int32_t(L)};
+    std::sort(by_address.begin(), by_address.end());
+    out.upper.resize(7 * n);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 64),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+        openvdb::tree::ValueAccessor<const openvdb::FloatTree> acc(sdf);
+        for (std::size_t L = r.begin(); L < r.end(); ++L) {
+            const openvdb::Coord origin = leaves[L]->origin();
+            for (int d = 1; d < 8; ++d) {
+                const Leaf* leaf = acc.probeConstLeaf(
+                    origin.offsetBy(8 * (d & 1), 8 * (d >> 1 & 1), 8 * (d >> 2)));
+                std::int32_t j = -1;
+                if (leaf) {
+                    const auto at = std::lower_bound(by_address.begin(), by_address.end(),
+                                                     std::pair<const Leaf*, std::int32_t>{leaf, 0});
+                    j = at->second;
+                }
+                out.upper[7 * L + std::size_t(d - 1)] = j;
+            }
+        }
+    });
+    release(by_address);
+    out.ids.resize(512 * n);
 
     // Pass 1: per leaf, the crossing edges along each axis, and their count.
     std::vector<LeafCrossings> found(n);
@@ -126,11 +158,12 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_poi
                       [&](const tbb::blocked_range<std::size_t>& r) {
         openvdb::tree::ValueAccessor<const openvdb::FloatTree> acc(sdf);
         for (std::size_t L = r.begin(); L < r.end(); ++L) {
+            std::uint32_t* ids = out.ids.data() + 512 * L;
+            std::fill(ids, ids + 512, 0u);
             if (count[L] == count[L + 1]) continue;
             const Leaf& leaf = *leaves[L];
             const openvdb::Coord origin = leaf.origin();
             const float* data = leaf.buffer().data();
-            std::uint32_t* ids = out.ids->probeLeaf(origin)->buffer().data();
             const Words* axis = found[L].axis;
             // The neighbours past the upper faces, for edges leaving the leaf.
             const Leaf* up[3] = {acc.probeConstLeaf(origin.offsetBy(8, 0, 0)),

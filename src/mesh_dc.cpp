@@ -27,6 +27,8 @@
 // or, on smooth parts, whose triangles stay closer to the zero level of the SDF (estimated to
 // second order from the vertices' field values and patch normals). The patch normals are also the
 // vertex normals handed to finish_mesh().
+#include <tbb/enumerable_thread_specific.h>
+
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <array>
@@ -867,12 +869,16 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                           }
                       });
     repair_hermite(crossings, tree, leaves, volume.sdf->voxelSize()[0], iso, data);
-    // One vertex per chain, collected per leaf. Each crossing learns the vertices of its four
-    // cells as (leaf, index in the leaf): every (crossing, slot) belongs to exactly one cell, so
-    // there are no two writers.
+    // One vertex per chain. Each crossing learns the vertices of its four cells as (leaf, index
+    // in the leaf): every (crossing, slot) belongs to exactly one cell, so there are no two
+    // writers. The vertices go to one growing array per thread, a leaf's in a row (one thread
+    // visits all cells of a leaf): an array per leaf meant an allocation and a free per leaf,
+    // which two threads sharing one heap make slower than one.
     const QefData qef{data, options.dc_truncation, options.dc_bias};
     const double inv_voxel = 1.0 / volume.sdf->voxelSize()[0];
-    std::vector<std::vector<PatchVertex>> per_leaf(leaves.size());
+    tbb::enumerable_thread_specific<std::vector<PatchVertex>> buffers;
+    std::vector<std::vector<PatchVertex>*> leaf_buffer(leaves.size(), nullptr);
+    std::vector<std::size_t> leaf_first(leaves.size(), 0), leaf_count(leaves.size() + 1, 0);
     constexpr std::uint64_t kNone = ~std::uint64_t(0);
     FillLater<std::array<std::uint64_t, 4>> around(crossings.size());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, around.size(), 4096),
@@ -883,9 +889,11 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                       });
     for_each_surface_cell(
         tree, crossings, iso, [&](std::size_t L, const SurfaceCell& cell, FloatAccessor& acc) {
-            std::vector<PatchVertex>& out = per_leaf[L];
-            // About one vertex per crossing: one allocation per leaf, not a growth series.
-            if (out.empty()) out.reserve(crossings.leaf_begin[L + 1] - crossings.leaf_begin[L] + 8);
+            if (!leaf_buffer[L]) {  // the leaf's first cell
+                leaf_buffer[L] = &buffers.local();
+                leaf_first[L] = leaf_buffer[L]->size();
+            }
+            std::vector<PatchVertex>& out = *leaf_buffer[L];
             for (int l = 0; l < cell.loops.count; ++l) {
                 int start[12], size[12];
                 const int chains = loop_chains(cell, l, acc, iso, start, size);
@@ -898,7 +906,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                     const openvdb::Vec3d x = solve_qef(cell, chain, size[c], qef, v.normal);
                     v.position = openvdb::Vec3f(x);
                     v.level = level_at(cell, x, acc, iso, inv_voxel);
-                    const std::uint64_t id = (std::uint64_t(L) << 32) | out.size();
+                    const std::uint64_t id = (std::uint64_t(L) << 32) | leaf_count[L + 1]++;
                     out.push_back(v);
                     for (int i = 0; i < size[c]; ++i) {
                         const int e = chain[i];
@@ -920,8 +928,8 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     release(crossings.axis);
 
     // Global vertex numbers in leaf order.
-    std::vector<std::size_t> base(per_leaf.size() + 1, 0);
-    for (std::size_t L = 0; L < per_leaf.size(); ++L) base[L + 1] = base[L] + per_leaf[L].size();
+    std::vector<std::size_t>& base = leaf_count;
+    std::partial_sum(base.begin(), base.end(), base.begin());
     RawSurface raw;
     raw.points.resize(base.back());
     // The patch normals are the vertex normals too: a mean of the crossings' robust gradients,
@@ -929,17 +937,19 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     std::vector<openvdb::Vec3f>& patch_normal = raw.normals;
     patch_normal.resize(base.back());
     FillLater<float> level(base.back());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, per_leaf.size(), 16),
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 16),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                              for (std::size_t k = 0; k < per_leaf[L].size(); ++k) {
-                                  raw.points[base[L] + k] = per_leaf[L][k].position;
-                                  patch_normal[base[L] + k] = per_leaf[L][k].normal;
-                                  level[base[L] + k] = per_leaf[L][k].level;
+                              if (!leaf_buffer[L]) continue;
+                              const PatchVertex* in = leaf_buffer[L]->data() + leaf_first[L];
+                              for (std::size_t k = 0; k < base[L + 1] - base[L]; ++k) {
+                                  raw.points[base[L] + k] = in[k].position;
+                                  patch_normal[base[L] + k] = in[k].normal;
+                                  level[base[L] + k] = in[k].level;
                               }
-                              release(per_leaf[L]);
                           }
                       });
+    buffers.clear();
 
     // One quad per crossing whose four cells all have a vertex: counted per leaf first, so each
     // leaf writes its triangles straight into place.

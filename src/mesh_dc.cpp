@@ -437,7 +437,10 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
         std::uint32_t i, j;  ///< the crossing, and the one whose plane it takes
         double t;            ///< the plane's root on the edge
     };
-    std::vector<std::vector<Repair>> repairs(n_leaves);
+    // Collected per thread (a list per leaf meant allocations per leaf, slower on two threads
+    // sharing the heap). The order they are applied in does not matter: a repaired crossing is
+    // unreliable and takes the data of a reliable one, which is never repaired.
+    tbb::enumerable_thread_specific<std::vector<Repair>> repairs;
     tbb::parallel_for(
         tbb::blocked_range<std::size_t>(0, n_leaves, 8),
         [&](const tbb::blocked_range<std::size_t>& r) {
@@ -445,6 +448,7 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
             std::vector<ReliableCrossings::Near> near;
             std::vector<std::size_t> reliable;
             std::vector<PlaneCandidate> cand;
+            std::vector<Repair>& found = repairs.local();
             for (std::size_t L = r.begin(); L < r.end(); ++L) {
                 const std::size_t begin = crossings.leaf_begin[L],
                                   end = crossings.leaf_begin[L + 1];
@@ -495,23 +499,19 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                                         nj.dot(n)});
                     }
                     if (const PlaneCandidate* pick = pick_plane(cand, reliable, data)) {
-                        repairs[L].push_back({std::uint32_t(i), std::uint32_t(pick->j), pick->t});
+                        found.push_back({std::uint32_t(i), std::uint32_t(pick->j), pick->t});
                     }
                 }
             }
         });
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n_leaves, 64),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                              for (const Repair& e : repairs[L]) {
-                                  const int axis = crossings.axis[e.i];
-                                  data[e.i].point[axis] =
-                                      float(double(crossings.start[e.i][axis]) + e.t);
-                                  data[e.i].normal = data[e.j].normal;
-                                  data[e.i].weight = data[e.j].weight;
-                              }
-                          }
-                      });
+    for (const std::vector<Repair>& found : repairs) {
+        for (const Repair& e : found) {
+            const int axis = crossings.axis[e.i];
+            data[e.i].point[axis] = float(double(crossings.start[e.i][axis]) + e.t);
+            data[e.i].normal = data[e.j].normal;
+            data[e.i].weight = data[e.j].weight;
+        }
+    }
 }
 
 /// One patch vertex before global numbering.

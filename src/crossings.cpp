@@ -57,11 +57,6 @@ struct Sides {
     }
 };
 
-/// Per leaf: which of each voxel's +x, +y, +z edges cross, one word set per axis.
-struct LeafCrossings {
-    Words axis[3];
-};
-
 }  // namespace
 
 Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_points) {
@@ -97,10 +92,10 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_poi
         }
     });
     release(by_address);
-    out.ids.resize(512 * n);
 
     // Pass 1: per leaf, the crossing edges along each axis, and their count.
-    std::vector<LeafCrossings> found(n);
+    std::vector<LeafCrossingMasks>& found = out.masks;
+    found.resize(n);
     std::vector<std::size_t> count(n + 1, 0);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 8),
                       [&](const tbb::blocked_range<std::size_t>& r) {
@@ -109,7 +104,7 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_poi
         for (std::size_t L = r.begin(); L < r.end(); ++L) {
             const openvdb::Coord origin = leaves[L]->origin();
             self.load(acc, origin, iso);
-            Words* axis = found[L].axis;
+            std::uint64_t(*axis)[8] = found[L].axis;
             // z: the next bit (z < 7) or the +z neighbour's z = 0 bit (7 bits down, 8 rows).
             next.load(acc, origin.offsetBy(0, 0, 8), iso, 2);
             for (int w = 0; w < 8; ++w) {
@@ -133,9 +128,10 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_poi
                 const std::uint64_t ni = w < 7 ? self.inside[w + 1] : next.inside[0];
                 axis[0][w] = self.active[w] & na & (self.inside[w] ^ ni);
             }
-            std::size_t k = 0;
-            for (int a = 0; a < 3; ++a) {
-                for (int w = 0; w < 8; ++w) k += std::size_t(__builtin_popcountll(axis[a][w]));
+            std::uint32_t k = 0;
+            for (int w = 0; w < 8; ++w) {
+                found[L].before[w] = k;
+                for (int a = 0; a < 3; ++a) k += std::uint32_t(__builtin_popcountll(axis[a][w]));
             }
             count[L + 1] = k;
         }
@@ -152,19 +148,17 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_poi
     out.axis.resize(total);
     out.start_inside.resize(total);
 
-    // Pass 2: ids (voxel order, then axis) and crossing positions (linear interpolation along the
-    // edge).
+    // Pass 2: per crossing (voxel order, then axis), its edge and position (linear interpolation
+    // along the edge).
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 8),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         openvdb::tree::ValueAccessor<const openvdb::FloatTree> acc(sdf);
         for (std::size_t L = r.begin(); L < r.end(); ++L) {
-            std::uint32_t* ids = out.ids.data() + 512 * L;
-            std::fill(ids, ids + 512, 0u);
             if (count[L] == count[L + 1]) continue;
             const Leaf& leaf = *leaves[L];
             const openvdb::Coord origin = leaf.origin();
             const float* data = leaf.buffer().data();
-            const Words* axis = found[L].axis;
+            const std::uint64_t(*axis)[8] = found[L].axis;
             // The neighbours past the upper faces, for edges leaving the leaf.
             const Leaf* up[3] = {acc.probeConstLeaf(origin.offsetBy(8, 0, 0)),
                                  acc.probeConstLeaf(origin.offsetBy(0, 8, 0)),
@@ -177,7 +171,6 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_poi
                     const openvdb::Index pos = openvdb::Index(64 * w + b);
                     std::uint32_t mask = 0;
                     for (int a = 0; a < 3; ++a) mask |= std::uint32_t((axis[a][w] >> b) & 1u) << a;
-                    ids[pos] = std::uint32_t(id) | (mask << kIdBits);
                     const openvdb::Coord v = Leaf::offsetToLocalCoord(pos) + origin;
                     const float fv = data[pos];
                     for (int a = 0; a < 3; ++a) {

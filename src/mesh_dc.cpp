@@ -923,7 +923,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
 
     // What the quads no longer need goes before they are made (the mesh stage's peak memory).
     release(data);
-    release(crossings.ids);
+    release(crossings.masks);
     release(crossings.start);
     release(crossings.axis);
 

@@ -525,7 +525,7 @@ struct PatchVertex {
 /// vector doubling its capacity copies everything and can leave half of it unused (memory that
 /// is touched afresh costs about 1 ms per MB on the 2-core VM).
 class VertexBlocks {
-public:
+  public:
     void push_back(const PatchVertex& v) {
         if (size_ % kBlock == 0) blocks_.emplace_back(new PatchVertex[kBlock]);
         blocks_.back()[size_++ % kBlock] = v;
@@ -533,7 +533,7 @@ public:
     std::size_t size() const { return size_; }
     const PatchVertex& operator[](std::size_t i) const { return blocks_[i / kBlock][i % kBlock]; }
 
-private:
+  private:
     static constexpr std::size_t kBlock = 8192;  ///< 224 kB
     std::vector<std::unique_ptr<PatchVertex[]>> blocks_;
     std::size_t size_ = 0;

@@ -6,13 +6,10 @@
 // leaf's face supplying the bits past the leaf's upper faces.
 #include "detail/crossings.h"
 
-#include <algorithm>
 #include <array>
 #include <limits>
 #include <numeric>
-#include <utility>
 
-#include "detail/release.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon::detail {
@@ -68,30 +65,19 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_poi
         throw NumericalError("meshing: too many leaves (" + std::to_string(n) + ")");
     }
 
-    // Each leaf's upper neighbours, found by pointer among the leaves sorted by address.
-    std::vector<std::pair<const Leaf*, std::int32_t>> by_address(n);
-    for (std::size_t L = 0; L < n; ++L) by_address[L] = {leaves[L], std::int32_t(L)};
-    std::sort(by_address.begin(), by_address.end());
+    // Each leaf's upper neighbours.
+    out.leaf_index.build(leaves);
     out.upper.resize(7 * n);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 64),
                       [&](const tbb::blocked_range<std::size_t>& r) {
-        openvdb::tree::ValueAccessor<const openvdb::FloatTree> acc(sdf);
         for (std::size_t L = r.begin(); L < r.end(); ++L) {
             const openvdb::Coord origin = leaves[L]->origin();
             for (int d = 1; d < 8; ++d) {
-                const Leaf* leaf = acc.probeConstLeaf(
-                    origin.offsetBy(8 * (d & 1), 8 * (d >> 1 & 1), 8 * (d >> 2)));
-                std::int32_t j = -1;
-                if (leaf) {
-                    const auto at = std::lower_bound(by_address.begin(), by_address.end(),
-                                                     std::pair<const Leaf*, std::int32_t>{leaf, 0});
-                    j = at->second;
-                }
-                out.upper[7 * L + std::size_t(d - 1)] = j;
+                out.upper[7 * L + std::size_t(d - 1)] = std::int32_t(out.leaf_index.find(
+                    origin.offsetBy(8 * (d & 1), 8 * (d >> 1 & 1), 8 * (d >> 2))));
             }
         }
     });
-    release(by_address);
 
     // Pass 1: per leaf, the crossing edges along each axis, and their count.
     std::vector<LeafCrossingMasks>& found = out.masks;
@@ -159,10 +145,12 @@ Crossings find_crossings(const openvdb::FloatTree& sdf, float iso, bool with_poi
             const openvdb::Coord origin = leaf.origin();
             const float* data = leaf.buffer().data();
             const std::uint64_t(*axis)[8] = found[L].axis;
-            // The neighbours past the upper faces, for edges leaving the leaf.
-            const Leaf* up[3] = {acc.probeConstLeaf(origin.offsetBy(8, 0, 0)),
-                                 acc.probeConstLeaf(origin.offsetBy(0, 8, 0)),
-                                 acc.probeConstLeaf(origin.offsetBy(0, 0, 8))};
+            // The neighbours past the upper faces (+x, +y, +z), for edges leaving the leaf.
+            const Leaf* up[3];
+            for (int a = 0; a < 3; ++a) {
+                const std::int64_t j = out.neighbour(L, 1 << a);
+                up[a] = j < 0 ? nullptr : leaves[std::size_t(j)];
+            }
             std::size_t id = count[L];
             for (int w = 0; w < 8; ++w) {
                 for (std::uint64_t any = axis[0][w] | axis[1][w] | axis[2][w]; any;

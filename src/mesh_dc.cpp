@@ -293,41 +293,6 @@ const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
 struct ReliableCrossings {
     std::vector<std::size_t> begin;  ///< per leaf, into ids (leafCount() + 1)
     std::vector<std::uint32_t> ids;
-    /// Leaf index by leaf origin: open addressing with linear probing in a table at most half
-    /// full (a lookup is a hash and a compare or two).
-    struct LeafTable {
-        std::vector<openvdb::Coord> origin;  ///< kEmpty where free
-        std::vector<std::uint32_t> index;
-        std::size_t mask = 0;
-        static constexpr int kEmpty = std::numeric_limits<int>::max();
-
-        static std::size_t hash(const openvdb::Coord& c) {
-            const std::uint64_t k = (std::uint64_t(std::uint32_t(c[0] >> 3)) << 42) ^
-                                    (std::uint64_t(std::uint32_t(c[1] >> 3)) << 21) ^
-                                    std::uint64_t(std::uint32_t(c[2] >> 3));
-            return std::size_t((k * 0x9E3779B97F4A7C15ull) >> 20);
-        }
-        void build(const std::vector<const openvdb::FloatTree::LeafNodeType*>& leaves) {
-            std::size_t size = 16;
-            while (size < 2 * leaves.size()) size *= 2;
-            mask = size - 1;
-            origin.assign(size, openvdb::Coord(kEmpty));
-            index.assign(size, 0);
-            for (std::size_t L = 0; L < leaves.size(); ++L) {
-                std::size_t h = hash(leaves[L]->origin()) & mask;
-                while (origin[h][0] != kEmpty) h = (h + 1) & mask;
-                origin[h] = leaves[L]->origin();
-                index[h] = std::uint32_t(L);
-            }
-        }
-        /// The index of the leaf at `o`, or -1.
-        std::int64_t find(const openvdb::Coord& o) const {
-            for (std::size_t h = hash(o) & mask;; h = (h + 1) & mask) {
-                if (origin[h] == o) return index[h];
-                if (origin[h][0] == kEmpty) return -1;
-            }
-        }
-    } leaf_index;
 
     /// One reliable crossing near a leaf, with a key that sorts by start voxel, then axis.
     struct Near {
@@ -347,7 +312,8 @@ struct ReliableCrossings {
         for (int dx = -8; dx <= 8; dx += 8) {
             for (int dy = -8; dy <= 8; dy += 8) {
                 for (int dz = -8; dz <= 8; dz += 8) {
-                    const std::int64_t leaf = leaf_index.find(origin.offsetBy(dx, dy, dz));
+                    const std::int64_t leaf =
+                        crossings.leaf_index.find(origin.offsetBy(dx, dy, dz));
                     if (leaf < 0) continue;
                     for (std::size_t k = begin[std::size_t(leaf)]; k < begin[std::size_t(leaf) + 1];
                          ++k) {
@@ -431,7 +397,6 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
         rel.begin[L + 1] = rel.ids.size();
     }
     if (!any_unreliable || rel.ids.empty()) return;
-    rel.leaf_index.build(leaves);
 
     struct Repair {
         std::uint32_t i, j;  ///< the crossing, and the one whose plane it takes

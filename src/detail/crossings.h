@@ -20,6 +20,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -38,7 +39,46 @@ struct LeafCrossingMasks {
     std::uint32_t before[8];
 };
 
+/// Leaf index by leaf origin: open addressing with linear probing in a table at most half full
+/// (a lookup is a hash and a compare or two).
+class LeafIndex {
+  public:
+    void build(const std::vector<const openvdb::FloatTree::LeafNodeType*>& leaves) {
+        std::size_t size = 16;
+        while (size < 2 * leaves.size()) size *= 2;
+        mask_ = size - 1;
+        origin_.assign(size, openvdb::Coord(kEmpty));
+        index_.assign(size, 0);
+        for (std::size_t L = 0; L < leaves.size(); ++L) {
+            std::size_t h = hash(leaves[L]->origin()) & mask_;
+            while (origin_[h][0] != kEmpty) h = (h + 1) & mask_;
+            origin_[h] = leaves[L]->origin();
+            index_[h] = std::uint32_t(L);
+        }
+    }
+    /// The index of the leaf at `o`, or -1.
+    std::int64_t find(const openvdb::Coord& o) const {
+        for (std::size_t h = hash(o) & mask_;; h = (h + 1) & mask_) {
+            if (origin_[h] == o) return index_[h];
+            if (origin_[h][0] == kEmpty) return -1;
+        }
+    }
+
+  private:
+    static constexpr int kEmpty = std::numeric_limits<int>::max();
+    static std::size_t hash(const openvdb::Coord& c) {
+        const std::uint64_t k = (std::uint64_t(std::uint32_t(c[0] >> 3)) << 42) ^
+                                (std::uint64_t(std::uint32_t(c[1] >> 3)) << 21) ^
+                                std::uint64_t(std::uint32_t(c[2] >> 3));
+        return std::size_t((k * 0x9E3779B97F4A7C15ull) >> 20);
+    }
+    std::vector<openvdb::Coord> origin_;  ///< kEmpty where free
+    std::vector<std::uint32_t> index_;
+    std::size_t mask_ = 0;
+};
+
 struct Crossings {
+    LeafIndex leaf_index;                  ///< the sdf leaves by origin
     std::vector<LeafCrossingMasks> masks;  ///< per sdf leaf (the tree's leaf order)
     /// Per leaf, the index of the sdf leaf past its upper faces: upper[7 L + d - 1] for the
     /// neighbour at offset 8 (d & 1, d >> 1 & 1, d >> 2), d = 1..7, or -1 where there is none.

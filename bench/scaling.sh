@@ -101,6 +101,8 @@ echo
 echo "One run each at --voxel 0.0005, best of $AUTO_REPEAT (by the stages' sum) with the automatic voxel;"
 echo ".vdb written; times in seconds"
 echo "(the stage columns from vdbrecon's log); meshes scored against bun_zipper_gt.ply"
+echo "\"start-up MB\": what the process held before reading (executable and shared libraries, from"
+echo "vdbrecon's log); \"peak - start-up\" is what the run added."
 echo "($SAMPLES samples). Meshes identical for 1 and 2 threads: $identical. Synthetic scan: $(grep -a -m1 '^comment' "$synth" | cut -d' ' -f2-)."
 echo
 echo "Load: $LOAD_START at the start, $(load_line) at the end; the whole run took" \

@@ -74,18 +74,20 @@ def stage_times(log, names):
 
 
 def log_memory(log):
-    """(voxel, points MB, grids MB) from vdbrecon's log, None where missing."""
+    """(voxel, points MB, grids MB, start-up MB) from vdbrecon's log, None where missing."""
     try:
         text = open(log).read()
     except OSError:
-        return None, None, None
+        return None, None, None, None
     voxel = re.search(r"vdbrecon: voxel ([0-9.e+-]+)", text)
     points = re.search(r"rows \([^)]*\), ([0-9.]+) MB in memory", text)
     # The grids written to the .vdb (the splat's and the density grid made for the file), else
     # (older logs, or --no-vdb) the splat's grids.
     grids = re.search(r"grids written ([0-9.]+) MB", text) or re.search(
         r"grids ([0-9.]+) MB in memory", text)
-    return tuple(float(m[1]) if m else None for m in (voxel, points, grids))
+    # What the process held before reading anything: the executable and shared libraries.
+    startup = re.search(r"above the ([0-9.]+) MB at start-up", text)
+    return tuple(float(m[1]) if m else None for m in (voxel, points, grids, startup))
 
 
 def scaling(rows):
@@ -96,12 +98,15 @@ def scaling(rows):
         one = wall.get((r["dataset"], "1"))
         fixed = r["method"] in ("1", "2")  # the thread rows at the fixed voxel
         speedup = "%.2f" % (one / r["wall"]) if one and fixed and r["status"] == "ok" else "–"
-        voxel, points_mb, grids_mb = log_memory(r["log"])
-        ratio = "%.2f" % (r["rss"] / (points_mb + grids_mb)) if points_mb and grids_mb else "–"
+        voxel, points_mb, grids_mb, startup_mb = log_memory(r["log"])
+        data_mb = points_mb + grids_mb if points_mb and grids_mb else None
+        ratio = "%.2f" % (r["rss"] / data_mb) if data_mb else "–"
+        above = "%.2f" % ((r["rss"] - startup_mb) / data_mb) if data_mb and startup_mb else "–"
         head = [r["dataset"], "{:,}".format(points), r["method"],
                 "%.3g" % (voxel * 1e3) if voxel else "–", "%.2f" % r["wall"],
-                "%.2f" % r["cpu"], r["rss"], "%.1f" % grids_mb if grids_mb else "–",
-                "%.1f" % points_mb if points_mb else "–", ratio]
+                "%.2f" % r["cpu"], r["rss"], "%d" % startup_mb if startup_mb else "–",
+                "%.1f" % grids_mb if grids_mb else "–",
+                "%.1f" % points_mb if points_mb else "–", ratio, above]
         stages = stage_times(r["log"], ["read", "outliers", "normals", "splat", "mesh"])
         head += stages
         per_point = "–"
@@ -115,7 +120,8 @@ def scaling(rows):
             lines.append(head + [e["recon"]["faces"], "%.4f" % e["fscore"][0]["fscore"],
                                  "%.1f" % (e["chamfer_l1"] * 1e6)])
     print(table(["input", "points", "threads", "voxel mm", "wall s", "CPU s", "peak RSS MB",
-                 "grids MB", "points MB", "peak / (grids + points)", "read", "outliers",
+                 "start-up MB", "grids MB", "points MB", "peak / (grids + points)",
+                 "(peak - start-up) / (grids + points)", "read", "outliers",
                  "normals", "splat", "mesh", "wall us/point", "stages us/point",
                  "speed-up vs 1 thread", "faces", "F@0.5mm", "Chamfer um"], lines))
 

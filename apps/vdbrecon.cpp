@@ -479,39 +479,6 @@ void tune_heap() {
     mallopt(M_ARENA_MAX, 1);
 }
 
-/// Backs the heap with transparent huge pages where the kernel hands them out on request (THP
-/// mode "madvise", Debian's default): glibc's tunable glibc.malloc.hugetlb=1 (glibc >= 2.35)
-/// then advises huge pages for the memory it takes from the kernel, so a run faults its heap in
-/// 2 MB at a time instead of 4 kB (bunny 0.5 mm on the 2-core VM, where a fault costs ~5 us:
-/// 33.8k -> 2.3k page faults, wall 1.15 -> 0.86 s; peak memory unchanged). glibc reads tunables only
-/// when a process starts, so the CLI executes itself once more with the tunable added to
-/// GLIBC_TUNABLES. Nothing happens when GLIBC_TUNABLES already names the tunable (set it to 0
-/// to turn this off), when the kernel's mode is not "madvise" ("always" needs no advice,
-/// "never" ignores it), or when the exec fails (the run goes on as it is).
-///
-/// glibc advises only heap growths of at least 2 MB, and the kernel gives a huge page only to an
-/// aligned 2 MB range inside the heap, so a small run's heap, grown 128 kB at a time, never
-/// gets one. glibc.malloc.top_pad=64 MB grows it 64 MB (of address space) at a time from the
-/// start: bunny 10 % (36k points), 2100 -> 1200-1500 page faults, read stage 9-11 -> 3-7 ms.
-void use_huge_pages(char** argv) {
-    const char* old = std::getenv("GLIBC_TUNABLES");
-    const std::string previous = old ? old : "";
-    if (previous.find("glibc.malloc.hugetlb") != std::string::npos) return;
-    std::ifstream thp("/sys/kernel/mm/transparent_hugepage/enabled");
-    std::string mode;
-    if (!std::getline(thp, mode) || mode.find("[madvise]") == std::string::npos) return;
-    const std::string value = (previous.empty() ? "" : previous + ":") +
-                              "glibc.malloc.hugetlb=1:glibc.malloc.top_pad=" +
-                              std::to_string(64 << 20);
-    if (setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
-    execv("/proc/self/exe", argv);
-    if (old) {  // the exec failed: carry on in this process, environment as it was
-        setenv("GLIBC_TUNABLES", previous.c_str(), 1);
-    } else {
-        unsetenv("GLIBC_TUNABLES");
-    }
-}
-
 int main(int argc, char** argv) {
     tune_heap();
     Args args;
@@ -532,7 +499,6 @@ int main(int argc, char** argv) {
                 return kExitOk;
             }
         }
-        use_huge_pages(argv);
         g_startup_rss_mb = resident_mb();
         if (args.argv[0] == "eval") {
             args.i = 1;

@@ -1,4 +1,5 @@
 // The command line: exit codes, messages, outputs. Runs the real binary.
+#include <filesystem>
 #include <fstream>
 
 #include "support.h"
@@ -45,10 +46,10 @@ TEST_CASE("cli: reconstructs, writes mesh and volume, says where", "[cli]") {
     REQUIRE_THAT(r.out, Catch::Contains("\"fscore\": 1}"));
 }
 
-TEST_CASE("cli: the huge-page re-execution changes nothing but the speed", "[cli]") {
-    // Without GLIBC_TUNABLES the CLI executes itself again with glibc.malloc.hugetlb=1 (where the
-    // kernel's THP mode is "madvise"); with the tunable named it runs as it is. Both runs must
-    // see the same arguments (a path with a space and a quote) and write the same bytes.
+TEST_CASE("cli: the huge-page tunables change nothing but the speed", "[cli]") {
+    // Without GLIBC_TUNABLES the launcher starts vdbrecon-core with glibc.malloc.hugetlb=1 (where
+    // the kernel's THP mode is "madvise"); with the tunable named it passes it on as it is. Both
+    // runs must see the same arguments (a path with a space and a quote) and write the same bytes.
     std::string mode;
     std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), mode);
     INFO("THP mode: " << mode);
@@ -65,6 +66,43 @@ TEST_CASE("cli: the huge-page re-execution changes nothing but the speed", "[cli
     REQUIRE_THAT(again.out, Catch::Contains("mesh: " + dir.file("it's a.ply")));
     REQUIRE(file_exists(dir.file("it's a.ply")));
     REQUIRE(read_bytes(dir.file("it's a.ply")) == read_bytes(dir.file("it's b.ply")));
+}
+
+TEST_CASE("cli: the launcher passes arguments and tunables on, and says what it cannot run",
+          "[cli]") {
+    std::string mode;
+    std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), mode);
+    const bool advised = mode.find("[madvise]") != std::string::npos;
+    TempDir dir;
+    const std::string launcher = dir.file("vdbrecon");
+    std::filesystem::copy_file(VDBRECON_CLI, launcher);
+    const auto run = [&](const std::string& env) {
+        const std::string cmd = env + " '" + launcher + "' \"a b\" \"it's\" >'" + dir.file("out") +
+                                "' 2>'" + dir.file("err") + "'";
+        const int status = std::system(cmd.c_str());
+        return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    };
+    // No vdbrecon-core beside it: one line naming the program, exit code 4.
+    REQUIRE(run("env -u GLIBC_TUNABLES") == 4);
+    REQUIRE(read_bytes(dir.file("err")) == "vdbrecon: error: cannot run " +
+                                               dir.file("vdbrecon-core") +
+                                               ": No such file or directory\n");
+    // A stand-in core that prints what it was given.
+    {
+        std::ofstream core(dir.file("vdbrecon-core"));
+        core << "#!/bin/sh\nprintf '%s|' \"$GLIBC_TUNABLES\" \"$@\"\n";
+    }
+    std::filesystem::permissions(dir.file("vdbrecon-core"), std::filesystem::perms::owner_all);
+    REQUIRE(run("env -u GLIBC_TUNABLES") == 0);
+    const std::string tunables =
+        advised ? "glibc.malloc.hugetlb=1:glibc.malloc.top_pad=" + std::to_string(64 << 20) : "";
+    REQUIRE(read_bytes(dir.file("out")) == tunables + "|a b|it's|");
+    // Other tunables are kept; a hugetlb already named is left as it is.
+    REQUIRE(run("env GLIBC_TUNABLES=glibc.malloc.arena_max=1") == 0);
+    REQUIRE(read_bytes(dir.file("out")) ==
+            "glibc.malloc.arena_max=1" + (advised ? ":" + tunables : "") + "|a b|it's|");
+    REQUIRE(run("env GLIBC_TUNABLES=glibc.malloc.hugetlb=0") == 0);
+    REQUIRE(read_bytes(dir.file("out")) == "glibc.malloc.hugetlb=0|a b|it's|");
 }
 
 // Bad inputs, bad --voxel values and unwritable outputs: tests/test_bad_input.cpp.

@@ -394,14 +394,63 @@ __attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, Block
     return updates;
 }
 
+/// add_piece_avx2 eight voxels at a time (AVX-512): the aligned halves of the 16-voxel block
+/// row, one or two per row of a kernel's support instead of two or three quads. Lanes outside
+/// the piece's box or the support are masked off, and the sums see the scalar loop's double
+/// operations in its order, so the result is the same bit for bit. fp-contract is off, as
+/// AVX-512 implies FMA and GCC would otherwise fuse the multiplies and adds.
+__attribute__((target("avx512f,avx512vl"), optimize("fp-contract=off"))) std::size_t
+add_piece_avx512(const Piece& p, BlockSums& sums) {
+    std::size_t updates = 0;
+    const __m512d r2 = _mm512_set1_pd(p.r2), amp = _mm512_set1_pd(p.amp);
+    const __m256i point = _mm256_set1_epi32(int(p.point));
+    const int zb0 = p.lo[2] & ~7;
+    // The box part of each half's mask does not depend on the row.
+    __mmask8 box[kBlockDim / 8];
+    for (int zb = zb0; zb <= p.hi[2]; zb += 8) {
+        const int first = std::max(p.lo[2] - zb, 0), last = std::min(p.hi[2] - zb, 7);
+        box[zb >> 3] = __mmask8((0xffu << first) & (0xffu >> (7 - last)));
+    }
+    const double *dx2 = p.d2[0], *dy2 = p.d2[1];
+    for (int x = p.lo[0]; x <= p.hi[0]; ++x) {
+        for (int y = p.lo[1]; y <= p.hi[1]; ++y) {
+            const double dxy2_s = dx2[x] + dy2[y];
+            if (dxy2_s > p.r2) continue;
+            const __m512d dxy2 = _mm512_set1_pd(dxy2_s);
+            const __m512d wxy = _mm512_set1_pd(p.g[0][x] * p.g[1][y]);
+            const __m512d pxy = _mm512_set1_pd(p.ph[0][x] + p.ph[1][y]);
+            const int row = (x << (2 * kBlockLog2)) | (y << kBlockLog2);
+            for (int zb = zb0; zb <= p.hi[2]; zb += 8) {
+                const __m512d d2 = _mm512_add_pd(dxy2, _mm512_loadu_pd(p.d2[2] + zb));
+                const __mmask8 in = _mm512_mask_cmp_pd_mask(box[zb >> 3], d2, r2, _CMP_LE_OQ);
+                if (in == 0) continue;
+                updates += std::size_t(__builtin_popcount(unsigned(in)));
+                const int i = row | zb;
+                const __m512d w = _mm512_mul_pd(wxy, _mm512_loadu_pd(p.g[2] + zb));
+                const __m512d u = _mm512_mul_pd(amp, w);
+                const __m512d uphi =
+                    _mm512_mul_pd(u, _mm512_add_pd(pxy, _mm512_loadu_pd(p.ph[2] + zb)));
+                const __m512d sw = _mm512_load_pd(sums.w + i), su = _mm512_load_pd(sums.u + i);
+                const __m512d sp = _mm512_load_pd(sums.uphi + i);
+                _mm512_store_pd(sums.w + i, _mm512_mask_add_pd(sw, in, sw, w));
+                _mm512_store_pd(sums.u + i, _mm512_mask_add_pd(su, in, su, u));
+                _mm512_store_pd(sums.uphi + i, _mm512_mask_add_pd(sp, in, sp, uphi));
+                const __mmask8 nearer =
+                    _mm512_mask_cmp_pd_mask(in, d2, _mm512_load_pd(sums.d2 + i), _CMP_LT_OQ);
+                _mm512_mask_store_pd(sums.d2 + i, nearer, d2);
+                _mm256_mask_store_epi32(sums.nearest + i, nearer, point);
+            }
+        }
+    }
+    return updates;
+}
 #endif
 
 /// Sums every (point, voxel) contribution of one 16^3 block, in increasing point order.
 template <bool kColors, typename P>
-void splat_block(const openvdb::Coord& o, const P* begin, const P* end,
-                 const Kernels& kernels, const PointCloud& cloud, double voxel,
-                 double min_weight, float background, bool vector_rows, BlockSums& sums,
-                 std::vector<ColorSums>& csums, BlockOut& out) {
+void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Kernels& kernels,
+                 const PointCloud& cloud, double voxel, double min_weight, float background,
+                 int vector_rows, BlockSums& sums, std::vector<ColorSums>& csums, BlockOut& out) {
     std::fill(std::begin(sums.w), std::end(sums.w), 0.0);
     std::fill(std::begin(sums.u), std::end(sums.u), 0.0);
     std::fill(std::begin(sums.uphi), std::end(sums.uphi), 0.0);
@@ -434,8 +483,8 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end,
             }
         }
 #ifdef VDBRECON_HAVE_AVX2_PATHS
-        if (!kColors && vector_rows) {
-            updates += add_piece_avx2(p, sums);
+        if (!kColors && vector_rows > 0) {
+            updates += vector_rows == 2 ? add_piece_avx512(p, sums) : add_piece_avx2(p, sums);
             continue;
         }
 #endif
@@ -598,7 +647,8 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
     tbb::enumerable_thread_specific<Scratch> scratch_per_thread;
     std::size_t num_leaves = 0;
     const double min_weight = options.min_weight, voxel = options.voxel_size;
-    const bool vector_rows = detail::vector_loops();  // colourless clouds only
+    // Colourless clouds only: 2 AVX-512 rows, 1 AVX2 rows, 0 the scalar loop.
+    const int vector_rows = detail::vector_loops() ? (detail::wide_vector_loops() ? 2 : 1) : 0;
     // The pairs of each chunk in each slab (one pass for all slabs).
     const std::size_t chunks = chunk_pairs.size();
     std::vector<std::size_t> in_slab(chunks * slabs.size(), 0);  // [chunk][slab]

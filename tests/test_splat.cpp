@@ -128,8 +128,9 @@ TEST_CASE("splatting a slab of blocks at a time gives the same grids", "[splat]"
 }
 
 TEST_CASE("the vector rows give the scalar rows' grids bit for bit", "[splat]") {
-    // Colourless clouds take the AVX2 rows where the CPU has them; VDBRECON_SCALAR forces
-    // the scalar loop. Per-point scales make every sum (w, u, u phi, nearest) differ per point.
+    // Colourless clouds take the AVX-512 or else the AVX2 rows where the CPU has them;
+    // VDBRECON_NO_AVX512 forces AVX2, VDBRECON_SCALAR the scalar loop. Per-point scales make
+    // every sum (w, u, u phi, nearest) differ per point.
     PointCloud c = noisy_sphere(30000, 1.0, 5);
     c.colors.clear();
     SplatOptions o;
@@ -137,12 +138,17 @@ TEST_CASE("the vector rows give the scalar rows' grids bit for bit", "[splat]") 
     ::setenv("VDBRECON_SCALAR", "1", 1);
     const SplatResult scalar = splat(c, o);
     ::unsetenv("VDBRECON_SCALAR");
-    const SplatResult vector = splat(c, o);
-    REQUIRE(scalar.updates == vector.updates);
-    REQUIRE(scalar.active_voxels == vector.active_voxels);
-    REQUIRE(same_grids(*scalar.volume.sdf, *vector.volume.sdf));
-    REQUIRE(same_grids(*scalar.volume.weight, *vector.volume.weight));
-    REQUIRE(same_grids(*scalar.volume.nearest, *vector.volume.nearest));
+    ::setenv("VDBRECON_NO_AVX512", "1", 1);
+    const SplatResult avx2 = splat(c, o);
+    ::unsetenv("VDBRECON_NO_AVX512");
+    const SplatResult widest = splat(c, o);
+    for (const SplatResult* vector : {&avx2, &widest}) {
+        REQUIRE(scalar.updates == vector->updates);
+        REQUIRE(scalar.active_voxels == vector->active_voxels);
+        REQUIRE(same_grids(*scalar.volume.sdf, *vector->volume.sdf));
+        REQUIRE(same_grids(*scalar.volume.weight, *vector->volume.weight));
+        REQUIRE(same_grids(*scalar.volume.nearest, *vector->volume.nearest));
+    }
 }
 
 TEST_CASE("a scan too wide for 32-bit block keys gives the grids of its parts", "[splat]") {

@@ -1,5 +1,6 @@
-// Whether the vectorised loops (AVX2) may run: the splat's rows and the kNN's distance loop have
-// an AVX2 version, chosen at run time, that gives the scalar loop's results bit for bit.
+// Whether the vectorised loops (AVX2, AVX-512) may run: the splat's rows and the kNN's distance
+// loop have an AVX2 version, the splat's rows also an AVX-512 one, chosen at run time, that give
+// the scalar loop's results bit for bit.
 #pragma once
 
 #include <cstdlib>
@@ -17,6 +18,19 @@ inline bool vector_loops() {
 #ifdef VDBRECON_HAVE_AVX2_PATHS
     static const bool avx2 = __builtin_cpu_supports("avx2");
     return avx2 && !std::getenv("VDBRECON_SCALAR");
+#else
+    return false;
+#endif
+}
+
+/// True where vector_loops() is and the CPU has AVX-512 (F and VL), unless the environment sets
+/// VDBRECON_NO_AVX512 (the tests compare it with the AVX2 and scalar paths). The splat's rows
+/// have an AVX-512 version.
+inline bool wide_vector_loops() {
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+    static const bool avx512 =
+        __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
+    return avx512 && vector_loops() && !std::getenv("VDBRECON_NO_AVX512");
 #else
     return false;
 #endif

@@ -92,12 +92,16 @@ def log_memory(log):
 
 def scaling(rows):
     wall = {(r["dataset"], r["method"]): r["wall"] for r in rows if r["status"] == "ok"}
+    splat = {(r["dataset"], r["method"]): stage_times(r["log"], ["splat"])[0] for r in rows
+             if r["status"] == "ok"}
     lines = []
     for r in rows:
         points = int(r["extra"])
         one = wall.get((r["dataset"], "1"))
         fixed = r["method"] in ("1", "2")  # the thread rows at the fixed voxel
         speedup = "%.2f" % (one / r["wall"]) if one and fixed and r["status"] == "ok" else "–"
+        s1, s = splat.get((r["dataset"], "1"), "–"), splat.get((r["dataset"], r["method"]), "–")
+        splat_speedup = "%.2f" % (float(s1) / float(s)) if fixed and "–" not in (s1, s) else "–"
         voxel, points_mb, grids_mb, startup_mb = log_memory(r["log"])
         data_mb = points_mb + grids_mb if points_mb and grids_mb else None
         ratio = "%.2f" % (r["rss"] / data_mb) if data_mb else "–"
@@ -112,7 +116,7 @@ def scaling(rows):
         per_point = "–"
         if "–" not in stages:
             per_point = "%.2f" % (sum(float(t) for t in stages) / points * 1e6)
-        head += ["%.2f" % (r["wall"] / points * 1e6), per_point, speedup]
+        head += ["%.2f" % (r["wall"] / points * 1e6), per_point, speedup, splat_speedup]
         if r["eval"] is None:
             lines.append(head + [r["status"], "–", "–"])
         else:
@@ -123,7 +127,8 @@ def scaling(rows):
                  "start-up MB", "grids MB", "points MB", "peak / (grids + points)",
                  "(peak - start-up) / (grids + points)", "read", "outliers",
                  "normals", "splat", "mesh", "wall us/point", "stages us/point",
-                 "speed-up vs 1 thread", "faces", "F@0.5mm", "Chamfer um"], lines))
+                 "speed-up vs 1 thread", "splat speed-up", "faces", "F@0.5mm", "Chamfer um"],
+                lines))
 
 
 if __name__ == "__main__":

@@ -656,7 +656,7 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
         in_slab = std::move(chunk_pairs);
     } else {
         detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
-            std::size_t* count = &in_slab[c * slabs.size()];
+            std::vector<std::size_t> count(slabs.size(), 0);  // stored once (see above)
             std::size_t s = 0;  // the slab of the last column seen (columns come in order)
             for (std::size_t i = begin; i < end; ++i) {
                 for_each_pair(kernels, i, x_lo, x_hi, [&](int bx, int, int) {
@@ -665,6 +665,8 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
                     ++count[s];
                 });
             }
+            std::copy(count.begin(), count.end(),
+                      in_slab.begin() + std::ptrdiff_t(c * slabs.size()));
         });
     }
     detail::release(chunk_pairs);
@@ -776,14 +778,21 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     std::vector<std::size_t> chunk_skipped(chunks, 0);
     std::vector<float> sigmas(n);  // voxels; -1 for a skipped point
     detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        // In locals, stored once: neighbouring chunks' entries share a cache line, and writing
+        // them per point made the two threads take it from each other (bunny: 7 ms -> 2 ms).
+        double index = 0.0;
+        float r = 0.0f;
+        std::size_t skipped = 0;
         for (std::size_t i = begin; i < end; ++i) {
             const Kernel k = kernels(i, false);
-            chunk_index[c] =
-                std::max({chunk_index[c], std::fabs(k.cx), std::fabs(k.cy), std::fabs(k.cz)});
-            chunk_r[c] = std::max(chunk_r[c], k.r);
-            chunk_skipped[c] += k.r == 0.0f;
+            index = std::max({index, std::fabs(k.cx), std::fabs(k.cy), std::fabs(k.cz)});
+            r = std::max(r, k.r);
+            skipped += k.r == 0.0f;
             sigmas[i] = k.r == 0.0f ? -1.0f : k.s;
         }
+        chunk_index[c] = index;
+        chunk_r[c] = r;
+        chunk_skipped[c] = skipped;
     });
 
     // Range check before any big allocation.

@@ -12,10 +12,10 @@
 // (THP mode "madvise", Debian's default: "always" needs no advice, "never" ignores it) and when
 // GLIBC_TUNABLES does not name glibc.malloc.hugetlb already (set it to 0 to turn this off).
 //
-// This used to be vdbrecon itself executing itself once more. That loaded libopenvdb.so twice,
-// and loading it is expensive: it is linked with BIND_NOW, so the dynamic linker resolves its
-// 64k relocations before main (70 ms on the 2-core VM). This program needs only libc and
-// libstdc++ and starts in about a millisecond.
+// Before, the command line executed itself once more with the tunables, which loaded
+// libopenvdb.so twice. Loading it is expensive: it is linked with BIND_NOW, so the dynamic
+// linker resolves its 64k relocations before main (70 ms on the 2-core VM). This program needs
+// only libc and libstdc++ and starts in about a millisecond.
 #include <unistd.h>
 
 #include <cerrno>

@@ -240,7 +240,12 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     // Squared distances to the k-th neighbour, for the density spacing, when searched here.
     std::vector<float> kth_sq(search ? n : 0);
     if (search && needed > 0) {
-        for (std::size_t i = 0; i < n; ++i) kth_sq[i] = knn.sq_dist(cloud.positions, i, k - 1);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                kth_sq[i] = knn.sq_dist(cloud.positions, i, k - 1);
+            }
+        });
     }
 
     // PCA normals where needed.

@@ -240,12 +240,6 @@ double resident_mb() {
     return double(resident) * double(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
 }
 
-/// What a run holds before it reads anything: the executable and the shared libraries the
-/// dynamic linker mapped (libopenvdb.so alone is 28 MB: its symbol tables are read in full,
-/// since it is linked with BIND_NOW). Taken when the run starts, so that the log can say how
-/// much memory the run itself added.
-double g_startup_rss_mb = 0.0;
-
 int run_eval(Args& args) {
     EvalOptions options;
     std::vector<std::string> files;
@@ -289,7 +283,10 @@ int run_eval(Args& args) {
     return kExitOk;
 }
 
-int run_reconstruct(Args& args) {
+/// `startup_rss_mb`: what the process held before it read anything, the executable and the
+/// shared libraries the dynamic linker mapped (libopenvdb.so alone is 28 MB: its symbol tables
+/// are read in full, since it is linked with BIND_NOW); the log says how much the run added.
+int run_reconstruct(Args& args, double startup_rss_mb) {
     const auto start = std::chrono::steady_clock::now();
     PipelineOptions o;
     o.keep_volumes = false;  // written to .vdb files by the time the mesh is cleaned
@@ -451,8 +448,8 @@ int run_reconstruct(Args& args) {
             std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
         const long peak = peak_rss_mb();
         s << " wall " << wall << " s; peak memory " << peak << " MB, "
-          << std::lround(double(peak) - g_startup_rss_mb) << " MB above the "
-          << std::lround(g_startup_rss_mb) << " MB at start-up\n";
+          << std::lround(double(peak) - startup_rss_mb) << " MB above the "
+          << std::lround(startup_rss_mb) << " MB at start-up\n";
         std::string m = mem.str();
         m.back() = '\n';
         s << m;
@@ -499,12 +496,11 @@ int main(int argc, char** argv) {
                 return kExitOk;
             }
         }
-        g_startup_rss_mb = resident_mb();
         if (args.argv[0] == "eval") {
             args.i = 1;
             return run_eval(args);
         }
-        return run_reconstruct(args);
+        return run_reconstruct(args, resident_mb());
     } catch (const UsageError& e) {
         std::cerr << "vdbrecon: error: " << e.what() << "\n";
         return kExitUsage;

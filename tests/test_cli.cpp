@@ -46,13 +46,22 @@ TEST_CASE("cli: reconstructs, writes mesh and volume, says where", "[cli]") {
     REQUIRE_THAT(r.out, Catch::Contains("\"fscore\": 1}"));
 }
 
+namespace {
+
+/// The kernel's transparent huge page modes, the chosen one in brackets ("" where unknown).
+std::string thp_mode() {
+    std::string mode;
+    std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), mode);
+    return mode;
+}
+
+}  // namespace
+
 TEST_CASE("cli: the huge-page tunables change nothing but the speed", "[cli]") {
     // Without GLIBC_TUNABLES the launcher starts vdbrecon-core with glibc.malloc.hugetlb=1 (where
     // the kernel's THP mode is "madvise"); with the tunable named it passes it on as it is. Both
     // runs must see the same arguments (a path with a space and a quote) and write the same bytes.
-    std::string mode;
-    std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), mode);
-    INFO("THP mode: " << mode);
+    INFO("THP mode: " << thp_mode());
     TempDir dir;
     write_points(dir.file("s.ply"), sample_sphere(20000, 1.0));
     const auto args = [&](const std::string& out) {
@@ -70,9 +79,7 @@ TEST_CASE("cli: the huge-page tunables change nothing but the speed", "[cli]") {
 
 TEST_CASE("cli: the launcher passes arguments and tunables on, and says what it cannot run",
           "[cli]") {
-    std::string mode;
-    std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), mode);
-    const bool advised = mode.find("[madvise]") != std::string::npos;
+    const bool advised = thp_mode().find("[madvise]") != std::string::npos;
     TempDir dir;
     const std::string launcher = dir.file("vdbrecon");
     std::filesystem::copy_file(VDBRECON_CLI, launcher);

@@ -121,6 +121,9 @@ void print_help() {
         << "]\n"
         << "  --min-weight W         voxels with less summed weight are empty ["
         << fmt(d.splat.min_weight) << "]\n"
+        << "  --crease-angle A       sample normals this far apart (degrees) meet at a sharp\n"
+        << "                         crease: each face's own field, no blend [" << fmt(d.splat.crease_angle)
+        << "; 0: off]\n"
         << "  --surface-weight W     faces on less summed weight are trimmed ["
         << fmt(d.mesh.min_surface_weight) << "]\n"
         << "  --max-gap G            faces farther than G voxels from every point are trimmed ["
@@ -314,6 +317,8 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
             o.splat.support = parse_number(a, args.value(a));
         } else if (a == "--min-weight") {
             o.splat.min_weight = parse_number(a, args.value(a));
+        } else if (a == "--crease-angle") {
+            o.splat.crease_angle = parse_number(a, args.value(a));
         } else if (a == "--surface-weight") {
             o.mesh.min_surface_weight = parse_number(a, args.value(a));
         } else if (a == "--max-gap") {
@@ -411,6 +416,7 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
           << " valid voxels in " << p.splat.leaves << " leaves, " << p.splat.updates
           << " kernel updates, grids " << fmt_megabytes(p.splat.memory_bytes) << " in memory";
         if (p.splat.skipped_points) s << ", " << p.splat.skipped_points << " points without normal";
+        if (p.splat.crease_voxels) s << ", " << p.splat.crease_voxels << " voxels at creases";
         s << "\n";
         if (o.close.hole_radius > 0) {
             s << "vdbrecon: close: " << p.close.supported_voxels << " supported voxels -> "

@@ -30,6 +30,8 @@
 #include <immintrin.h>
 #endif
 
+#include "detail/creases.h"
+#include "detail/kernels.h"
 #include "detail/radix_sort.h"
 #include "detail/release.h"
 #include "detail/simd.h"
@@ -99,9 +101,16 @@ void SplatOptions::validate() const {
         throw InvalidArgument("splat.min_weight = " + std::to_string(min_weight) +
                               ": must be a non-negative number");
     }
+    if (!(crease_angle >= 0.0 && crease_angle < 90.0)) {
+        throw InvalidArgument("splat.crease_angle = " + std::to_string(crease_angle) +
+                              ": must be in 0..90 degrees (0 = off)");
+    }
 }
 
 namespace {
+
+using detail::Kernel;
+using detail::Kernels;
 
 constexpr int kLeafLog2 = 3;  // 8^3 leaves, OpenVDB's default FloatTree leaf
 constexpr int kLeafDim = 1 << kLeafLog2;
@@ -149,79 +158,6 @@ template <typename Key>
 struct Pair {
     Key key;
     std::uint32_t point;
-};
-
-/// Per-point kernel parameters in index space.
-struct Kernel {
-    double cx, cy, cz;  // centre, index units
-    float nx, ny, nz;   // unit normal
-    float s;            // sigma, voxels
-    float r;            // support radius, voxels (0 = point skipped)
-    float amp;          // (sigma_median / sigma)^2: equal kernel mass per sample
-    double inv_s2;      // 1 / sigma^2
-    double rho;         // exp(-2 / sigma^2), the Gaussian recurrence's ratio step
-};
-
-/// Makes a point's kernel from the cloud each time it is needed (once per piece): the cloud
-/// holds everything a kernel derives from, and an array of kernels added 64 bytes per point to
-/// the splat's peak memory (320 MB for 5 million points). Same arithmetic as that array had, so
-/// the grids are the same bit for bit.
-class Kernels {
-  public:
-    Kernels(const PointCloud& cloud, const SplatOptions& options)
-        : cloud_(cloud), options_(options), use_scale_(cloud.has_scales()) {}
-
-    std::size_t size() const { return cloud_.size(); }
-    /// Point i's kernel centre, index units.
-    openvdb::Vec3d centre(std::size_t i) const {
-        const Vec3f& p = cloud_.positions[i];
-        const double voxel = options_.voxel_size;
-        return {double(p[0]) / voxel, double(p[1]) / voxel, double(p[2]) / voxel};
-    }
-    /// The median sigma, voxels: sets every kernel's amp (called before the summation).
-    void set_median_sigma(double voxels) { median_sigma_ = voxels; }
-
-    /// Point i's kernel. Its shape (centre, sigma, support; r = 0 for a point without a usable
-    /// normal) always; with `full` also the unit normal, inv_s2, rho and amp, which only the
-    /// summation uses.
-    Kernel operator()(std::size_t i, bool full = true) const {
-        Kernel k;
-        const double voxel = options_.voxel_size;
-        const Vec3f& nr = cloud_.normals[i];
-        const double len =
-            std::sqrt(double(nr[0]) * nr[0] + double(nr[1]) * nr[1] + double(nr[2]) * nr[2]);
-        const openvdb::Vec3d c = centre(i);
-        k.cx = c[0];
-        k.cy = c[1];
-        k.cz = c[2];
-        double s = options_.sigma_voxels;
-        if (use_scale_ && cloud_.scales[i] > 0.0f) {
-            s = options_.scale_factor * double(cloud_.scales[i]) / voxel;
-        }
-        s = std::clamp(s, options_.min_sigma_voxels, options_.max_sigma_voxels);
-        k.s = float(s);
-        if (!(std::isfinite(len) && len > 1e-12)) {
-            k.r = 0.0f;  // no usable normal: skipped
-            return k;
-        }
-        k.r = float(options_.support * s);
-        if (full) {
-            k.nx = float(nr[0] / len);
-            k.ny = float(nr[1] / len);
-            k.nz = float(nr[2] / len);
-            k.inv_s2 = 1.0 / (double(k.s) * double(k.s));
-            k.rho = std::exp(-2.0 * k.inv_s2);
-            const double sm = median_sigma_;
-            k.amp = float((sm / double(k.s)) * (sm / double(k.s)));
-        }
-        return k;
-    }
-
-  private:
-    const PointCloud& cloud_;
-    const SplatOptions& options_;
-    bool use_scale_;
-    double median_sigma_ = 0.0;
 };
 
 struct Box {
@@ -904,6 +840,10 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
           << "). Hint: a larger --voxel or a smaller --min-weight";
         throw NumericalError(s.str());
     }
+    // Next to sharp creases, the field of each face on its own, combined as the solid they bound.
+    const detail::CreaseStats creases = detail::sharpen_creases(
+        sdf->tree(), kernels, n, voxel, options.crease_angle * M_PI / 180.0, background);
+    result.crease_voxels = creases.modelled;
     // Inactive values take the sign of their neighbourhood (a proper narrow-band level set).
     openvdb::tools::signedFloodFill(sdf->tree());
 
@@ -939,6 +879,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     vol.metadata["sigma_max"] = std::to_string(result.sigma_max);
     vol.metadata["scale_factor"] = std::to_string(options.scale_factor);
     vol.metadata["min_weight"] = std::to_string(options.min_weight);
+    vol.metadata["crease_angle"] = std::to_string(options.crease_angle);
     vol.metadata["points"] = std::to_string(n);
     result.memory_bytes = vol.memory_bytes();
     return result;

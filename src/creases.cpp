@@ -1,0 +1,539 @@
+// The splat's field next to sharp creases.
+//
+// Near a sharp edge the splat's weighted average of tangent planes blends the planes of the
+// faces that meet there. It rounds the edge over about a kernel width and, worse, where only a
+// few samples reach (the border of the valid band, 2-3 sigma off the surface), the plane of one
+// face extrapolated across the edge can outvote the face a voxel actually faces: the sign is
+// wrong there, the zero level runs into the band's border and the mesh opens (3-24 boundary
+// edges on each of our closed CAD test parts, with every mesher and every trim off).
+//
+// So the voxels next to a crease are evaluated again from the samples that reach them, with the
+// splat's own kernels and weights u_i, face by face:
+//  1. the samples around a leaf are grouped by normal (leader clustering: within half the
+//     crease angle of a group's first sample); groups whose mean normals are closer than the
+//     crease angle are one face (a curved surface is a chain of groups), and a face of one group
+//     is split where the offsets n.p of its samples leave a gap of a voxel (the treads of a
+//     step). Stray normals make no face: a handful of samples, or samples whose positions
+//     span a patch at an angle to their normals (grazing views, misaligned overlaps of a
+//     scan); a voxel where such samples weigh keeps the splat's value;
+//  2. each face f gives its own field F_f(x) = sum_f u_i n_i.(x - p_i) / sum_f u_i: the splat's
+//     field of that face alone, continued across the edge;
+//  3. where two or three faces reach a voxel (two samples each at least), they are combined as
+//     the solid they bound. A pair is convex when each face's samples lie behind the other's
+//     plane, F_a(c_b) + F_b(c_a) < 0 (c: a face's weighted centroid); a convex pair meets as
+//     max(F_a, F_b) (intersection of half-spaces), a concave one as min (union); faces facing
+//     the same way (a step's treads) as a union. With three faces, all pairs alike give max or
+//     min of all, otherwise the odd pair is combined first: max(F_k, min(F_a, F_b)) when (a, b)
+//     is the only concave pair, min(F_k, max(F_a, F_b)) when it is the only convex one.
+// For planar faces with exact normals this is the exact signed distance next to edges and
+// corners and across thin walls (whose two sides are a convex pair): the zero level is sharp
+// and its sign right out to the band's border. Elsewhere -- one face, more than three -- the
+// splat's value stays. It is the piecewise fitting of S. Fleishman, D. Cohen-Or and
+// C. T. Silva, "Robust moving least-squares fitting with sharp features" (SIGGRAPH 2005), on
+// the splat's linear basis, with the pieces combined as in CSG.
+//
+// Cost: the samples are indexed by cells of 4 voxels, each with a summary of its normal groups;
+// a leaf gathers its samples and evaluates its voxels only when the summaries of the cells
+// within reach of most kernels (95 %) show two faces. Each voxel is computed on its own from samples in a fixed order:
+// the result does not depend on the thread count.
+#include "detail/creases.h"
+
+#include "detail/release.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <numeric>
+#include <vector>
+
+namespace vdbrecon::detail {
+namespace {
+
+constexpr double kCell = 4.0;            ///< sample cell edge, voxels
+constexpr int kMaxGroups = 16;           ///< normal groups around one leaf, at most
+constexpr int kMinFaceSamples = 4;       ///< a face has at least this many samples around a leaf
+constexpr int kMinCreaseFace = 12;       ///< ... and a leaf's crease test needs two this large
+constexpr double kMaxStray = 0.1;        ///< stray samples' share of a voxel's weight, at most
+constexpr double kStepGap = 1.0;         ///< offset gap (voxels) that splits parallel faces
+
+/// Leader clustering of unit normals: a normal joins the first group whose first normal is
+/// within the angle (cosine `cos_group`), else starts a new one.
+class NormalGroups {
+  public:
+    explicit NormalGroups(double cos_group) : cos_group_(cos_group) {}
+
+    /// The group of normal n (weighted by `count` samples), or -1 past kMaxGroups groups.
+    int add(const openvdb::Vec3d& n, int count = 1) {
+        int g = 0;
+        while (g < int(leader_.size()) && n.dot(leader_[std::size_t(g)]) < cos_group_) ++g;
+        if (g == int(leader_.size())) {
+            if (g == kMaxGroups) return -1;
+            leader_.push_back(n);
+            sum_.push_back(openvdb::Vec3d(0.0));
+            count_.push_back(0);
+        }
+        sum_[std::size_t(g)] += double(count) * n;
+        count_[std::size_t(g)] += count;
+        return g;
+    }
+    int size() const { return int(leader_.size()); }
+    int count(int g) const { return count_[std::size_t(g)]; }
+
+    /// Faces: groups joined when their mean normals are closer than the crease angle. Returns
+    /// the face of each group, numbered in order of first group.
+    std::vector<int> faces(double cos_crease) const {
+        const int n = size();
+        std::vector<int> parent(static_cast<std::size_t>(n));
+        std::iota(parent.begin(), parent.end(), 0);
+        const auto root = [&](int g) {
+            while (parent[std::size_t(g)] != g) g = parent[std::size_t(g)];
+            return g;
+        };
+        for (int a = 0; a < n; ++a) {
+            for (int b = a + 1; b < n; ++b) {
+                const openvdb::Vec3d ma = sum_[std::size_t(a)].unitSafe(),
+                                     mb = sum_[std::size_t(b)].unitSafe();
+                if (ma.dot(mb) <= cos_crease) continue;
+                const int ra = root(a), rb = root(b);
+                parent[std::size_t(std::max(ra, rb))] = std::min(ra, rb);
+            }
+        }
+        std::vector<int> face(static_cast<std::size_t>(n), -1), number(face.size(), -1);
+        int faces = 0;
+        for (int g = 0; g < n; ++g) {
+            const int r = root(g);
+            if (number[std::size_t(r)] < 0) number[std::size_t(r)] = faces++;
+            face[std::size_t(g)] = number[std::size_t(r)];
+        }
+        return face;
+    }
+    openvdb::Vec3d mean(int g) const { return sum_[std::size_t(g)].unitSafe(); }
+
+  private:
+    double cos_group_;
+    std::vector<openvdb::Vec3d> leader_, sum_;
+    std::vector<int> count_;
+};
+
+/// How many faces hold at least `least` samples.
+int faces_of_size(const std::vector<int>& face_size, int least) {
+    return int(std::count_if(face_size.begin(), face_size.end(),
+                             [&](int s) { return s >= least; }));
+}
+
+/// The samples sorted by cell (cells of kCell voxels), each cell's run of them and a summary of
+/// its normals (the mean normal and size of each group), with an index tree of the cells.
+class SampleCells {
+  public:
+    struct Cell {
+        std::uint32_t begin = 0, end = 0;
+        std::array<openvdb::Vec3f, 4> normal{};  ///< mean normal of each group
+        std::array<int, 4> count{};
+        int groups = 0;  ///< 5: more than four
+    };
+
+    SampleCells(const Kernels& kernels, std::size_t n, double cos_group)
+        : index_(std::make_shared<openvdb::Int32Tree>(-1)) {
+        std::vector<std::pair<openvdb::Coord, std::uint32_t>> keyed;
+        keyed.reserve(n);
+        for (std::size_t i = 0; i < n; ++i) {
+            const Kernel k = kernels(i, false);
+            if (!(k.r > 0.0f)) continue;
+            keyed.push_back({cell({k.cx, k.cy, k.cz}), std::uint32_t(i)});
+        }
+        // (cell, index) pairs are distinct, so the sorted order is unique.
+        tbb::parallel_sort(keyed.begin(), keyed.end(), [](const auto& a, const auto& b) {
+            return a.first < b.first || (a.first == b.first && a.second < b.second);
+        });
+        order_.resize(keyed.size());
+        where_.resize(keyed.size());
+        for (std::size_t j = 0; j < keyed.size(); ++j) {
+            order_[j] = keyed[j].second;
+            const Kernel k = kernels(order_[j], false);
+            where_[j] = {float(k.cx), float(k.cy), float(k.cz), k.r};
+            if (j == 0 || keyed[j].first != keyed[j - 1].first) {
+                index_->setValueOn(keyed[j].first, int(cells_.size()));
+                cells_.push_back({std::uint32_t(j), std::uint32_t(j)});
+            }
+            cells_.back().end = std::uint32_t(j + 1);
+        }
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cells_.size(), 256),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t c = r.begin(); c < r.end(); ++c) summarise(cells_[c], kernels, cos_group);
+        });
+    }
+
+    static openvdb::Coord cell(const openvdb::Vec3d& x) {
+        return openvdb::Coord(int(std::floor(x[0] / kCell)), int(std::floor(x[1] / kCell)),
+                              int(std::floor(x[2] / kCell)));
+    }
+
+    using Accessor = openvdb::tree::ValueAccessor<const openvdb::Int32Tree>;
+    Accessor accessor() const { return Accessor(*index_); }
+
+    /// Calls fn(cell) for every non-empty cell in lo..hi (inclusive), in a fixed order.
+    template <typename Fn>
+    void cells_in(Accessor& acc, const openvdb::Coord& lo, const openvdb::Coord& hi,
+                  Fn&& fn) const {
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+            for (int y = lo[1]; y <= hi[1]; ++y) {
+                for (int z = lo[2]; z <= hi[2]; ++z) {
+                    int c = -1;
+                    if (acc.probeValue(openvdb::Coord(x, y, z), c)) fn(cells_[std::size_t(c)]);
+                }
+            }
+        }
+    }
+    std::size_t sample(std::uint32_t j) const { return order_[j]; }
+    /// Sample j's centre (index units, float) and support radius (voxels), for quick tests.
+    const std::array<float, 4>& where(std::uint32_t j) const { return where_[j]; }
+
+  private:
+    void summarise(Cell& cell, const Kernels& kernels, double cos_group) const {
+        NormalGroups groups(cos_group);
+        for (std::uint32_t j = cell.begin; j < cell.end; ++j) {
+            const Kernel k = kernels(order_[j]);
+            if (groups.add(openvdb::Vec3d(k.nx, k.ny, k.nz)) < 0 || groups.size() > 4) {
+                cell.groups = 5;
+                return;
+            }
+        }
+        cell.groups = groups.size();
+        for (int g = 0; g < cell.groups; ++g) {
+            cell.normal[std::size_t(g)] = openvdb::Vec3f(groups.mean(g));
+            cell.count[std::size_t(g)] = groups.count(g);
+        }
+    }
+
+    openvdb::Int32Tree::Ptr index_;
+    std::vector<Cell> cells_;
+    std::vector<std::uint32_t> order_;
+    std::vector<std::array<float, 4>> where_;
+};
+
+/// The samples whose support reaches one leaf, in a fixed order, and their faces.
+struct LocalSamples {
+    std::vector<Kernel> kernel;
+    std::vector<int> face;  ///< -1: in no face (too few samples like it)
+
+    void clear() {
+        kernel.clear();
+        face.clear();
+    }
+    std::size_t size() const { return kernel.size(); }
+};
+
+/// Whether the samples of face f lie across their normals: where their positions span a patch
+/// (the least of the three principal spreads below a quarter of the middle one), its normal
+/// must be within half the crease angle of the samples' mean normal. Samples of a scanned
+/// surface with wrong normals (grazing views, misaligned overlaps) make a group of their own
+/// whose positions follow the surface, not their normals.
+bool consistent(const LocalSamples& s, int f, double cos_group) {
+    Eigen::Vector3d mean_n = Eigen::Vector3d::Zero(), centre = Eigen::Vector3d::Zero();
+    int n = 0;
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        if (s.face[i] != f) continue;
+        const Kernel& k = s.kernel[i];
+        mean_n += Eigen::Vector3d(k.nx, k.ny, k.nz);
+        centre += Eigen::Vector3d(k.cx, k.cy, k.cz);
+        ++n;
+    }
+    centre /= double(n);
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        if (s.face[i] != f) continue;
+        const Kernel& k = s.kernel[i];
+        const Eigen::Vector3d d = Eigen::Vector3d(k.cx, k.cy, k.cz) - centre;
+        cov += d * d.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+    es.computeDirect(cov);
+    const Eigen::Vector3d lambda = es.eigenvalues();  // ascending
+    if (!(lambda[0] < 0.25 * lambda[1])) return true;  // no patch to tell from
+    return std::fabs(es.eigenvectors().col(0).dot(mean_n.normalized())) >= cos_group;
+}
+
+/// Assigns the local samples to faces (see the file comment, step 1). Returns how many.
+int assign_faces(LocalSamples& s, double cos_group, double cos_crease) {
+    if (s.size() == 0) return 0;
+    NormalGroups groups(cos_group);
+    std::vector<int> group(s.size());
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        const Kernel& k = s.kernel[i];
+        group[i] = groups.add(openvdb::Vec3d(k.nx, k.ny, k.nz));
+        if (group[i] < 0) return 0;
+    }
+    const std::vector<int> face_of_group = groups.faces(cos_crease);
+    int count = 1 + *std::max_element(face_of_group.begin(), face_of_group.end());
+    s.face.resize(s.size());
+    for (std::size_t i = 0; i < s.size(); ++i) s.face[i] = face_of_group[std::size_t(group[i])];
+    // A face of one group split at gaps in the offsets n.p of its samples.
+    std::vector<int> groups_in_face(static_cast<std::size_t>(count), 0);
+    for (int f : face_of_group) ++groups_in_face[std::size_t(f)];
+    for (int g = 0; g < groups.size(); ++g) {
+        if (groups_in_face[std::size_t(face_of_group[std::size_t(g)])] != 1) continue;
+        const openvdb::Vec3d m = groups.mean(g);
+        std::vector<std::pair<double, std::size_t>> offset;
+        for (std::size_t i = 0; i < s.size(); ++i) {
+            const Kernel& k = s.kernel[i];
+            if (group[i] == g) offset.push_back({m.dot(openvdb::Vec3d(k.cx, k.cy, k.cz)), i});
+        }
+        std::sort(offset.begin(), offset.end());
+        for (std::size_t k = 1; k < offset.size(); ++k) {
+            if (offset[k].first - offset[k - 1].first < kStepGap) continue;
+            const int face = count++;  // from here on, a new face
+            for (std::size_t j = k; j < offset.size(); ++j) s.face[offset[j].second] = face;
+        }
+    }
+    // Stray normals are no face (-1): fewer than kMinFaceSamples samples, or samples whose
+    // normals do not fit their positions (see consistent()).
+    std::vector<int> size(static_cast<std::size_t>(count), 0), number(size.size(), -1);
+    for (int f : s.face) ++size[std::size_t(f)];
+    int faces = 0;
+    for (std::size_t f = 0; f < size.size(); ++f) {
+        if (size[f] >= kMinFaceSamples && consistent(s, int(f), cos_group)) number[f] = faces++;
+    }
+    for (int& f : s.face) f = number[std::size_t(f)];
+    return faces;
+}
+
+/// One face's sums at a voxel x: u, u phi (world units), u n and u (p - x) (voxels).
+struct FaceSums {
+    double u = 0.0, uphi = 0.0;
+    openvdb::Vec3d un{0.0}, up{0.0};
+    int count = 0;
+
+    double field() const { return uphi / u; }
+    /// This face's field at another face's weighted centroid.
+    double field_at(const FaceSums& other, double voxel) const {
+        return field() + un.dot(other.up) / (u * other.u) * voxel;
+    }
+};
+
+/// Whether faces a and b meet convexly: each lies behind the other's plane. Faces facing the
+/// same way (the treads of a step) meet as a union, like a concave pair.
+bool convex(const FaceSums& a, const FaceSums& b, double voxel) {
+    if (a.un.dot(b.un) > 0.9 * a.un.length() * b.un.length()) return false;
+    return a.field_at(b, voxel) + b.field_at(a, voxel) < 0.0;
+}
+
+/// The piecewise value at a voxel from 2 or 3 faces (see the file comment, step 3).
+double combine(const FaceSums* g, int n, double voxel) {
+    const double f0 = g[0].field(), f1 = g[1].field();
+    if (n == 2) return convex(g[0], g[1], voxel) ? std::max(f0, f1) : std::min(f0, f1);
+    const double f[3] = {f0, f1, g[2].field()};
+    const bool c01 = convex(g[0], g[1], voxel), c02 = convex(g[0], g[2], voxel),
+               c12 = convex(g[1], g[2], voxel);
+    const int convex_pairs = int(c01) + int(c02) + int(c12);
+    if (convex_pairs == 3) return std::max({f[0], f[1], f[2]});
+    if (convex_pairs == 0) return std::min({f[0], f[1], f[2]});
+    const bool odd_is_convex = convex_pairs == 1;
+    int a = 0, b = 1, k = 2;  // the odd pair (a, b) and the third face k
+    if (c02 == odd_is_convex) {
+        b = 2;
+        k = 1;
+    } else if (c12 == odd_is_convex) {
+        a = 1;
+        b = 2;
+        k = 0;
+    }
+    return odd_is_convex ? std::min(f[k], std::max(f[a], f[b]))
+                         : std::max(f[k], std::min(f[a], f[b]));
+}
+
+/// Whether the summaries of the cells within `margin` cells of a leaf show two faces of at
+/// least kMinCreaseFace samples. Cells of more than four normal groups, and regions of more
+/// than kMaxGroups, are noise to this test (no crease of a few faces looks like that).
+bool leaf_near_crease(const SampleCells& cells, SampleCells::Accessor& acc,
+                      const openvdb::Coord& origin, int margin, double cos_group,
+                      double cos_crease) {
+    NormalGroups groups(cos_group);
+    bool noise = false;
+    cells.cells_in(acc, SampleCells::cell(origin.asVec3d()).offsetBy(-margin),
+                   SampleCells::cell(origin.offsetBy(7).asVec3d()).offsetBy(margin),
+                   [&](const SampleCells::Cell& c) {
+        for (int g = 0; g < c.groups && c.groups <= 4 && !noise; ++g) {
+            noise = groups.add(openvdb::Vec3d(c.normal[std::size_t(g)]),
+                               c.count[std::size_t(g)]) < 0;
+        }
+    });
+    if (noise) return false;
+    const std::vector<int> face_of_group = groups.faces(cos_crease);
+    std::vector<int> size(face_of_group.size(), 0);
+    for (int g = 0; g < groups.size(); ++g) {
+        size[std::size_t(face_of_group[std::size_t(g)])] += groups.count(g);
+    }
+    return faces_of_size(size, kMinCreaseFace) >= 2;
+}
+
+/// Gathers the samples whose support reaches the leaf at `origin`.
+void gather(const SampleCells& cells, SampleCells::Accessor& acc, const Kernels& kernels,
+            const openvdb::Coord& origin, float r_max, LocalSamples& s) {
+    s.clear();
+    const openvdb::Vec3d lo = origin.asVec3d() - openvdb::Vec3d(r_max),
+                         hi = origin.asVec3d() + openvdb::Vec3d(7.0 + r_max);
+    cells.cells_in(acc, SampleCells::cell(lo), SampleCells::cell(hi),
+                   [&](const SampleCells::Cell& c) {
+        for (std::uint32_t j = c.begin; j < c.end; ++j) {
+            // A float test with a margin first, the exact one on the kernel after.
+            const std::array<float, 4>& w = cells.where(j);
+            float e2 = 0.0f;
+            for (int a = 0; a < 3; ++a) {
+                const float e = std::max({float(origin[a]) - w[std::size_t(a)],
+                                          w[std::size_t(a)] - float(origin[a] + 7), 0.0f});
+                e2 += e * e;
+            }
+            if (e2 > (w[3] + 0.01f) * (w[3] + 0.01f)) continue;
+            const Kernel k = kernels(cells.sample(j));
+            const double p[3] = {k.cx, k.cy, k.cz};
+            double d2 = 0.0;  // to the leaf's box
+            for (int a = 0; a < 3; ++a) {
+                const double e =
+                    std::max({double(origin[a]) - p[a], p[a] - double(origin[a] + 7), 0.0});
+                d2 += e * e;
+            }
+            if (d2 <= double(k.r) * double(k.r)) s.kernel.push_back(k);
+        }
+    });
+}
+
+/// Every face's sums at every voxel of a leaf (voxel-major), and per voxel the weight of all
+/// samples and of the stray ones: summed sample by sample over each kernel's support within
+/// the leaf, as the splat sums, in the local samples' order.
+class LeafSums {
+  public:
+    void reset(int faces) {
+        faces_ = faces;
+        face_.assign(512 * std::size_t(faces), FaceSums{});
+        all_.assign(512, 0.0);
+        stray_.assign(512, 0.0);
+    }
+
+    void add(const LocalSamples& s, const openvdb::Coord& origin, double voxel) {
+        double g[3][8], e[3][8], e2[3][8];
+        for (std::size_t i = 0; i < s.size(); ++i) {
+            const Kernel& k = s.kernel[i];
+            const double c[3] = {k.cx, k.cy, k.cz}, r2 = double(k.r) * double(k.r);
+            int lo[3], hi[3];
+            for (int a = 0; a < 3; ++a) {
+                lo[a] = std::max(0, int(std::ceil(c[a] - k.r)) - origin[a]);
+                hi[a] = std::min(7, int(std::floor(c[a] + k.r)) - origin[a]);
+                for (int t = lo[a]; t <= hi[a]; ++t) {
+                    e[a][t] = double(origin[a] + t) - c[a];
+                    e2[a][t] = e[a][t] * e[a][t];
+                    g[a][t] = std::exp(-e2[a][t] * k.inv_s2);
+                }
+            }
+            const int f = s.face[i];
+            const openvdb::Vec3d n(k.nx, k.ny, k.nz);
+            for (int x = lo[0]; x <= hi[0]; ++x) {
+                for (int y = lo[1]; y <= hi[1]; ++y) {
+                    const double dxy2 = e2[0][x] + e2[1][y];
+                    if (dxy2 > r2) continue;
+                    for (int z = lo[2]; z <= hi[2]; ++z) {
+                        if (dxy2 + e2[2][z] > r2) continue;
+                        const int v = (x << 6) | (y << 3) | z;
+                        const double u = double(k.amp) * g[0][x] * g[1][y] * g[2][z];
+                        all_[std::size_t(v)] += u;
+                        if (f < 0) {
+                            stray_[std::size_t(v)] += u;
+                            continue;
+                        }
+                        const openvdb::Vec3d d(e[0][x], e[1][y], e[2][z]);
+                        FaceSums& F = face_[std::size_t(v * faces_ + f)];
+                        F.u += u;
+                        F.uphi += u * n.dot(d) * voxel;
+                        F.un += u * n;
+                        F.up -= u * d;
+                        ++F.count;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The piecewise value of voxel v (leaf offset), or false when fewer than two or more than
+    /// three faces reach it, or stray samples weigh there (the splat's blend is safer then).
+    bool value(int v, double voxel, double& out) const {
+        FaceSums present[3];
+        int count = 0;
+        for (int f = 0; f < faces_; ++f) {
+            const FaceSums& F = face_[std::size_t(v * faces_ + f)];
+            if (F.count < 2) continue;
+            if (count == 3) return false;
+            present[count++] = F;
+        }
+        if (count < 2 || stray_[std::size_t(v)] > kMaxStray * all_[std::size_t(v)]) return false;
+        out = combine(present, count, voxel);
+        return true;
+    }
+
+  private:
+    int faces_ = 0;
+    std::vector<FaceSums> face_;
+    std::vector<double> all_, stray_;
+};
+
+}  // namespace
+
+CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels, std::size_t points,
+                            double voxel, double crease_angle, float background) {
+    CreaseStats stats;
+    if (!(crease_angle > 0.0)) return stats;
+    std::vector<float> radius(points);
+    for (std::size_t i = 0; i < points; ++i) radius[i] = kernels(i, false).r;
+    const float r_max = *std::max_element(radius.begin(), radius.end());
+    // The crease test looks as far as most kernels reach (95 %): a crease only the widest
+    // kernels see from a leaf leaves the splat's value there.
+    auto p95 = radius.begin() + std::ptrdiff_t(0.95 * double(points - 1));
+    std::nth_element(radius.begin(), p95, radius.end());
+    const float r_typical = *p95;
+    detail::release(radius);
+    const double cos_group = std::cos(0.5 * crease_angle), cos_crease = std::cos(crease_angle);
+    const SampleCells cells(kernels, points, cos_group);
+    const int margin = int(std::ceil(double(r_typical) / kCell));  // cells most kernels reach
+
+    std::vector<openvdb::FloatTree::LeafNodeType*> leaves;
+    sdf.getNodes(leaves);
+    std::vector<std::size_t> candidates(leaves.size(), 0), modelled(leaves.size(), 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 4),
+                      [&](const tbb::blocked_range<std::size_t>& range) {
+        SampleCells::Accessor acc = cells.accessor();
+        LocalSamples s;
+        LeafSums sums;
+        for (std::size_t L = range.begin(); L < range.end(); ++L) {
+            auto& leaf = *leaves[L];
+            if (!leaf_near_crease(cells, acc, leaf.origin(), margin, cos_group, cos_crease)) {
+                continue;
+            }
+            // Faces among the samples most kernels reach from the leaf first (cheap), then
+            // among all the samples that reach it.
+            gather(cells, acc, kernels, leaf.origin(), r_typical, s);
+            if (assign_faces(s, cos_group, cos_crease) < 2) continue;
+            gather(cells, acc, kernels, leaf.origin(), r_max, s);
+            const int faces = assign_faces(s, cos_group, cos_crease);
+            if (faces < 2) continue;
+            sums.reset(faces);
+            sums.add(s, leaf.origin(), voxel);
+            for (auto it = leaf.beginValueOn(); it; ++it) {
+                ++candidates[L];
+                double value = 0.0;
+                if (!sums.value(int(it.pos()), voxel, value)) continue;
+                ++modelled[L];
+                it.setValue(float(std::clamp(value, -double(background), double(background))));
+            }
+        }
+    });
+    for (std::size_t L = 0; L < leaves.size(); ++L) {
+        stats.candidates += candidates[L];
+        stats.modelled += modelled[L];
+    }
+    return stats;
+}
+
+}  // namespace vdbrecon::detail

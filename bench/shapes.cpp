@@ -7,7 +7,8 @@
 //
 //   shapes_bench [--shapes a,b,...] [--factors 1,1.5,3] [--meshers vdb,mc,dc] [--points N]
 //                [--holes K,R] [--close R] [--watertight] [--surface-weight W] [--max-gap G]
-//                [--samples S] [--threads T] [--estimate-normals] [--save DIR]
+//                [--samples S] [--threads T] [--estimate-normals] [--seeds SAMPLE,HOLES]
+//                [--save DIR]
 //
 // --factors: voxel = factor x spacing, spacing = sqrt(area / points). --holes K,R: K round holes
 // of R voxels radius punched into each sample. --save DIR writes each mesh and its sample.
@@ -85,6 +86,7 @@ int main(int argc, char** argv) {
     double hole_radius = 0;
     std::string save;
     bool estimate = false;
+    std::uint64_t sample_seed = 1, hole_seed = 5;
     PipelineOptions base;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
@@ -125,6 +127,10 @@ int main(int argc, char** argv) {
             base.mesh.max_gap = std::stod(next());
         } else if (a == "--threads") {
             base.threads = std::stoi(next());
+        } else if (a == "--seeds") {
+            const std::vector<std::string> v = split(next());
+            sample_seed = std::stoull(v.at(0));
+            hole_seed = std::stoull(v.at(1));
         } else if (a == "--estimate-normals") {
             estimate = true;
         } else if (a == "--save") {
@@ -140,12 +146,17 @@ int main(int argc, char** argv) {
     for (const std::string& name : names) {
         const Shape shape = make_shape(name);
         const double h = spacing_of(shape.area, points);
-        PointCloud sample = sample_uniform(shape.mesh, points, 1);
+        PointCloud sample = sample_uniform(shape.mesh, points, sample_seed);
         for (double factor : factors) {
             const double voxel = factor * h;
             PointCloud cloud = sample;
-            if (holes > 0) punch_holes(cloud, holes, hole_radius * voxel, 5);
+            if (holes > 0) punch_holes(cloud, holes, hole_radius * voxel, hole_seed);
             if (estimate) cloud.normals.clear();
+            if (!save.empty() && holes > 0) {
+                char buf[64];
+                std::snprintf(buf, sizeof buf, "%.2f", factor);
+                write_points(save + "/" + name + "_" + buf + ".holed.ply", cloud);
+            }
             for (const std::string& m : meshers) {
                 PipelineOptions o = base;
                 o.splat.voxel_size = voxel;
@@ -153,6 +164,9 @@ int main(int argc, char** argv) {
                 PointCloud c = cloud;
                 const auto start = std::chrono::steady_clock::now();
                 const PipelineResult r = reconstruct(c, o);
+                if (m == meshers.front()) {
+                    std::fprintf(stderr, "%s %.2f: voxel %.6g\n", name.c_str(), factor, voxel);
+                }
                 const double seconds =
                     std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
                 Row row = score(shape, r.mesh, voxel, samples);

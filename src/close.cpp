@@ -9,12 +9,14 @@
 #include <openvdb/tools/SignedFloodFill.h>
 #include <openvdb/tree/LeafManager.h>
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <cmath>
 #include <vector>
 
+#include "detail/support.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
 
@@ -39,27 +41,74 @@ using openvdb::Vec3f;
 using FloatTree = openvdb::FloatTree;
 using Vec3fTree = openvdb::Vec3fTree;
 
-/// The valid voxels the mesher's trims would keep (weight and distance to the samples), plus any
-/// voxels an earlier closing vouched for.
+/// The valid voxels the mesher's trims would keep (detail::SupportTest: relative weight and
+/// distance to the samples), plus any voxels an earlier closing vouched for.
 MaskTree::Ptr supported_voxels(const Volume& v, const MeshOptions& m) {
     auto mask = std::make_shared<MaskTree>(v.sdf->tree(), false, openvdb::TopologyCopy());
-    const double voxel = v.sdf->voxelSize()[0];
-    const bool trim_weight = v.weight && m.min_surface_weight > 0.0;
-    const bool trim_gap = v.nearest && std::isfinite(m.max_gap);
-    const double max_gap = m.max_gap * voxel;
-    openvdb::tree::LeafManager<MaskTree> leaves(*mask);
-    leaves.foreach ([&](MaskTree::LeafNodeType& leaf, std::size_t) {
-        const auto* w = trim_weight ? v.weight->tree().probeConstLeaf(leaf.origin()) : nullptr;
-        const auto* n = trim_gap ? v.nearest->tree().probeConstLeaf(leaf.origin()) : nullptr;
-        for (auto it = leaf.beginValueOn(); it; ++it) {
-            const openvdb::Index i = it.pos();
-            const bool ok = (!trim_weight || (w && w->getValue(i) >= m.min_surface_weight)) &&
-                            (!trim_gap || (n && n->getValue(i).length() <= max_gap));
-            if (!ok) leaf.setValueOff(i);
-        }
-    });
+    const detail::SupportTest support(v, m);
+    if (support.enabled()) {
+        openvdb::tree::LeafManager<MaskTree> leaves(*mask);
+        leaves.foreach ([&](MaskTree::LeafNodeType& leaf, std::size_t) {
+            detail::SupportTest::Accessors acc = support.accessors();
+            for (auto it = leaf.beginValueOn(); it; ++it) {
+                if (support.at_voxel(acc, it.getCoord()) != detail::Support::ok) {
+                    leaf.setValueOff(it.pos());
+                }
+            }
+        });
+    }
     if (v.fill) mask->topologyUnion(v.fill->tree());
     return mask;
+}
+
+/// Closes the mask's active set with a (2R+1)^3 cube (dilation, then erosion).
+void morphological_close(MaskTree& mask, int radius) {
+    openvdb::tools::dilateActiveValues(mask, radius, openvdb::tools::NN_FACE_EDGE_VERTEX,
+                                       openvdb::tools::IGNORE_TILES);
+    openvdb::tools::erodeActiveValues(mask, radius, openvdb::tools::NN_FACE_EDGE_VERTEX,
+                                      openvdb::tools::IGNORE_TILES);
+    mask.prune();
+}
+
+/// The voxels of `mask` next to the zero level of `sdf` (within 0.9 voxel) extruded along the
+/// surface normal (the SDF gradient) `radius` voxels to each side. The closing of a thin shell
+/// leaves a hole of 2R voxels open on a tilted surface: the corner of the (2R+1)^3 cube pokes
+/// about R / sqrt(2) voxels into the hole from each side. Closing this slab (2R + 1 voxels
+/// thick) bridges the hole at the surface, and the extrusion adds nothing across a border.
+MaskTree::Ptr extruded(const MaskTree& mask, const openvdb::FloatGrid& sdf, int radius) {
+    using Leaf = MaskTree::LeafNodeType;
+    std::vector<const Leaf*> leaves;
+    leaves.reserve(mask.leafCount());
+    for (auto it = mask.cbeginLeaf(); it; ++it) leaves.push_back(it.getLeaf());
+    tbb::enumerable_thread_specific<MaskTree> parts;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 16),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+        openvdb::tree::ValueAccessor<MaskTree> out(parts.local());
+        openvdb::tree::ValueAccessor<const FloatTree> acc(sdf.tree());
+        for (std::size_t l = r.begin(); l < r.end(); ++l) {
+            for (auto it = leaves[l]->cbeginValueOn(); it; ++it) {
+                const Coord c = it.getCoord();
+                openvdb::Vec3d g;
+                for (int a = 0; a < 3; ++a) {
+                    Coord lo = c, hi = c;
+                    --lo[a];
+                    ++hi[a];
+                    g[a] = 0.5 * (double(acc.getValue(hi)) - double(acc.getValue(lo)));
+                }
+                const double len = g.length();
+                if (!(len > 1e-12) || std::fabs(double(acc.getValue(c))) > 0.9 * len) continue;
+                const openvdb::Vec3d n = g / len;
+                for (int k = -2 * radius; k <= 2 * radius; ++k) {  // half-voxel steps
+                    const openvdb::Vec3d q = c.asVec3d() + n * (0.5 * k);
+                    out.setValueOn(Coord(int(std::lround(q[0])), int(std::lround(q[1])),
+                                         int(std::lround(q[2]))));
+                }
+            }
+        }
+    });
+    auto result = std::make_shared<MaskTree>();
+    for (MaskTree& part : parts) result->topologyUnion(part);
+    return result;
 }
 
 /// All active voxels of a mask, in the tree's (deterministic) leaf order.
@@ -188,17 +237,37 @@ openvdb::FloatGrid::Ptr make_fill_grid(const MaskTree& mask, const openvdb::Floa
 Volume close_holes(const Volume& in, int radius, const MeshOptions& mesh, CloseResult& stats) {
     MaskTree::Ptr closed = supported_voxels(in, mesh);
     stats.supported_voxels = std::size_t(closed->activeVoxelCount());
-    openvdb::tools::dilateActiveValues(*closed, radius, openvdb::tools::NN_FACE_EDGE_VERTEX,
-                                       openvdb::tools::IGNORE_TILES);
-    openvdb::tools::erodeActiveValues(*closed, radius, openvdb::tools::NN_FACE_EDGE_VERTEX,
-                                      openvdb::tools::IGNORE_TILES);
-    closed->prune();
+    closed->topologyUnion(*extruded(*closed, *in.sdf, radius));
+    const MaskTree slab = *closed;
+    morphological_close(*closed, radius);
 
     Volume out = in;
     auto sdf = openvdb::gridPtrCast<openvdb::FloatGrid>(in.sdf->deepCopyGrid());
     const MaskTree original(in.sdf->tree(), false, openvdb::TopologyCopy());
     MaskTree known = original;
-    MaskTree target = *closed;
+    // The values go into the holes of the band and the slab together: a hole in the samples
+    // leaves a hole in the band too, and where the closing bridged the slab but the band's own
+    // holes stayed open on either side, a cell at the surface would stay invalid.
+    // The holes of band and slab together get values; so do the closed voxels up to two
+    // voxels past the band around the bridged holes (dents of the band's faces there, where the
+    // cube of the closing fits in, would leave invalid cells at the surface); not the rest of
+    // the slab.
+    MaskTree band = original;
+    if (in.fill) band.topologyUnion(in.fill->tree());
+    band.topologyUnion(slab);
+    MaskTree target = band;
+    morphological_close(target, radius);
+    target.topologyDifference(band);
+    MaskTree near = *closed;
+    near.topologyDifference(slab);
+    MaskTree past_band = original;
+    for (MaskTree* m : {&near, &past_band}) {
+        openvdb::tools::dilateActiveValues(*m, 2, openvdb::tools::NN_FACE_EDGE_VERTEX,
+                                           openvdb::tools::IGNORE_TILES);
+    }
+    near.topologyIntersection(past_band);
+    near.topologyIntersection(*closed);
+    target.topologyUnion(near);
     target.topologyDifference(original);
     openvdb::Vec3fGrid::Ptr color;
     if (in.color) color = openvdb::gridPtrCast<openvdb::Vec3fGrid>(in.color->deepCopyGrid());

@@ -12,6 +12,7 @@
 #include "detail/mesh_common.h"
 #include "detail/mesh_graph.h"
 #include "detail/release.h"
+#include "detail/support.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -29,6 +30,14 @@ void MeshOptions::validate() const {
     if (!(max_gap > 0.0)) {
         throw InvalidArgument("mesh.max_gap = " + std::to_string(max_gap) +
                               ": must be positive (infinity disables the test)");
+    }
+    if (!(max_gap_spacings >= 0.0)) {
+        throw InvalidArgument("mesh.max_gap_spacings = " + std::to_string(max_gap_spacings) +
+                              ": must be a non-negative number");
+    }
+    if (!(std::isfinite(sample_spacing) && sample_spacing >= 0.0)) {
+        throw InvalidArgument("mesh.sample_spacing = " + std::to_string(sample_spacing) +
+                              ": must be a non-negative number (0 = unknown)");
     }
     if (!(dc_truncation > 0.0 && dc_truncation < 1.0)) {
         throw InvalidArgument("mesh.dc_truncation = " + std::to_string(dc_truncation) +
@@ -144,62 +153,29 @@ bool in_one_cell(const openvdb::Vec3d& p) {
     return lo[0] == hi[0] && lo[1] == hi[1] && lo[2] == hi[2];
 }
 
-/// Distance (world units) from the index-space point p to the nearest of the samples recorded at
-/// the eight corners of its cell: an upper bound of the distance to the data that is exact
-/// whenever p's nearest sample is some corner's nearest sample (the usual case).
-double nearest_sample_distance(Vec3Accessor& acc, const openvdb::Vec3d& p, double voxel) {
-    const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
-    // Squared distances, one square root at the end: the same value (sqrt is monotonic and
-    // correctly rounded), without eight square roots in a dependent chain of minima.
-    double best = std::numeric_limits<double>::infinity();
-    for (int dx = 0; dx <= 1; ++dx) {
-        for (int dy = 0; dy <= 1; ++dy) {
-            for (int dz = 0; dz <= 1; ++dz) {
-                const openvdb::Coord q = c.offsetBy(dx, dy, dz);
-                openvdb::Vec3f e;
-                if (!acc.probeValue(q, e)) continue;
-                // sample = corner + e (world); point = p * voxel
-                const openvdb::Vec3d d = (q.asVec3d() - p) * voxel + openvdb::Vec3d(e);
-                best = std::min(best, d.lengthSqr());
-            }
-        }
-    }
-    return std::sqrt(best);
-}
+/// What finish_mesh makes of a point a triangle uses.
+enum PointStatus : char { kInvalid = 0, kSupported = 1, kWeak = 2, kFar = 3 };
 
-}  // namespace
-
-MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurface&& raw) {
+/// Classifies the points the triangles use (invalid cell, supported, weak, far; see
+/// detail/support.h) and, when the mesher gave none, takes their normals from the SDF gradient
+/// into `grad`.
+std::vector<char> classify_points(const Volume& volume, const MeshOptions& options,
+                                  const RawSurface& raw, bool own_normals,
+                                  std::vector<openvdb::Vec3f>& grad) {
     const openvdb::FloatGrid& sdf = *volume.sdf;
-    const double voxel = sdf.voxelSize()[0];
     const std::size_t npoints = raw.points.size();
-    MeshResult result;
-
-    // Classify the points: 0 = in an invalid cell, 1 = keep, 2 = trimmed (too little weight, or
-    // farther than max_gap voxels from every sample).
-    const bool trim_weight = volume.weight && options.min_surface_weight > 0.0;
-    const bool trim_gap = volume.nearest && std::isfinite(options.max_gap);
-    const double max_gap = options.max_gap * voxel;
     // Only points some triangle uses are looked at (marching cubes hands over every crossing).
     std::vector<char> used(npoints, 0);
     for (const Triangle& t : raw.triangles) {
         for (std::int32_t v : t) used[std::size_t(v)] = 1;
     }
-    std::vector<char> point_ok(npoints, 0);
-    // The vertex normals before the face-normal fallback: the mesher's own, or the SDF gradient
-    // (trilinear blend of central differences), which needs a stencil around each point.
-    const bool own_normals = raw.normals.size() == npoints && npoints > 0;
-    std::vector<openvdb::Vec3f> grad =
-        own_normals ? std::move(raw.normals)
-                    : std::vector<openvdb::Vec3f>(npoints, openvdb::Vec3f(0.0f));
+    std::vector<char> status(npoints, kInvalid);
+    const SupportTest support(volume, options);
     const bool need_stencil = raw.check_cells || !own_normals;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 4096),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         FloatAccessor acc(sdf.tree());
-        std::unique_ptr<FloatAccessor> wacc;
-        std::unique_ptr<Vec3Accessor> nacc;
-        if (trim_weight) wacc = std::make_unique<FloatAccessor>(volume.weight->tree());
-        if (trim_gap) nacc = std::make_unique<Vec3Accessor>(volume.nearest->tree());
+        SupportTest::Accessors sacc = support.accessors();
         std::unique_ptr<FloatAccessor> facc;
         if (volume.fill) facc = std::make_unique<FloatAccessor>(volume.fill->tree());
         CellStencil stencil;
@@ -216,31 +192,89 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
                 }
                 if (!own_normals) grad[i] = openvdb::Vec3f(stencil.gradient(p - c.asVec3d()));
             }
-            point_ok[i] = 1;
-            if (facc && point_in_valid_cells(*facc, p)) continue;  // a closing vouches for it
-            if (trim_weight &&
-                openvdb::tools::BoxSampler::sample(*wacc, p) < options.min_surface_weight) {
-                point_ok[i] = 2;
+            status[i] = kSupported;
+            // A closing vouches for the points whose nearest voxel it closed (it judged that
+            // voxel's support where the surface is, see SupportTest::at_voxel).
+            if (facc && facc->isValueOn(openvdb::Coord(int(std::lround(p[0])), int(std::lround(p[1])),
+                                                       int(std::lround(p[2]))))) {
+                continue;
             }
-            if (trim_gap && nearest_sample_distance(*nacc, p, voxel) > max_gap) point_ok[i] = 2;
+            const Support s = support.at(sacc, p);
+            if (s != Support::ok) status[i] = s == Support::far ? kFar : kWeak;
         }
     });
+    return status;
+}
 
-    // Faces: dropped in invalid cells, trimmed for weight or distance.
+/// Which unsupported faces to trim: the edge-connected regions of unsupported faces (a vertex
+/// weak or far) that hold a far vertex or an edge of the open border (an edge no other face
+/// shares). Faces in invalid cells must be gone already.
+std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::vector<char>& status,
+                                std::size_t npoints) {
+    const std::size_t nf = tris.size();
+    std::vector<char> unsupported(nf, 0), trim(nf, 0);
+    bool any = false;
+    for (std::size_t f = 0; f < nf; ++f) {
+        for (std::int32_t v : tris[f]) unsupported[f] |= status[std::size_t(v)] != kSupported;
+        any |= unsupported[f] != 0;
+    }
+    if (!any) return trim;
+    // The open border's edges, as sorted (a << 32 | b) keys with a < b.
+    std::vector<std::uint64_t> border;
+    for (const EdgeUse& e : undirected_edges(tris)) {
+        if (e.faces == 1) border.push_back((std::uint64_t(e.a) << 32) | std::uint32_t(e.b));
+    }
+    const std::vector<std::int32_t> label = face_components(tris, npoints, &unsupported);
+    std::vector<char> seeded(nf, 0);
+    for (std::size_t f = 0; f < nf; ++f) {
+        if (!unsupported[f]) continue;
+        bool seed = false;
+        for (int k = 0; k < 3; ++k) {
+            std::uint32_t a = std::uint32_t(tris[f][k]), b = std::uint32_t(tris[f][(k + 1) % 3]);
+            seed |= status[a] == kFar;
+            if (a > b) std::swap(a, b);
+            seed |= std::binary_search(border.begin(), border.end(),
+                                       (std::uint64_t(a) << 32) | b);
+        }
+        if (seed) seeded[std::size_t(label[f])] = 1;
+    }
+    for (std::size_t f = 0; f < nf; ++f) trim[f] = unsupported[f] && seeded[std::size_t(label[f])];
+    return trim;
+}
+
+}  // namespace
+
+MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurface&& raw) {
+    const double voxel = volume.sdf->voxelSize()[0];
+    const std::size_t npoints = raw.points.size();
+    MeshResult result;
+    // The vertex normals before the face-normal fallback: the mesher's own, or the SDF gradient
+    // (trilinear blend of central differences), which needs a stencil around each point.
+    const bool own_normals = raw.normals.size() == npoints && npoints > 0;
+    std::vector<openvdb::Vec3f> grad =
+        own_normals ? std::move(raw.normals)
+                    : std::vector<openvdb::Vec3f>(npoints, openvdb::Vec3f(0.0f));
+    const std::vector<char> status = classify_points(volume, options, raw, own_normals, grad);
+
+    // Faces: dropped in invalid cells, then trimmed where unsupported (see trimmed_faces).
     // Compacted in place (a filtered copy would add the mesh's faces to the peak).
     std::vector<Triangle> tris = std::move(raw.triangles);
     std::size_t kept = 0;
     for (const Triangle& t : tris) {
-        int worst = 1;
-        for (std::int32_t v : t) {
-            const int ok = point_ok[std::size_t(v)];
-            if (ok == 0) worst = 0;
-            if (ok == 2 && worst == 1) worst = 2;
-        }
-        if (worst == 1) {
+        if (status[std::size_t(t[0])] && status[std::size_t(t[1])] && status[std::size_t(t[2])]) {
             tris[kept++] = t;
         } else {
-            ++(worst == 0 ? result.dropped_faces : result.trimmed_faces);
+            ++result.dropped_faces;
+        }
+    }
+    tris.resize(kept);
+    const std::vector<char> trim = trimmed_faces(tris, status, npoints);
+    kept = 0;
+    for (std::size_t f = 0; f < tris.size(); ++f) {
+        if (trim[f]) {
+            ++result.trimmed_faces;
+        } else {
+            tris[kept++] = tris[f];
         }
     }
     tris.resize(kept);

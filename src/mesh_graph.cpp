@@ -31,8 +31,8 @@ std::vector<EdgeUse> undirected_edges(Span<Triangle> faces) {
     return edges;
 }
 
-std::vector<std::int32_t> face_components(Span<Triangle> faces,
-                                          std::size_t vertex_count) {
+std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count,
+                                          const std::vector<char>* only) {
     const std::size_t nf = faces.size();
     // Union-find whose roots are the smallest index, so labels do not depend on union order.
     std::vector<std::int32_t> parent(nf);
@@ -57,6 +57,7 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces,
         for (std::int32_t i : faces[f]) around[fill[std::size_t(i)]++] = std::int32_t(f);
     }
     for (std::size_t f = 0; f < nf; ++f) {
+        if (only && !(*only)[f]) continue;
         const Triangle& t = faces[f];
         for (int k = 0; k < 3; ++k) {
             const std::size_t a = std::size_t(t[k]);
@@ -65,6 +66,7 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces,
             for (std::size_t j = first[a]; j < first[a + 1]; ++j) {
                 const std::int32_t g = around[j];
                 if (std::size_t(g) <= f) continue;  // each pair once
+                if (only && !(*only)[std::size_t(g)]) continue;
                 const Triangle& u = faces[std::size_t(g)];
                 if (u[0] != b && u[1] != b && u[2] != b) continue;
                 const std::int32_t ra = find(std::int32_t(f)), rb = find(g);

@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <iomanip>
 #include <mutex>
 #include <sstream>
 
@@ -213,6 +214,13 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
             } catch (...) {
             }
         };
+        // The trims' gap test allows the random gaps of the sample: it needs its spacing, which
+        // the volume carries (also in its file) for the closing and the mesher.
+        if (const double h = sample_spacing(r); h > 0.0) {
+            std::ostringstream text;
+            text << std::setprecision(17) << h;
+            r.volume.metadata["sample_spacing"] = text.str();
+        }
         hand_over("splat", r.volume);
         try {
             const Volume* meshed = &r.volume;

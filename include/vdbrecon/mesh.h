@@ -12,10 +12,16 @@
 // and their SDF-gradient normals; one quad per crossed edge. Keeps sharp edges and corners.
 //
 // Every mesher keeps faces only in valid cells (all eight corners active), so an open scan stays
-// open and nothing appears where the data is silent; faces whose vertices carry little summed
-// weight (min_surface_weight) or lie far from every sample (max_gap) are trimmed. Triangles are
-// counter-clockwise seen from outside; vertex normals are the normalised SDF gradient; vertex
-// colours are sampled from the "color" grid when the volume has one.
+// open and nothing appears where the data is silent. Faces the data does not support are then
+// trimmed from the open border inwards: a face is unsupported where a vertex's summed weight is
+// below min_surface_weight times the weight at its nearest sample (the flange past a scan's
+// border, whose weight falls off with the distance to the last samples), or where it lies
+// farther than max_gap from every sample. Only unsupported faces connected, through other
+// unsupported faces, to the open border of the valid mesh or to a face farther than max_gap are
+// trimmed: a closed surface stays closed where the weight of a random sample dips, and a scan's
+// ghost flanges still go. Triangles are counter-clockwise seen from outside; vertex normals are
+// the normalised SDF gradient; vertex colours are sampled from the "color" grid when the volume
+// has one.
 #pragma once
 
 #include <cstddef>
@@ -38,15 +44,21 @@ struct MeshOptions {
     double isovalue = 0.0;
     /// volumeToMesh adaptivity, 0 (uniform) .. 1 (coarsest); keep 0 for open scans.
     double adaptivity = 0.0;
-    /// Faces with a vertex whose interpolated summed weight (the "weight" grid) is below this
-    /// are dropped: the surface ends where the data ends instead of extrapolating tangent
-    /// planes past hole and scan borders. 0 keeps everything; dimensionless, like
-    /// SplatOptions::min_weight.
-    double min_surface_weight = 2.0;
-    /// Faces with a vertex farther than this from every sample (the "distance" grid) are
-    /// dropped: no surface is invented across gaps or past borders wider than this. In voxels;
-    /// infinity disables the test.
+    /// Relative support: a vertex is unsupported where its summed weight (the "weight" grid) is
+    /// below this times the weight at its nearest sample (dimensionless; 0 disables the test).
+    /// About 1 on a sampled patch, 1/2 about 0.8 sigma past a scan's border. Unsupported faces
+    /// are trimmed from the open border inwards only (see above).
+    double min_surface_weight = 0.5;
+    /// Faces with a vertex farther than this from every sample (the "nearest" grid) are
+    /// trimmed, and so are the unsupported faces connected to them: no surface is invented
+    /// across gaps. In voxels; infinity disables the test.
     double max_gap = 2.0;
+    /// ... and never less than this many sample spacings (sample_spacing), so that the random
+    /// gaps of a sample a voxel apart (up to ~2 spacings) are no gap.
+    double max_gap_spacings = 2.5;
+    /// The median sample spacing, world units; 0 = the volume's "sample_spacing" metadata,
+    /// which the pipeline records (none: the test uses max_gap alone).
+    double sample_spacing = 0.0;
     /// Dual contouring: singular values of the quadric below this fraction of the largest are
     /// dropped (a flat or edge-like patch gets a vertex near the mass point, not a spike).
     double dc_truncation = 0.1;
@@ -63,7 +75,7 @@ struct MeshOptions {
 struct MeshResult {
     Mesh mesh;
     std::size_t dropped_faces = 0;  ///< faces removed because they touched an invalid cell
-    std::size_t trimmed_faces = 0;  ///< faces removed for low surface weight
+    std::size_t trimmed_faces = 0;  ///< faces trimmed as unsupported (weight or gap)
 };
 
 /// Extracts the iso-surface of volume.sdf. Throws InvalidArgument when the volume has no sdf.

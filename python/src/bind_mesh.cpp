@@ -18,11 +18,18 @@ void bind_mesh(py::module_& m) {
                "volumeToMesh adaptivity, 0 (uniform) .. 1 (coarsest); keep 0 for open scans "
                "(CLI --adaptivity).")
         .field("min_surface_weight", &MeshOptions::min_surface_weight,
-               "Faces with a vertex whose interpolated summed weight is below this are dropped, "
-               "dimensionless; 0 keeps everything (CLI --surface-weight).")
+               "Relative support: a vertex whose summed weight is below this times the weight "
+               "at its nearest sample is unsupported; unsupported faces reached from an open "
+               "border or a gap are trimmed. Dimensionless; 0 disables (CLI --surface-weight).")
         .field("max_gap", &MeshOptions::max_gap,
-               "Faces with a vertex farther than this from every sample are dropped, voxels; "
-               "inf disables the test (CLI --max-gap).")
+               "Faces with a vertex farther than this (and max_gap_spacings sample spacings) "
+               "from every sample are trimmed, voxels; inf disables the test (CLI --max-gap).")
+        .field("max_gap_spacings", &MeshOptions::max_gap_spacings,
+               "The gap test never trims closer than this many sample spacings, so that the "
+               "random gaps of a sample are no gap (dimensionless).")
+        .field("sample_spacing", &MeshOptions::sample_spacing,
+               "Median sample spacing, world units; 0 = the volume's 'sample_spacing' metadata "
+               "(reconstruct records it).")
         .field("dc_truncation", &MeshOptions::dc_truncation,
                "Dual contouring: singular values of the quadric below this fraction of the "
                "largest are dropped.")
@@ -38,7 +45,7 @@ void bind_mesh(py::module_& m) {
         .def_readonly("dropped_faces", &MeshResult::dropped_faces,
                       "Faces removed because they touched an invalid cell.")
         .def_readonly("trimmed_faces", &MeshResult::trimmed_faces,
-                      "Faces removed for low surface weight or a gap.")
+                      "Faces trimmed as unsupported (relative weight or gap).")
         .def("__repr__", [](const MeshResult& r) {
             return "MeshResult(" + std::to_string(r.mesh.faces.size()) +
                    " faces, dropped_faces=" + std::to_string(r.dropped_faces) +

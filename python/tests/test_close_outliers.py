@@ -42,7 +42,7 @@ def test_hole_closing_makes_the_capped_sphere_watertight(capped_sphere):
     points, normals = capped_sphere
     open_mesh = vdbrecon.reconstruct(points, normals, voxel=VOXEL)
     assert vdbrecon.mesh_topology(open_mesh).boundary_edges > 0
-    too_small = vdbrecon.reconstruct(points, normals, voxel=VOXEL, hole_radius=2)
+    too_small = vdbrecon.reconstruct(points, normals, voxel=VOXEL, hole_radius=1)
     assert vdbrecon.mesh_topology(too_small).boundary_edges > 0  # 2R < 6.9 voxels
     r = vdbrecon.reconstruct(points, normals, voxel=VOXEL, hole_radius=4, return_result=True)
     t = vdbrecon.mesh_topology(r.mesh)

@@ -73,14 +73,17 @@ def test_options_reach_their_stage():
     assert len(fine.faces) > 3 * len(coarse.faces)
     no_normals = vdbrecon.reconstruct(points, normals, voxel=0.1, mesh_normals=False)
     assert no_normals.normals is None and len(no_normals.faces) == len(coarse.faces)
-    heavy = vdbrecon.reconstruct(points, normals, voxel=0.1, min_surface_weight=1e9)
-    assert len(heavy.faces) == 0  # every face trimmed: the option reached MeshOptions
+    # Every vertex farther from the data than allowed: every face trimmed, the options reached
+    # MeshOptions.
+    heavy = vdbrecon.reconstruct(points, normals, voxel=0.1, max_gap=1e-6, max_gap_spacings=0)
+    assert len(heavy.faces) == 0
 
 
 def test_library_warnings_reach_python_logging(caplog):
     points, normals = sphere(5000)
     with caplog.at_level("INFO", logger="vdbrecon"):
-        mesh = vdbrecon.reconstruct(points, normals, voxel=0.1, min_surface_weight=1e9)
+        mesh = vdbrecon.reconstruct(points, normals, voxel=0.1, max_gap=1e-6,
+                                    max_gap_spacings=0)
     assert len(mesh.faces) == 0
     warnings = [r for r in caplog.records if r.name == "vdbrecon" and r.levelname == "WARNING"]
     assert any("surface is empty" in r.getMessage() for r in warnings)

@@ -529,9 +529,9 @@ _document(close, """Closes the volume before meshing (dilate > fill > erode), as
 reconstruct(hole_radius=..., solid_radius=...) does between splat and mesh.
 
 Hole closing (hole_radius R) closes the supported voxels -- the valid voxels that the mesher's
-trims keep (min_surface_weight, max_gap) -- with a (2R+1)^3 cube: holes up to about 2R voxels
-across are covered, open borders stay; new voxels get the field extended from their
-neighbours. Solid closing (solid_radius R) offsets a watertight surface out by R voxels and
+trims support (min_surface_weight, max_gap), extruded R voxels along the surface normal -- with
+a (2R+1)^3 cube: holes at least 2R voxels across are covered, open borders stay; new voxels get
+the field extended from their neighbours, and the mesher never trims what the closing covered. Solid closing (solid_radius R) offsets a watertight surface out by R voxels and
 back: concavities narrower than about 2R disappear. With both, holes are closed first.
 At least one radius must be given (TypeError otherwise; explicit zeros return the input).
 

@@ -23,9 +23,10 @@ struct EdgeUse {
 std::vector<EdgeUse> undirected_edges(Span<Triangle> faces);
 
 /// Edge-connected components of the faces (two faces that share an edge belong together): per
-/// face, its component's label, the smallest face index in it. Linear time.
-std::vector<std::int32_t> face_components(Span<Triangle> faces,
-                                          std::size_t vertex_count);
+/// face, its component's label, the smallest face index in it. Linear time. With `only`, just
+/// the faces it marks are joined (every other face is a component of its own).
+std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count,
+                                          const std::vector<char>* only = nullptr);
 
 /// The vertices the faces use, renumbered in their original order: rewrites the faces to the new
 /// numbers and returns, per old vertex, its new index (-1 where no face uses it); *used gets

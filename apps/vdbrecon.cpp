@@ -144,6 +144,10 @@ void print_help() {
         << "                         open borders stay [" << d.close.hole_radius << ": off]\n"
         << "  --close-solid R        close concavities narrower than ~2R voxels of a\n"
         << "                         watertight surface [" << d.close.solid_radius << ": off]\n"
+        << "  --fill-holes N         fill the mesh's boundary loops of at most N edges with a\n"
+        << "                         fair patch (Liepa 2003) [" << d.fill_holes << ": off]\n"
+        << "  --watertight           a closed, manifold, one-piece mesh: keep the largest piece,\n"
+        << "                         fill every hole; its volume goes to <out>.closed.vdb [off]\n"
         << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
         << choice_name(mesher_choices(), d.mesh.method) << "]\n"
         << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
@@ -343,6 +347,12 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
             o.close.hole_radius = parse_int(a, args.value(a));
         } else if (a == "--close-solid") {
             o.close.solid_radius = parse_int(a, args.value(a));
+        } else if (a == "--fill-holes") {
+            const int n = parse_int(a, args.value(a));
+            if (n < 0) throw UsageError(a + ": " + std::to_string(n) + " must be >= 0");
+            o.fill_holes = std::size_t(n);
+        } else if (a == "--watertight") {
+            o.watertight = true;
         } else if (a == "--mesher") {
             o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
         } else if (a == "--adaptivity") {
@@ -435,7 +445,7 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
         }
         s << "vdbrecon: mesh: " << p.mesh.vertices.size() << " vertices, " << p.mesh.faces.size()
           << " triangles (" << p.mesh_stats.dropped_faces << " dropped outside valid cells, "
-          << p.mesh_stats.trimmed_faces << " trimmed for low weight)\n";
+          << p.mesh_stats.trimmed_faces << " trimmed as unsupported)\n";
         s << "vdbrecon: clean: removed " << p.clean_stats.removed_components << " of "
           << p.clean_stats.components_before << " components (" << p.clean_stats.removed_faces
           << " faces)";
@@ -443,6 +453,13 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
             s << ", " << p.clean_stats.smoothed_iterations << " Taubin iterations";
         }
         s << "\n";
+        if (p.holes.loops > 0) {
+            s << "vdbrecon: fill: " << p.holes.filled << " of " << p.holes.loops
+              << " holes filled (" << p.holes.added_faces << " faces; largest " << p.holes.largest_filled
+              << " edges";
+            if (p.holes.largest_open) s << ", largest left open " << p.holes.largest_open;
+            s << ")\n";
+        }
         s << "vdbrecon: time:";
         std::ostringstream mem;
         mem << "vdbrecon: peak memory after:";

@@ -283,6 +283,37 @@ Volume close_holes(const Volume& in, int radius, const MeshOptions& mesh, CloseR
     return out;
 }
 
+/// The signed distance field of a closed mesh (local frame, world units) in index space (unit
+/// voxels, origin at index 0: far-away origins keep their precision), `out` / `in` voxels
+/// outside / inside.
+openvdb::FloatGrid::Ptr index_space_sdf(const Mesh& m, double voxel, float out, float in) {
+    std::vector<openvdb::Vec3s> points(m.vertices.size());
+    for (std::size_t i = 0; i < points.size(); ++i) {
+        for (int a = 0; a < 3; ++a) points[i][a] = float(m.vertices[i][a] / voxel);
+    }
+    std::vector<openvdb::Vec3I> tris(m.faces.size());
+    for (std::size_t i = 0; i < tris.size(); ++i) {
+        tris[i] = openvdb::Vec3I(openvdb::Index32(m.faces[i][0]), openvdb::Index32(m.faces[i][1]),
+                                 openvdb::Index32(m.faces[i][2]));
+    }
+    const auto unit = openvdb::math::Transform::createLinearTransform(1.0);
+    return openvdb::tools::meshToSignedDistanceField<openvdb::FloatGrid>(*unit, points, tris, {},
+                                                                         out, in);
+}
+
+/// An index-space level set back in world units and the frame of `frame`, named "sdf".
+void to_volume_frame(openvdb::FloatGrid& g, double voxel, float half_width,
+                     const openvdb::FloatGrid& frame) {
+    openvdb::tree::LeafManager<FloatTree> leaves(g.tree());
+    leaves.foreach ([&](FloatTree::LeafNodeType& leaf, std::size_t) {
+        for (auto it = leaf.beginValueAll(); it; ++it) it.setValue(float(*it * voxel));
+    });
+    openvdb::tools::changeLevelSetBackground(g.tree(), float(half_width * voxel));
+    g.setTransform(frame.transform().copy());
+    g.setName("sdf");
+    g.setGridClass(openvdb::GRID_LEVEL_SET);
+}
+
 /// Solid closing: exact distance field of the meshed surface, offset out by R and back in by R.
 Volume close_solid(const Volume& in, int radius, const MeshOptions& mesh, CloseResult& stats) {
     // Dual contouring keeps the sharp rims of grooves and cavities: marching cubes would chamfer
@@ -303,37 +334,17 @@ Volume close_solid(const Volume& in, int radius, const MeshOptions& mesh, CloseR
             "first with --close R");
     }
     const double voxel = in.sdf->voxelSize()[0];
-    // Index space (unit voxels, origin at index 0): far-away origins keep their precision.
-    std::vector<openvdb::Vec3s> points(m.vertices.size());
-    for (std::size_t i = 0; i < points.size(); ++i) {
-        for (int a = 0; a < 3; ++a) points[i][a] = float(m.vertices[i][a] / voxel);
-    }
-    std::vector<openvdb::Vec3I> tris(m.faces.size());
-    for (std::size_t i = 0; i < tris.size(); ++i) {
-        tris[i] = openvdb::Vec3I(openvdb::Index32(m.faces[i][0]), openvdb::Index32(m.faces[i][1]),
-                                 openvdb::Index32(m.faces[i][2]));
-    }
-    const auto unit = openvdb::math::Transform::createLinearTransform(1.0);
     const float r = float(radius), band = 3.0f;
     const float half_width = std::max(band, float(in.sdf->background() / voxel));
     // The distance field needs to reach R voxels out for the dilation (and enclosed cavities come
     // out inside: meshToVolume marks as outside only what its sweeps from the exterior reach).
-    auto d0 = openvdb::tools::meshToSignedDistanceField<openvdb::FloatGrid>(
-        *unit, points, tris, {}, r + band, band);
+    auto d0 = index_space_sdf(m, voxel, r + band, band);
     stats.solid_voxels_before = std::size_t(std::llround(openvdb::tools::levelSetVolume(*d0, false)));
     auto d1 = openvdb::tools::levelSetRebuild(*d0, r, band, r + band);  // dilated by R
     auto d2 = openvdb::tools::levelSetRebuild(*d1, -r, half_width, half_width);  // eroded by R
     stats.solid_voxels_after = std::size_t(std::llround(openvdb::tools::levelSetVolume(*d2, false)));
 
-    // Back to world units and the volume's frame.
-    openvdb::tree::LeafManager<FloatTree> leaves(d2->tree());
-    leaves.foreach ([&](FloatTree::LeafNodeType& leaf, std::size_t) {
-        for (auto it = leaf.beginValueAll(); it; ++it) it.setValue(float(*it * voxel));
-    });
-    openvdb::tools::changeLevelSetBackground(d2->tree(), float(half_width * voxel));
-    d2->setTransform(in.sdf->transform().copy());
-    d2->setName("sdf");
-    d2->setGridClass(openvdb::GRID_LEVEL_SET);
+    to_volume_frame(*d2, voxel, half_width, *in.sdf);
 
     Volume out = in;
     out.sdf = d2;
@@ -373,6 +384,22 @@ CloseResult close_volume(const Volume& volume, const CloseOptions& options,
         result.volume.metadata["close_solid_radius"] = std::to_string(options.solid_radius);
     }
     return result;
+}
+
+Volume mesh_volume(const Mesh& mesh, const Volume& frame, float half_width) {
+    if (!frame.sdf) throw InvalidArgument("mesh_volume: the frame volume has no sdf");
+    if (mesh.faces.empty()) throw InvalidArgument("mesh_volume: the mesh is empty");
+    const double voxel = frame.sdf->voxelSize()[0];
+    auto sdf = index_space_sdf(mesh, voxel, half_width, half_width);
+    to_volume_frame(*sdf, voxel, half_width, *frame.sdf);
+    Volume out;
+    out.sdf = sdf;
+    out.voxel_size = frame.voxel_size;
+    out.origin = frame.origin;
+    out.metadata = frame.metadata;
+    const MaskTree band(sdf->tree(), false, openvdb::TopologyCopy());
+    out.fill = make_fill_grid(band, *sdf);
+    return out;
 }
 
 }  // namespace vdbrecon

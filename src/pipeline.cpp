@@ -143,6 +143,27 @@ double sample_spacing(const PipelineResult& r) {
     return r.normals.median_scale;
 }
 
+/// The hole-filling stage (fill_holes, watertight) and, with watertight, the closed mesh's
+/// volume in `frame` (handed to on_volume as "closed").
+void fill_and_close(PipelineResult& r, const PipelineOptions& options, const Volume& frame,
+                    const StageCallback& on_stage, const VolumeCallback& on_volume) {
+    if (!options.watertight && options.fill_holes == 0) return;
+    {
+        StageClock clock(r.timings, on_stage, "fill");
+        HoleFillOptions h;
+        h.max_edges = options.watertight ? 0 : options.fill_holes;
+        r.holes = fill_holes(r.mesh, h);
+        r.mesh = std::move(r.holes.mesh);
+        r.holes.mesh = Mesh{};
+    }
+    if (!options.watertight || r.mesh.faces.empty()) return;
+    StageClock clock(r.timings, on_stage, "closed volume");
+    Volume closed = mesh_volume(r.mesh, frame);
+    closed.metadata["watertight"] = "1";
+    if (on_volume) on_volume("closed", closed);
+    if (options.keep_volumes) r.closed_volume = std::move(closed);
+}
+
 /// reconstruct(); `consume`: free the cloud after the splat.
 PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const PipelineOptions& options,
                                  const StageCallback& on_stage, const VolumeCallback& on_volume) {
@@ -241,16 +262,28 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
             throw;
         }
         side.wait();  // rethrows what on_volume threw
+        // --watertight keeps the grid frame for the closed mesh's volume.
+        Volume frame;
+        if (options.watertight) {
+            frame.sdf = openvdb::FloatGrid::create(r.volume.sdf->background());  // its frame only
+            frame.sdf->setTransform(r.volume.sdf->transform().copy());
+            frame.voxel_size = r.volume.voxel_size;
+            frame.origin = r.volume.origin;
+            frame.metadata = r.volume.metadata;
+        }
         if (!options.keep_volumes) {
             r.volume = Volume{};
             r.closed_volume = Volume{};
         }
         {
             StageClock clock(r.timings, on_stage, "clean");
-            r.clean_stats = clean_mesh(r.mesh, options.clean);
+            CleanOptions clean = options.clean;
+            if (options.watertight) clean.min_component_ratio = 1.0;  // one piece
+            r.clean_stats = clean_mesh(r.mesh, clean);
             r.mesh = std::move(r.clean_stats.mesh);
             r.clean_stats.mesh = Mesh{};
         }
+        fill_and_close(r, options, frame, on_stage, on_volume);
     });
     if (r.mesh.faces.empty()) {
         log_warning("reconstruct: the surface is empty (no valid cell crosses zero)");
@@ -284,7 +317,9 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     }
     if (options.write_vdb) {
         out.vdb_path = stage_volume_path(out.mesh_path, "splat");
-        if (options.close.enabled()) out.closed_vdb_path = stage_volume_path(out.mesh_path, "closed");
+        if (options.close.enabled() || options.watertight) {
+            out.closed_vdb_path = stage_volume_path(out.mesh_path, "closed");
+        }
     }
     // Fail before the work, not after it.
     detail::check_writable(out.mesh_path);

@@ -57,4 +57,11 @@ struct CloseResult {
 CloseResult close_volume(const Volume& volume, const CloseOptions& options,
                          const MeshOptions& mesh = {});
 
+/// The signed distance field of a closed mesh (in the local frame of `frame`'s meshes, as
+/// extract_mesh gives them) as a volume in `frame`'s grid frame: a level set "sdf" `half_width`
+/// voxels to each side and a "fill" grid over its band (what `--watertight` writes to
+/// <out>.closed.vdb). Throws InvalidArgument for an empty mesh or frame.
+Volume mesh_volume(const Mesh& mesh, const Volume& frame, float half_width = 3.0f);
+
 }  // namespace vdbrecon
+

@@ -11,6 +11,7 @@
 
 #include "vdbrecon/clean.h"
 #include "vdbrecon/close.h"
+#include "vdbrecon/holes.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/normals.h"
@@ -40,6 +41,13 @@ struct PipelineOptions {
     /// channel); empty = none.
     std::string preview_path;
     PreviewOptions preview;
+    /// Fill the mesh's boundary loops of at most this many edges (Liepa 2003, see holes.h);
+    /// 0 = none.
+    std::size_t fill_holes = 0;
+    /// A closed, manifold, one-piece mesh: only the largest piece is kept and every boundary
+    /// loop is filled (whatever fill_holes says); the result's closed_volume (run():
+    /// <out>.closed.vdb) is the signed distance field of that mesh.
+    bool watertight = false;
     /// Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh.
     bool write_vdb = true;
     /// Return the splatted (and closed) volumes in the result. false frees them as soon as the
@@ -80,6 +88,7 @@ struct PipelineResult {
     CloseResult close;          ///< volume moved into `closed_volume`; statistics kept
     MeshResult mesh_stats;      ///< mesh moved out; statistics kept
     CleanResult clean_stats;    ///< mesh moved into `mesh`; statistics kept
+    HoleFillResult holes;       ///< mesh moved into `mesh`; statistics kept
     double voxel_size = 0.0;    ///< the voxel used, world units
     bool voxel_chosen = false;  ///< true when it was picked automatically
     double spacing = 0.0;       ///< the median sample spacing it was picked from, world units

@@ -30,6 +30,12 @@ void bind_pipeline(py::module_& m) {
         .nested("mesh", &PipelineOptions::mesh, "MeshOptions.")
         .nested("clean", &PipelineOptions::clean, "CleanOptions.")
         .nested("write", &PipelineOptions::write, "WriteOptions (run() only).")
+        .field("fill_holes", &PipelineOptions::fill_holes,
+               "Fill the mesh's boundary loops of at most this many edges (Liepa 03), count; "
+               "0 = none (CLI --fill-holes).")
+        .field("watertight", &PipelineOptions::watertight,
+               "A closed, manifold, one-piece mesh: keep the largest piece, fill every hole; "
+               "closed_volume is its signed distance field (bool; CLI --watertight).")
         .field("threads", &PipelineOptions::threads,
                "Worker threads, 0 = all cores; the output does not depend on it (CLI --threads).")
         .field("write_vdb", &PipelineOptions::write_vdb,
@@ -74,6 +80,8 @@ void bind_pipeline(py::module_& m) {
                       "CloseResult (statistics; no volume, see closed_volume).")
         .def_readonly("mesh_stats", &PipelineResult::mesh_stats,
                       "MeshResult (statistics; no mesh).")
+        .def_readonly("holes", &PipelineResult::holes,
+                      "HoleFillResult (statistics; no mesh) of fill_holes / watertight.")
         .def_readonly("clean_stats", &PipelineResult::clean_stats,
                       "CleanResult (statistics; no mesh).")
         .def_readonly("voxel_size", &PipelineResult::voxel_size, "The voxel used, world units.")

@@ -20,6 +20,7 @@ PYBIND11_MODULE(_vdbrecon, m) {
     bind_mesh(m);
     bind_close(m);
     bind_clean(m);
+    bind_holes(m);
     bind_eval(m);
     bind_pipeline(m);
 }

@@ -30,6 +30,8 @@ CLI_FLAGS = {
     "--outliers": (vdbrecon.OutlierOptions, "enabled"),
     "--close": (vdbrecon.CloseOptions, "hole_radius"),
     "--close-solid": (vdbrecon.CloseOptions, "solid_radius"),
+    "--fill-holes": (vdbrecon.PipelineOptions, "fill_holes"),
+    "--watertight": (vdbrecon.PipelineOptions, "watertight"),
 }
 
 
@@ -72,7 +74,8 @@ def test_defaults_and_choices_agree_with_the_cli_help(cli):
 def test_every_field_has_a_documented_unit_or_meaning():
     for cls in (vdbrecon.ReadOptions, vdbrecon.WriteOptions, vdbrecon.OutlierOptions,
                 vdbrecon.NormalOptions, vdbrecon.SplatOptions, vdbrecon.CloseOptions,
-                vdbrecon.MeshOptions, vdbrecon.CleanOptions, vdbrecon.EvalOptions,
+                vdbrecon.MeshOptions, vdbrecon.CleanOptions, vdbrecon.HoleFillOptions,
+                vdbrecon.EvalOptions,
                 vdbrecon.PipelineOptions):
         assert cls._fields, cls
         for name, doc in cls._fields:

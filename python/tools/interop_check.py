@@ -169,7 +169,7 @@ def main():
         log = subprocess.run([args.cli, out / src, "-o", out / f"{stem}.ply", "--voxel",
                               str(VOXEL), *options], check=True, capture_output=True,
                              text=True)
-        counts = re.search(r"\((\d+) dropped outside valid cells, (\d+) trimmed for low weight\)",
+        counts = re.search(r"\((\d+) dropped outside valid cells, (\d+) trimmed as unsupported\)",
                            log.stdout + log.stderr)
         check(counts is not None, f"{stem}: the CLI's log counts the faces its mesher dropped")
         dropped[stem] = int(counts[1]) + int(counts[2]) if counts else 0

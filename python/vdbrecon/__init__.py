@@ -52,6 +52,8 @@ from ._vdbrecon import (  # noqa: F401  (re-exported)
     EvalResult,
     FormatError,
     FScore,
+    HoleFillOptions,
+    HoleFillResult,
     InvalidArgument,
     IoError,
     Mesh,
@@ -83,11 +85,11 @@ __version__ = _v.__version__
 __all__ = [
     "reconstruct", "run", "read_points", "read_mesh", "write_mesh", "write_points",
     "remove_outliers", "estimate_normals", "splat", "close", "extract_mesh", "clean_mesh",
-    "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
+    "fill_holes", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
     "version", "stage_volume_path",
     "PointCloud", "Mesh", "Volume", "PipelineOptions", "ReadOptions", "WriteOptions",
     "OutlierOptions", "NormalOptions", "SplatOptions", "CloseOptions", "MeshOptions",
-    "CleanOptions", "EvalOptions", "ReadResult", "OutlierResult", "NormalResult", "SplatResult",
+    "CleanOptions", "HoleFillOptions", "HoleFillResult", "EvalOptions", "ReadResult", "OutlierResult", "NormalResult", "SplatResult",
     "CloseResult", "MeshResult", "CleanResult", "EvalResult", "PipelineResult", "RunResult",
     "TopologyStats", "FScore", "StageTiming", "Error", "IoError", "FormatError",
     "InvalidArgument", "NumericalError",
@@ -566,6 +568,21 @@ lambda|mu, boundary vertices fixed).
 mesh: Mesh or mesh path.
 Returns a CleanResult: .mesh, .components_before, .removed_components, .removed_faces.""",
           _struct_entries(CleanOptions), [_pos("mesh")])
+
+
+def fill_holes(mesh, **options):
+    return _v.fill_holes(_mesh(mesh, "mesh"), _fill(HoleFillOptions, options, "fill_holes"))
+
+
+_document(fill_holes, """Fills the mesh's boundary loops (Liepa 2003): a minimum-dihedral, then
+minimum-area triangulation of each loop, refined to the density around it and faired (the new
+vertices solve the bi-Laplacian with the mesh fixed), as reconstruct(fill_holes=N) and
+reconstruct(watertight=True) do after the clean stage.
+
+mesh: Mesh or mesh path.
+Returns a HoleFillResult: .mesh, .loops, .filled, .added_faces, .added_vertices,
+.largest_filled, .largest_open.""",
+          _struct_entries(HoleFillOptions), [_pos("mesh")])
 
 
 def evaluate(recon, reference, **options):

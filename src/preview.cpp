@@ -55,6 +55,43 @@ double linear_to_srgb(double c) {
     return c <= 0.0031308 ? 12.92 * c : 1.055 * std::pow(c, 1.0 / 2.4) - 0.055;
 }
 
+/// Per-corner shading normals with an angle threshold (as 3D tools' "auto smooth"): the
+/// area-weighted mean of the face normals around the corner's vertex that are within 30 degrees
+/// of the corner's face.
+class AutoSmooth {
+  public:
+    explicit AutoSmooth(const Mesh& mesh) : first_(mesh.vertices.size() + 1, 0) {
+        const std::size_t nf = mesh.faces.size();
+        normals_.resize(nf);
+        for (std::size_t f = 0; f < nf; ++f) {
+            const Triangle& t = mesh.faces[f];
+            const V3 a = v3(mesh.vertices[std::size_t(t[0])]);
+            normals_[f] = cross(sub(v3(mesh.vertices[std::size_t(t[1])]), a),
+                                sub(v3(mesh.vertices[std::size_t(t[2])]), a));
+            for (std::int32_t v : t) ++first_[std::size_t(v) + 1];
+        }
+        for (std::size_t v = 1; v < first_.size(); ++v) first_[v] += first_[v - 1];
+        around_.resize(first_.back());
+        std::vector<std::size_t> fill(first_.begin(), first_.end() - 1);
+        for (std::size_t f = 0; f < nf; ++f) {
+            for (std::int32_t v : mesh.faces[f]) around_[fill[std::size_t(v)]++] = f;
+        }
+    }
+    V3 corner(std::size_t v, const V3& face_n) const {
+        V3 sum{0, 0, 0};
+        for (std::size_t j = first_[v]; j < first_[v + 1]; ++j) {
+            const V3& n = normals_[around_[j]];
+            const double len = std::sqrt(dot(n, n));
+            if (len > 0.0 && dot(n, face_n) > 0.866 * len) sum = add(sum, n);
+        }
+        return dot(sum, sum) > 0.0 ? unit(sum) : face_n;
+    }
+
+  private:
+    std::vector<std::size_t> first_, around_;
+    std::vector<V3> normals_;  // unnormalised: area-weighted
+};
+
 struct Camera {
     V3 eye, right, up, forward;
     double focal = 1.0;  // pixels
@@ -133,7 +170,6 @@ Image render_preview(const Mesh& mesh, const PreviewOptions& options) {
                    cam.cy - cam.focal * dot(d, cam.up) / z, z};
     }
     const bool colours = mesh.colors.size() == nv;
-    const bool normals = mesh.normals.size() == nv;
     std::vector<V3> base(colours ? nv : 0);
     for (std::size_t i = 0; i < base.size(); ++i) {
         for (int a = 0; a < 3; ++a) base[i][a] = srgb_to_linear(std::clamp(double(mesh.colors[i][a]), 0.0, 1.0));
@@ -142,6 +178,7 @@ Image render_preview(const Mesh& mesh, const PreviewOptions& options) {
     const V3 key = unit(add(add(mul(cam.right, -0.5), mul(cam.up, 0.7)), mul(cam.forward, -0.6)));
     const V3 fill = unit(add(mul(cam.right, 0.6), mul(cam.forward, -0.8)));
 
+    const AutoSmooth smooth(mesh);
     const float inf = std::numeric_limits<float>::infinity();
     std::vector<float> zbuf(std::size_t(W) * std::size_t(H), inf);
     std::vector<float> col(std::size_t(W) * std::size_t(H) * 3, 0.0f);
@@ -160,6 +197,12 @@ Image render_preview(const Mesh& mesh, const PreviewOptions& options) {
         const V3 face_n = unit(cross(sub(pb, pa), sub(pc, pa)));
         // Seen from its back: the camera is on the inner side of the triangle's plane.
         const bool back = dot(face_n, sub(cam.eye, pa)) < 0.0;
+        // Auto-smooth shading: each corner shades with the normal of the faces around its
+        // vertex that are within 30 degrees of this one, so that sharp edges look as sharp as
+        // the mesh is (vertex normals blend the two faces of an edge).
+        V3 corner_n[3];
+        const std::size_t ids[3] = {i0, i1, i2};
+        for (int k = 0; k < 3; ++k) corner_n[k] = smooth.corner(ids[k], face_n);
         for (int y = y0; y <= y1; ++y) {
             for (int x = x0; x <= x1; ++x) {
                 const double px = x + 0.5, py = y + 0.5;
@@ -177,11 +220,9 @@ Image render_preview(const Mesh& mesh, const PreviewOptions& options) {
                 w0 *= z / a[2];
                 w1 *= z / b[2];
                 w2 = 1.0 - w0 - w1;
-                V3 n = face_n;
-                if (normals) {
-                    n = unit(add(add(mul(v3(mesh.normals[i0]), w0), mul(v3(mesh.normals[i1]), w1)),
-                                 mul(v3(mesh.normals[i2]), w2)));
-                }
+                const V3 n0 = unit(add(add(mul(corner_n[0], w0), mul(corner_n[1], w1)),
+                                       mul(corner_n[2], w2)));
+                V3 n = n0;
                 V3 albedo = colours ? add(add(mul(base[i0], w0), mul(base[i1], w1)), mul(base[i2], w2))
                                     : clay;
                 if (back) {

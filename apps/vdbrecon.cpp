@@ -100,6 +100,7 @@ void print_help() {
         << "usage: vdbrecon INPUT [options]\n"
         << "       vdbrecon eval RECON REF [--tau T[,T...]] [--samples N]\n"
         << "                     [--mask-points FILE --mask-distance D]\n"
+        << "                     [--ignore-reference-holes]\n"
         << "\n"
         << "INPUT: .ply (ascii/binary), .xyz/.pts/.txt (x y z [nx ny nz]), .obj (v/vn)\n"
         << "\n"
@@ -174,6 +175,10 @@ void print_help() {
         << "                         --mask-distance from all of them are not counted in\n"
         << "                         completeness and recall [none]\n"
         << "  --mask-distance D      mask radius, world units (needed with --mask-points)\n"
+        << "  --ignore-reference-holes\n"
+        << "                         RECON's samples whose closest REF point is on REF's open\n"
+        << "                         border (RECON covers a hole of REF) are not counted in\n"
+        << "                         accuracy and precision [off]\n"
         << "\n"
         << "exit codes: 0 ok, 2 usage/invalid argument, 3 I/O or file format, 4 other error\n";
 }
@@ -265,6 +270,8 @@ int run_eval(Args& args) {
             options.samples = std::size_t(n);
         } else if (a == "--mask-points") {
             mask_path = args.value(a);
+        } else if (a == "--ignore-reference-holes") {
+            options.ignore_reference_holes = true;
         } else if (a == "--mask-distance") {
             options.mask_distance = parse_number(a, args.value(a));
             if (!(options.mask_distance > 0.0)) throw UsageError("--mask-distance must be positive");

@@ -383,6 +383,54 @@ void keep_masked(std::vector<Vec3f>& samples, std::vector<std::int32_t>& faces,
 
 }  // namespace
 
+/// Removes the reconstruction samples whose closest reference point lies on an open border of
+/// the reference (on a boundary edge of the closest face, within 1e-9 of the mesh's size), with
+/// their faces, closest faces and distances, keeping the order.
+void drop_over_holes(const Mesh& reference, const std::vector<Vec3f>& rs, std::vector<std::int32_t>& rf,
+                     std::vector<std::int32_t>& rcl, std::vector<double>& dr) {
+    std::vector<std::uint64_t> border;
+    for (const detail::EdgeUse& e : detail::undirected_edges(reference.faces)) {
+        if (e.faces == 1) border.push_back((std::uint64_t(e.a) << 32) | std::uint32_t(e.b));
+    }
+    if (border.empty()) return;
+    const double eps = 1e-9 * std::max(1.0, bounding_box(reference.vertices).diagonal());
+    auto vertex = [&](std::int32_t v) {
+        const Vec3f& p = reference.vertices[std::size_t(v)];
+        return V3{p[0], p[1], p[2]};
+    };
+    std::size_t kept = 0;
+    for (std::size_t i = 0; i < dr.size(); ++i) {
+        const Triangle& t = reference.faces[std::size_t(rcl[i])];
+        const V3 p{rs[i][0], rs[i][1], rs[i][2]};
+        bool over_hole = false;
+        for (int k = 0; k < 3 && !over_hole; ++k) {
+            std::int32_t a = t[k], b = t[(k + 1) % 3];
+            if (a > b) std::swap(a, b);
+            if (!std::binary_search(border.begin(), border.end(),
+                                    (std::uint64_t(std::uint32_t(a)) << 32) | std::uint32_t(b))) {
+                continue;
+            }
+            // The closest point of the edge.
+            const V3 u = vertex(a), w = vertex(b);
+            const V3 e{w[0] - u[0], w[1] - u[1], w[2] - u[2]};
+            const double ee = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+            double s = ee > 0.0 ? ((p[0] - u[0]) * e[0] + (p[1] - u[1]) * e[1] + (p[2] - u[2]) * e[2]) / ee
+                                : 0.0;
+            s = std::clamp(s, 0.0, 1.0);
+            const V3 d{p[0] - u[0] - s * e[0], p[1] - u[1] - s * e[1], p[2] - u[2] - s * e[2]};
+            over_hole = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) <= dr[i] + eps;
+        }
+        if (over_hole) continue;
+        rf[kept] = rf[i];
+        rcl[kept] = rcl[i];
+        dr[kept] = dr[i];
+        ++kept;
+    }
+    rf.resize(kept);
+    rcl.resize(kept);
+    dr.resize(kept);
+}
+
 EvalResult evaluate(const Mesh& recon_in, const Mesh& reference, const EvalOptions& options) {
     options.validate();
     if (recon_in.faces.empty()) throw InvalidArgument("evaluate: the reconstruction has no faces");
@@ -400,7 +448,13 @@ EvalResult evaluate(const Mesh& recon_in, const Mesh& reference, const EvalOptio
     if (!options.mask_points.empty()) keep_masked(gs, gf, options, reference.origin);
     r.reference_samples = gs.size();
     const MeshDistance to_ref(reference), to_recon(recon);
-    const std::vector<double> dr = to_ref.distances(rs, &rcl);
+    std::vector<double> dr = to_ref.distances(rs, &rcl);
+    if (options.ignore_reference_holes) drop_over_holes(reference, rs, rf, rcl, dr);
+    r.recon_samples = dr.size();
+    if (dr.empty()) {
+        throw InvalidArgument("evaluate: every reconstruction sample lies over a hole of the "
+                              "reference (ignore_reference_holes)");
+    }
     const std::vector<double> dg = to_recon.distances(gs, &gcl);
     const std::vector<V3> rn = face_normals(recon), gn = face_normals(reference);
 
@@ -415,13 +469,13 @@ EvalResult evaluate(const Mesh& recon_in, const Mesh& reference, const EvalOptio
     r.hausdorff = std::max(*std::max_element(dr.begin(), dr.end()),
                            *std::max_element(dg.begin(), dg.end()));
     double nc = 0.0;
-    for (std::size_t i = 0; i < rs.size(); ++i) {
+    for (std::size_t i = 0; i < dr.size(); ++i) {
         nc += std::fabs(dot(rn[std::size_t(rf[i])], gn[std::size_t(rcl[i])]));
     }
     for (std::size_t i = 0; i < gs.size(); ++i) {
         nc += std::fabs(dot(gn[std::size_t(gf[i])], rn[std::size_t(gcl[i])]));
     }
-    r.normal_consistency = nc / double(rs.size() + gs.size());
+    r.normal_consistency = nc / double(dr.size() + gs.size());
 
     std::vector<double> taus = options.taus;
     if (taus.empty()) {
@@ -480,6 +534,7 @@ std::string to_json(const EvalResult& r) {
     s += "],\n";
     s += "  \"samples\": " + std::to_string(r.samples) + ",\n";
     s += "  \"reference_samples\": " + std::to_string(r.reference_samples) + ",\n";
+    s += "  \"recon_samples\": " + std::to_string(r.recon_samples) + ",\n";
     s += "  \"recon\": " + topology_json(r.recon, "  ") + ",\n";
     s += "  \"reference\": " + topology_json(r.reference, "  ") + "\n";
     s += "}\n";

@@ -31,6 +31,18 @@ Mesh sphere_mesh(float r, float voxel) {
     return extract_mesh(v).mesh;
 }
 
+/// The faces of `s` whose vertices all lie above z = 0 (the other vertices stay, unused).
+Mesh upper_half(const Mesh& s) {
+    Mesh top = s;
+    top.faces.clear();
+    for (const Triangle& t : s.faces) {
+        if (s.vertices[t[0]][2] > 0 && s.vertices[t[1]][2] > 0 && s.vertices[t[2]][2] > 0) {
+            top.faces.push_back(t);
+        }
+    }
+    return top;
+}
+
 }  // namespace
 
 TEST_CASE("topology of a closed cube and of an open one", "[eval]") {
@@ -159,13 +171,7 @@ TEST_CASE("a coverage mask restricts completeness and recall to the covered refe
     // reference's faces, so the covered part scores exactly 0). Mask: points above z = 0.05,
     // as a scan that only saw the top would give.
     const Mesh s = sphere_mesh(1.0f, 0.02f);
-    Mesh top = s;
-    top.faces.clear();
-    for (const Triangle& t : s.faces) {
-        if (s.vertices[t[0]][2] > 0 && s.vertices[t[1]][2] > 0 && s.vertices[t[2]][2] > 0) {
-            top.faces.push_back(t);
-        }
-    }
+    const Mesh top = upper_half(s);
     std::vector<Vec3f> upper, lower;
     for (const Vec3f& p : sample_sphere(100000, 1.0).positions) {
         if (p[2] > 0.05f) upper.push_back(p);
@@ -230,4 +236,29 @@ TEST_CASE("a coverage mask needs a radius and must overlap the reference", "[eva
     o.mask_points = {{5.0f, 5.0f, 5.0f}};  // nowhere near the cube
     REQUIRE_THROWS_AS(evaluate(c, c, o), InvalidArgument);
     REQUIRE_THROWS_WITH(evaluate(c, c, o), Catch::Contains("no reference sample"));
+}
+
+TEST_CASE("ignore_reference_holes leaves out what covers a hole of the reference", "[eval]") {
+    // Reference: the upper half of a sphere (open along the equator). Reconstruction: the whole
+    // sphere, whose lower half covers the reference's hole.
+    const Mesh s = sphere_mesh(1.0f, 0.02f);
+    const Mesh top = upper_half(s);
+    EvalOptions o;
+    o.samples = 100000;
+    o.taus = {0.01};
+    const EvalResult all = evaluate(s, top, o);
+    REQUIRE(all.recon_samples == o.samples);
+    REQUIRE(all.fscores[0].precision == Approx(0.5).margin(0.02));
+    o.ignore_reference_holes = true;
+    const EvalResult kept = evaluate(s, top, o);
+    // The lower half (and the sliver below the reference's jagged rim) is left out; the rest
+    // is the reference's own faces.
+    REQUIRE(double(kept.recon_samples) / double(o.samples) == Approx(0.5).margin(0.02));
+    REQUIRE(kept.fscores[0].precision == Approx(1.0));
+    REQUIRE(kept.accuracy < 1e-6);
+    REQUIRE(kept.fscores[0].recall == all.fscores[0].recall);  // the reference side is unchanged
+    REQUIRE_THAT(to_json(kept), Catch::Contains("\"recon_samples\": " +
+                                                std::to_string(kept.recon_samples)));
+    // A closed reference has no hole: nothing is left out.
+    REQUIRE(evaluate(s, s, o).recon_samples == o.samples);
 }

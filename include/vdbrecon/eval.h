@@ -39,6 +39,12 @@ struct EvalOptions {
     Vec3d mask_origin{0.0, 0.0, 0.0};
     /// Radius of the mask around each mask point, world units; must be > 0 with mask points.
     double mask_distance = 0.0;
+    /// Leave out of everything measured from the reconstruction's side (accuracy, precision,
+    /// Hausdorff, normal consistency) the reconstruction samples whose closest reference point
+    /// lies on an open border of the reference: the part of the reconstruction that covers a
+    /// hole of the reference (the Stanford bunny's reference mesh is open underneath), where
+    /// there is nothing to compare with.
+    bool ignore_reference_holes = false;
 
     void validate() const;
 };
@@ -68,6 +74,9 @@ struct EvalResult {
     /// Reference samples counted on the reference side: `samples` without a mask, those within
     /// `mask_distance` of a mask point with one.
     std::size_t reference_samples = 0;
+    /// Reconstruction samples counted on its side: `samples`, less those over the reference's
+    /// holes with ignore_reference_holes.
+    std::size_t recon_samples = 0;
     TopologyStats recon, reference;
 };
 

@@ -21,7 +21,11 @@ void bind_eval(py::module_& m) {
                "World position of the mask points' local frame (PointCloud.origin of a scan).")
         .field("mask_distance", &EvalOptions::mask_distance,
                "Radius of the coverage mask, world units; > 0 with mask_points "
-               "(CLI eval --mask-distance).");
+               "(CLI eval --mask-distance).")
+        .field("ignore_reference_holes", &EvalOptions::ignore_reference_holes,
+               "Leave out of accuracy and precision the reconstruction samples whose closest "
+               "reference point is on the reference's open border (bool; CLI eval "
+               "--ignore-reference-holes).");
     o.finish();
 
     py::class_<TopologyStats>(m, "TopologyStats", "Topology of a mesh.")
@@ -66,6 +70,9 @@ void bind_eval(py::module_& m) {
         .def_readonly("samples", &EvalResult::samples)
         .def_readonly("reference_samples", &EvalResult::reference_samples,
                       "Reference samples counted: all without a mask, the covered ones with one.")
+        .def_readonly("recon_samples", &EvalResult::recon_samples,
+                      "Reconstruction samples counted on its side (less those over the "
+                      "reference's holes with ignore_reference_holes).")
         .def_readonly("recon", &EvalResult::recon, "TopologyStats of the reconstruction.")
         .def_readonly("reference", &EvalResult::reference, "TopologyStats of the reference.")
         .def(

@@ -102,7 +102,8 @@ void print_help() {
         << "                     [--mask-points FILE --mask-distance D]\n"
         << "                     [--ignore-reference-holes]\n"
         << "\n"
-        << "INPUT: .ply (ascii/binary), .xyz/.pts/.txt (x y z [nx ny nz]), .obj (v/vn)\n"
+        << "INPUT: .ply (ascii/binary), .xyz/.pts/.txt (x y z [nx ny nz]), .obj (v/vn),\n"
+        << "       .las (LAS 1.0-1.4, point formats 0-10; LAZ: decompress it first)\n"
         << "\n"
         << "reconstruction options:\n"
         << "  -o, --output PATH      mesh to write, .ply or .obj [<input stem>.recon.ply]\n"
@@ -136,6 +137,8 @@ void print_help() {
         << "  --k K                  neighbours for normals and spacing [" << d.normals.k << "]\n"
         << "  --scale MODE           per-point scale: " << choice_list(scale_mode_choices(), "|") << " ["
         << choice_name(scale_mode_choices(), d.normals.scale) << "]\n"
+        << "  --classes C,C,...      LAS input: keep the points of these classes (e.g. 2,6:\n"
+        << "                         ground, buildings) [all]\n"
         << "  --viewpoint x,y,z      sensor position; estimated normals face it [none: MST]\n"
         << "  --outliers, --no-outliers\n"
         << "                         remove stray points before splatting (statistical and\n"
@@ -342,6 +345,13 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
             o.normals.k = parse_int(a, args.value(a));
         } else if (a == "--scale") {
             o.normals.scale = parse_choice(a, args.value(a), scale_mode_choices());
+        } else if (a == "--classes") {
+            for (double c : parse_list(a, args.value(a))) {
+                if (!(c >= 0 && c <= 255 && c == std::floor(c))) {
+                    throw UsageError("--classes: LAS classification codes are integers 0..255");
+                }
+                o.read.classes.push_back(int(c));
+            }
         } else if (a == "--viewpoint") {
             const std::vector<double> v = parse_list(a, args.value(a));
             if (v.size() != 3) throw UsageError("--viewpoint needs three numbers: x,y,z");

@@ -449,7 +449,7 @@ std::string format_number(double v) { return format_number_impl(v); }
 
 namespace {
 
-enum class Format { ply, xyz, obj };
+enum class Format { ply, xyz, obj, las };
 
 Format detect_format(const std::string& path, std::string_view content) {
     const std::string ext = file_extension(path);
@@ -458,16 +458,26 @@ Format detect_format(const std::string& path, std::string_view content) {
         return Format::xyz;
     }
     if (ext == "obj") return Format::obj;
+    if (ext == "las" || ext == "laz") return Format::las;
     if (content.compare(0, 3, "ply") == 0) return Format::ply;
+    if (content.compare(0, 4, "LASF") == 0) return Format::las;
     throw FormatError(detail::where(
-        path, "unknown file type '." + ext + "' (supported: .ply, .xyz/.pts/.txt, .obj)"));
+        path, "unknown file type '." + ext + "' (supported: .ply, .xyz/.pts/.txt, .obj, .las)"));
 }
 
 /// Parses a whole file's bytes into raw rows; `want_faces` also reads faces (meshes).
 detail::RawPoints read_raw(std::string_view content, const std::string& path, bool want_faces,
-                           std::string& format) {
+                           std::string& format, const std::vector<int>& classes = {}) {
     if (content.empty()) throw FormatError(detail::where(path, "file is empty"));
-    switch (detect_format(path, content)) {
+    const Format f = detect_format(path, content);
+    if (!classes.empty() && f != Format::las) {
+        throw InvalidArgument(detail::where(path, "point classes are chosen only in LAS files"));
+    }
+    switch (f) {
+        case Format::las:
+            if (want_faces) throw FormatError(detail::where(path, "a LAS file holds no faces"));
+            format = "las";
+            return detail::read_las_raw(path, content, classes);
         case Format::ply:
             return detail::read_ply_raw(path, content, want_faces, format);
         case Format::xyz:
@@ -488,7 +498,7 @@ detail::RawPoints read_raw(std::string_view content, const std::string& path, bo
 ReadResult read_points_from_memory(std::string_view bytes, const std::string& name,
                                    const ReadOptions& options) {
     std::string format;
-    detail::RawPoints raw = read_raw(bytes, name, false, format);
+    detail::RawPoints raw = read_raw(bytes, name, false, format, options.classes);
     return detail::finalize_points(std::move(raw), name, format, options);
 }
 
@@ -504,7 +514,7 @@ ReadResult read_points(const std::string& path, const ReadOptions& options) {
     detail::RawPoints raw;
     {
         const std::string bytes = detail::read_file(path);
-        raw = read_raw(bytes, path, false, format);
+        raw = read_raw(bytes, path, false, format, options.classes);
     }  // the file's bytes are freed before the cloud is made from the rows
     return detail::finalize_points(std::move(raw), path, format, options);
 }

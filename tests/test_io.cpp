@@ -391,3 +391,55 @@ TEST_CASE("writes are atomic: failures leave no file behind", "[io]") {
     write_points(dir.file("x.ply"), c);
     REQUIRE(count_files(dir.path()) == 1);
 }
+
+TEST_CASE("LAS: the Autzen tile reads as its PLY twin; classes filter; LAZ is refused", "[io][las]") {
+    const std::string las = shared_data("pdal_autzen/autzen_trim.las");
+    const std::string ply = shared_data("pdal_autzen/autzen_trim.ply");
+    if (las.empty() || ply.empty()) return;
+    const ReadResult a = read_points(las);  // local frame: origin + float offsets
+    ReadOptions world;
+    world.local_frame = false;  // the twin is near 0 already
+    const ReadResult b = read_points(ply, world);
+    REQUIRE(a.format == "las");
+    REQUIRE(a.cloud.size() == 110000);
+    REQUIRE(b.cloud.size() == a.cloud.size());
+    // The twin is shifted by (-636000, -848900, 0) and stored as float.
+    double worst = 0.0;
+    for (std::size_t i = 0; i < a.cloud.size(); ++i) {
+        const double shift[3] = {636000.0, 848900.0, 0.0};
+        for (int k = 0; k < 3; ++k) {
+            const double x = a.cloud.origin[k] + double(a.cloud.positions[i][k]);
+            const double y = double(b.cloud.positions[i][k]) + shift[k];
+            worst = std::max(worst, std::fabs(x - y));
+        }
+    }
+    INFO("largest coordinate difference " << worst << " ft (the twin stores float)");
+    CHECK(worst < 1e-3);  // LAS scale 0.01 ft; the float twin rounds to ~6e-5
+    // Colours: the twin has them as 8 bits of the LAS's 16.
+    REQUIRE(a.cloud.has_colors());
+    double colour = 0.0;
+    for (std::size_t i = 0; i < a.cloud.size(); ++i) {
+        for (int k = 0; k < 3; ++k) {
+            colour = std::max(colour, double(std::fabs(a.cloud.colors[i][k] - b.cloud.colors[i][k])));
+        }
+    }
+    CHECK(colour < 1.5 / 255.0);
+    // Classes: 83,893 of class 1, 26,107 of class 2 (MANIFEST).
+    ReadOptions ground;
+    ground.classes = {2};
+    CHECK(read_points(las, ground).cloud.size() == 26107);
+    ground.classes = {1, 2};
+    CHECK(read_points(las, ground).cloud.size() == 110000);
+    // Classes on a non-LAS file, a LAZ file and a truncated LAS: one-line errors naming the file.
+    REQUIRE_THROWS_WITH(read_points(ply, ground), Catch::Contains("autzen_trim.ply") &&
+                                                      Catch::Contains("LAS"));
+    TempDir dir;
+    std::string bytes = read_bytes(las);
+    bytes[104] = char(std::uint8_t(bytes[104]) | 0x80);  // LASzip's compression bit
+    write_bytes(dir.file("tile.laz"), bytes);
+    REQUIRE_THROWS_WITH(read_points(dir.file("tile.laz")), Catch::Contains("tile.laz") &&
+                                                               Catch::Contains("laszip"));
+    write_bytes(dir.file("cut.las"), read_bytes(las).substr(0, 100000));
+    REQUIRE_THROWS_WITH(read_points(dir.file("cut.las")), Catch::Contains("cut.las") &&
+                                                              Catch::Contains("truncated"));
+}

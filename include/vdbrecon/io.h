@@ -28,6 +28,9 @@ struct ReadOptions {
     /// Re-centre far-away coordinates (georeferenced scans) into a local float frame;
     /// the offset is kept in PointCloud::origin.
     bool local_frame = true;
+    /// LAS input: keep only the points of these classification codes (e.g. {2, 6}: ground and
+    /// buildings); empty keeps all. Refused for other formats.
+    std::vector<int> classes;
 };
 
 /// What a point reader found.
@@ -40,8 +43,8 @@ struct ReadResult {
     std::size_t bytes = 0;              ///< memory of the cloud as read (its arrays)
 };
 
-/// Reads a point cloud; the format comes from the extension (.ply .xyz .pts .txt .obj), or from
-/// the content when the extension is unknown. Throws IoError / FormatError naming the file.
+/// Reads a point cloud; the format comes from the extension (.ply .xyz .pts .txt .obj .las), or
+/// from the content when the extension is unknown. Throws IoError / FormatError naming the file.
 ReadResult read_points(const std::string& path, const ReadOptions& options = {});
 
 /// Reads a triangle mesh (PLY with a face element, or OBJ with f lines; polygons are fanned

@@ -12,7 +12,10 @@ void bind_io(py::module_& m) {
                 "FormatError ('error').")
         .field("local_frame", &ReadOptions::local_frame,
                "Re-centre far-away (georeferenced) coordinates into a local float frame; the "
-               "offset is kept in PointCloud.origin.");
+               "offset is kept in PointCloud.origin.")
+        .field("classes", &ReadOptions::classes,
+               "LAS input: keep only the points of these classification codes (e.g. [2, 6]); "
+               "empty keeps all (CLI --classes).");
     read.finish(false);
 
     OptionsClass<WriteOptions> write(m, "WriteOptions", "How meshes and points are written.");

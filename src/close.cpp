@@ -84,17 +84,11 @@ MaskTree::Ptr extruded(const MaskTree& mask, const openvdb::FloatGrid& sdf, int 
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 16),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         openvdb::tree::ValueAccessor<MaskTree> out(parts.local());
-        openvdb::tree::ValueAccessor<const FloatTree> acc(sdf.tree());
+        detail::FloatAccessor acc(sdf.tree());
         for (std::size_t l = r.begin(); l < r.end(); ++l) {
             for (auto it = leaves[l]->cbeginValueOn(); it; ++it) {
                 const Coord c = it.getCoord();
-                openvdb::Vec3d g;
-                for (int a = 0; a < 3; ++a) {
-                    Coord lo = c, hi = c;
-                    --lo[a];
-                    ++hi[a];
-                    g[a] = 0.5 * (double(acc.getValue(hi)) - double(acc.getValue(lo)));
-                }
+                const openvdb::Vec3d g = detail::central_gradient(acc, c);
                 const double len = g.length();
                 if (!(len > 1e-12) || std::fabs(double(acc.getValue(c))) > 0.9 * len) continue;
                 const openvdb::Vec3d n = g / len;

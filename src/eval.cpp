@@ -388,10 +388,7 @@ void keep_masked(std::vector<Vec3f>& samples, std::vector<std::int32_t>& faces,
 /// their faces, closest faces and distances, keeping the order.
 void drop_over_holes(const Mesh& reference, const std::vector<Vec3f>& rs, std::vector<std::int32_t>& rf,
                      std::vector<std::int32_t>& rcl, std::vector<double>& dr) {
-    std::vector<std::uint64_t> border;
-    for (const detail::EdgeUse& e : detail::undirected_edges(reference.faces)) {
-        if (e.faces == 1) border.push_back((std::uint64_t(e.a) << 32) | std::uint32_t(e.b));
-    }
+    const std::vector<std::uint64_t> border = detail::border_edge_keys(reference.faces);
     if (border.empty()) return;
     const double eps = 1e-9 * std::max(1.0, bounding_box(reference.vertices).diagonal());
     auto vertex = [&](std::int32_t v) {
@@ -404,12 +401,8 @@ void drop_over_holes(const Mesh& reference, const std::vector<Vec3f>& rs, std::v
         const V3 p{rs[i][0], rs[i][1], rs[i][2]};
         bool over_hole = false;
         for (int k = 0; k < 3 && !over_hole; ++k) {
-            std::int32_t a = t[k], b = t[(k + 1) % 3];
-            if (a > b) std::swap(a, b);
-            if (!std::binary_search(border.begin(), border.end(),
-                                    (std::uint64_t(std::uint32_t(a)) << 32) | std::uint32_t(b))) {
-                continue;
-            }
+            const std::int32_t a = t[k], b = t[(k + 1) % 3];
+            if (!std::binary_search(border.begin(), border.end(), detail::edge_key(a, b))) continue;
             // The closest point of the edge.
             const V3 u = vertex(a), w = vertex(b);
             const V3 e{w[0] - u[0], w[1] - u[1], w[2] - u[2]};

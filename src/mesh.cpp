@@ -219,22 +219,16 @@ std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::ve
         any |= unsupported[f] != 0;
     }
     if (!any) return trim;
-    // The open border's edges, as sorted (a << 32 | b) keys with a < b.
-    std::vector<std::uint64_t> border;
-    for (const EdgeUse& e : undirected_edges(tris)) {
-        if (e.faces == 1) border.push_back((std::uint64_t(e.a) << 32) | std::uint32_t(e.b));
-    }
+    const std::vector<std::uint64_t> border = border_edge_keys(tris);
     const std::vector<std::int32_t> label = face_components(tris, npoints, &unsupported);
     std::vector<char> seeded(nf, 0);
     for (std::size_t f = 0; f < nf; ++f) {
         if (!unsupported[f]) continue;
         bool seed = false;
         for (int k = 0; k < 3; ++k) {
-            std::uint32_t a = std::uint32_t(tris[f][k]), b = std::uint32_t(tris[f][(k + 1) % 3]);
-            seed |= status[a] == kFar;
-            if (a > b) std::swap(a, b);
-            seed |= std::binary_search(border.begin(), border.end(),
-                                       (std::uint64_t(a) << 32) | b);
+            const std::int32_t a = tris[f][k], b = tris[f][(k + 1) % 3];
+            seed |= status[std::size_t(a)] == kFar;
+            seed |= std::binary_search(border.begin(), border.end(), edge_key(a, b));
         }
         if (seed) seeded[std::size_t(label[f])] = 1;
     }

@@ -31,6 +31,14 @@ std::vector<EdgeUse> undirected_edges(Span<Triangle> faces) {
     return edges;
 }
 
+std::vector<std::uint64_t> border_edge_keys(Span<Triangle> faces) {
+    std::vector<std::uint64_t> keys;
+    for (const EdgeUse& e : undirected_edges(faces)) {
+        if (e.faces == 1) keys.push_back(edge_key(e.a, e.b));
+    }
+    return keys;  // undirected_edges is sorted by (a, b), so are the keys
+}
+
 std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count,
                                           const std::vector<char>* only) {
     const std::size_t nf = faces.size();

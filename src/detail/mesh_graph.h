@@ -6,6 +6,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 #include "vdbrecon/types.h"
@@ -21,6 +22,15 @@ struct EdgeUse {
 
 /// Every undirected edge of the faces, sorted by (a, b); degenerate edges (a == b) are skipped.
 std::vector<EdgeUse> undirected_edges(Span<Triangle> faces);
+
+/// The key of the undirected edge (a, b): (min << 32) | max.
+inline std::uint64_t edge_key(std::int32_t a, std::int32_t b) {
+    if (a > b) std::swap(a, b);
+    return (std::uint64_t(std::uint32_t(a)) << 32) | std::uint32_t(b);
+}
+
+/// The keys (edge_key) of the open border's edges, those one face uses, sorted.
+std::vector<std::uint64_t> border_edge_keys(Span<Triangle> faces);
 
 /// Edge-connected components of the faces (two faces that share an edge belong together): per
 /// face, its component's label, the smallest face index in it. Linear time. With `only`, just

@@ -30,6 +30,18 @@ namespace vdbrecon::detail {
 
 enum class Support : std::uint8_t { ok, weak, far };
 
+/// The SDF's central-difference gradient at voxel c (world units per voxel).
+inline openvdb::Vec3d central_gradient(const FloatAccessor& acc, const openvdb::Coord& c) {
+    openvdb::Vec3d g;
+    for (int k = 0; k < 3; ++k) {
+        openvdb::Coord lo = c, hi = c;
+        --lo[k];
+        ++hi[k];
+        g[k] = 0.5 * (double(acc.getValue(hi)) - double(acc.getValue(lo)));
+    }
+    return g;
+}
+
 class SupportTest {
   public:
     SupportTest(const Volume& v, const MeshOptions& o)
@@ -89,13 +101,7 @@ class SupportTest {
         if (!enabled()) return Support::ok;
         openvdb::Vec3d p = c.asVec3d();
         if (weight_) {
-            openvdb::Vec3d g;
-            for (int k = 0; k < 3; ++k) {
-                openvdb::Coord lo = c, hi = c;
-                --lo[k];
-                ++hi[k];
-                g[k] = 0.5 * (double(a.sdf->getValue(hi)) - double(a.sdf->getValue(lo)));
-            }
+            const openvdb::Vec3d g = central_gradient(*a.sdf, c);
             // phi / |g| is the distance in voxels (g is per voxel, phi in world units). The whole
             // band is judged at its surface, so that the supported voxels are as thick as the
             // band: a closing bridges a hole in a thick shell (its outer and inner faces curve

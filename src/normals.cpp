@@ -37,7 +37,91 @@ void flip(Vec3f& n) {
     for (float& c : n) c = -c;
 }
 
-/// PCA normal of point i and its neighbours.
+/// The plane fit of the neighbours (relative positions q[0..m)) that lie within `tol` of the
+/// plane through the point with normal n, the point itself included: the refined normal, or n
+/// when the fit degenerates.
+Eigen::Vector3d refit(const Eigen::Vector3d* q, int m, const Eigen::Vector3d& n, double tol,
+                      bool inliers) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    int count = inliers ? 1 : 0;
+    for (int j = 0; j < m; ++j) {
+        if ((std::fabs(n.dot(q[j])) <= tol) == inliers) {
+            mean += q[j];
+            ++count;
+        }
+    }
+    if (count < 3) return Eigen::Vector3d::Zero();
+    mean /= double(count);
+    Eigen::Matrix3d cov = inliers ? Eigen::Matrix3d(mean * mean.transpose()) : Eigen::Matrix3d::Zero();
+    for (int j = 0; j < m; ++j) {
+        if ((std::fabs(n.dot(q[j])) <= tol) != inliers) continue;
+        const Eigen::Vector3d d = q[j] - mean;
+        cov += d * d.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
+    if (es.info() != Eigen::Success || !(es.eigenvalues()[1] > 1e-12 * es.eigenvalues()[2])) {
+        return Eigen::Vector3d::Zero();
+    }
+    // The residual of the fit, as the eigenvector's length, rides along: |result| = 1 + rms.
+    return es.eigenvectors().col(0) * (1.0 + std::sqrt(std::max(0.0, es.eigenvalues()[0]) / count));
+}
+
+/// Next to a sharp edge the k neighbours of a point span two faces and their PCA normal blends
+/// both. There the point's own face is the plane through it that most neighbours lie on (within
+/// a tenth of their mean distance), found by a deterministic RANSAC over the planes through the
+/// point and two of its nearest neighbours (in the spirit of robust normal estimation next to
+/// sharp features, Li et al. 2010). It replaces the PCA normal only where the neighbourhood is
+/// two clean planes: half the neighbours or more on the first, 1.5x the PCA plane's inliers, and
+/// the rest on one plane within the same tolerance, 20 degrees or more off the first; a noisy
+/// but smooth patch (or overlapping scans) keeps its PCA normal.
+bool face_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k, const Eigen::Vector3d& pca,
+                 Eigen::Vector3d& n) {
+    const Vec3f& c = pts[i];
+    Eigen::Vector3d q[64];
+    const int m = std::min(k, 64);
+    double reach = 0.0;
+    for (int j = 0; j < m; ++j) {
+        const Vec3f& p = pts[std::size_t(nb[j])];
+        q[j] = Eigen::Vector3d(double(p[0]) - c[0], double(p[1]) - c[1], double(p[2]) - c[2]);
+        reach += q[j].norm();
+    }
+    const double tol = 0.1 * reach / double(m);
+    auto inliers = [&](const Eigen::Vector3d& u) {
+        int count = 0;
+        for (int j = 0; j < m; ++j) count += std::fabs(u.dot(q[j])) <= tol;
+        return count;
+    };
+    int best = 0;
+    const int pairs = std::min(m, 10);
+    for (int a = 0; a < pairs; ++a) {
+        for (int b = a + 1; b < pairs; ++b) {
+            Eigen::Vector3d u = q[a].cross(q[b]);
+            const double len = u.norm();
+            if (!(len > 0.3 * q[a].norm() * q[b].norm())) continue;  // nearly collinear
+            u /= len;
+            const int count = inliers(u);
+            if (count > best) {
+                best = count;
+                n = u;
+            }
+        }
+    }
+    if (2 * best < m || 2 * best < 3 * inliers(pca)) return false;
+    const Eigen::Vector3d other = refit(q, m, n, tol, false);
+    if (other.norm() > 0.0) {  // the other face: one plane, clearly another
+        const double rms = other.norm() - 1.0;
+        if (rms > tol || std::fabs(other.normalized().dot(n)) > std::cos(20.0 * M_PI / 180.0)) {
+            return false;
+        }
+    } else if (m - best >= 3) {
+        return false;  // the rest is no plane
+    }
+    const Eigen::Vector3d own = refit(q, m, n, tol, true);
+    if (own.norm() > 0.0) n = own.normalized();
+    return true;
+}
+
+/// PCA normal of point i and its neighbours; next to a sharp edge, its face's (face_normal).
 bool neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
                           Vec3f& normal) {
     Eigen::Vector3d ev, n;
@@ -45,6 +129,10 @@ bool neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
     // Degenerate: all points coincide, or they lie on a line (two vanishing eigenvalues).
     if (!(ev[2] > 0.0) || ev[1] <= 1e-12 * ev[2]) return false;
     n.normalize();
+    // Surface variation lambda_0 / sum lambda (Pauly 2002): ~0 on a plane, 0.05-0.15 where the
+    // neighbourhood folds over an edge.
+    Eigen::Vector3d face;
+    if (ev[0] > 0.02 * (ev[0] + ev[1] + ev[2]) && face_normal(pts, i, nb, k, n, face)) n = face;
     normal = {float(n[0]), float(n[1]), float(n[2])};
     return std::isfinite(normal[0]) && std::isfinite(normal[1]) && std::isfinite(normal[2]);
 }

@@ -17,6 +17,7 @@
 #include "detail/io_common.h"
 #include "detail/release.h"
 #include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
 #include "vdbrecon/log.h"
 
 #ifndef VDBRECON_VERSION
@@ -157,6 +158,16 @@ void fill_and_close(PipelineResult& r, const PipelineOptions& options, const Vol
         r.holes.mesh = Mesh{};
     }
     if (!options.watertight || r.mesh.faces.empty()) return;
+    const TopologyStats t = mesh_topology(r.mesh);
+    if (!t.watertight() || t.components != 1) {
+        // A loop through a non-manifold vertex, or a fill across a wide, warped loop (an open
+        // scan of no closed object) that folds onto itself.
+        log_warning("watertight: the filled mesh still has " + std::to_string(t.boundary_edges) +
+                    " boundary and " + std::to_string(t.nonmanifold_edges) +
+                    " non-manifold edges in " + std::to_string(t.components) +
+                    " pieces (largest loop filled: " + std::to_string(r.holes.largest_filled) +
+                    " edges); --watertight is meant for scans of closed objects");
+    }
     StageClock clock(r.timings, on_stage, "closed volume");
     Volume closed = mesh_volume(r.mesh, frame);
     closed.metadata["watertight"] = "1";

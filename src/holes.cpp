@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <deque>
 #include <limits>
 #include <map>
 #include <string>
@@ -201,45 +202,70 @@ struct Patch {
 
 /// Liepa's edge relaxation: flips an edge shared by two patch triangles when the two angles
 /// opposite it sum to more than pi (the Delaunay criterion) and the flipped edge is new.
-/// Returns whether anything changed.
-bool relax(Patch& s, const DirectedEdges& mesh_edges) {
-    bool any = false;
-    for (int pass = 0; pass < 20; ++pass) {
-        std::unordered_map<std::uint64_t, std::int32_t> owner;  // directed edge -> patch face
-        for (std::size_t f = 0; f < s.tris.size(); ++f) {
-            for (int k = 0; k < 3; ++k) owner[key(s.tris[f][k], s.tris[f][(k + 1) % 3])] = std::int32_t(f);
-        }
-        std::vector<char> touched(s.tris.size(), 0);
-        bool flipped = false;
-        for (std::size_t f = 0; f < s.tris.size(); ++f) {
-            for (int k = 0; k < 3 && !touched[f]; ++k) {
-                const std::int32_t a = s.tris[f][k], b = s.tris[f][(k + 1) % 3], c = s.tris[f][(k + 2) % 3];
-                const auto g_it = owner.find(key(b, a));
-                if (g_it == owner.end() || touched[std::size_t(g_it->second)]) continue;
-                const std::size_t g = std::size_t(g_it->second);
-                std::int32_t d = -1;
-                for (std::int32_t x : s.tris[g]) {
-                    if (x != a && x != b) d = x;
-                }
-                if (d < 0 || owner.count(key(c, d)) || owner.count(key(d, c)) ||
-                    mesh_edges.contains(c, d)) {
-                    continue;
-                }
-                const V3 &pa = s.p[std::size_t(a)], &pb = s.p[std::size_t(b)];
-                const V3 &pc = s.p[std::size_t(c)], &pd = s.p[std::size_t(d)];
-                auto angle = [](const V3& o, const V3& u, const V3& v) {
-                    return std::atan2((u - o).cross(v - o).norm(), (u - o).dot(v - o));
-                };
-                if (angle(pc, pa, pb) + angle(pd, pa, pb) <= M_PI + 1e-9) continue;
-                s.tris[f] = {c, a, d};
-                s.tris[g] = {d, b, c};
-                touched[f] = touched[g] = 1;
-                flipped = any = true;
-            }
-        }
-        if (!flipped) break;
+/// Lawson's flip algorithm: every face is checked once, and the faces a flip changes or faces
+/// across from are checked again (first in, first out: deterministic); at most 20 flips per
+/// face in all, in case non-planar loops would cycle.
+void relax(Patch& s, const DirectedEdges& mesh_edges) {
+    std::unordered_map<std::uint64_t, std::int32_t> owner;  // directed edge -> patch face
+    owner.reserve(3 * s.tris.size());
+    for (std::size_t f = 0; f < s.tris.size(); ++f) {
+        for (int k = 0; k < 3; ++k) owner[key(s.tris[f][k], s.tris[f][(k + 1) % 3])] = std::int32_t(f);
     }
-    return any;
+    std::deque<std::int32_t> queue;
+    std::vector<char> queued(s.tris.size(), 1);
+    for (std::size_t f = 0; f < s.tris.size(); ++f) queue.push_back(std::int32_t(f));
+    auto push = [&](std::int32_t f) {
+        if (f >= 0 && !queued[std::size_t(f)]) {
+            queued[std::size_t(f)] = 1;
+            queue.push_back(f);
+        }
+    };
+    auto across = [&](std::int32_t u, std::int32_t v) {  // the face holding v -> u
+        const auto it = owner.find(key(v, u));
+        return it == owner.end() ? std::int32_t(-1) : it->second;
+    };
+    auto angle = [](const V3& o, const V3& u, const V3& v) {
+        return std::atan2((u - o).cross(v - o).norm(), (u - o).dot(v - o));
+    };
+    std::size_t budget = 20 * s.tris.size();
+    while (!queue.empty() && budget > 0) {
+        const std::int32_t f = queue.front();
+        queue.pop_front();
+        queued[std::size_t(f)] = 0;
+        for (int k = 0; k < 3; ++k) {
+            const std::int32_t a = s.tris[std::size_t(f)][k], b = s.tris[std::size_t(f)][(k + 1) % 3],
+                               c = s.tris[std::size_t(f)][(k + 2) % 3];
+            const std::int32_t g = across(a, b);
+            if (g < 0) continue;
+            std::int32_t d = -1;
+            for (std::int32_t x : s.tris[std::size_t(g)]) {
+                if (x != a && x != b) d = x;
+            }
+            if (d < 0 || owner.count(key(c, d)) || owner.count(key(d, c)) ||
+                mesh_edges.contains(c, d)) {
+                continue;
+            }
+            const V3 &pa = s.p[std::size_t(a)], &pb = s.p[std::size_t(b)];
+            const V3 &pc = s.p[std::size_t(c)], &pd = s.p[std::size_t(d)];
+            if (angle(pc, pa, pb) + angle(pd, pa, pb) <= M_PI + 1e-9) continue;
+            // f = (a, b, c), g = (b, a, d)  ->  f = (c, a, d), g = (d, b, c).
+            owner.erase(key(a, b));
+            owner.erase(key(b, a));
+            s.tris[std::size_t(f)] = {c, a, d};
+            s.tris[std::size_t(g)] = {d, b, c};
+            for (std::int32_t h : {f, g}) {
+                const Triangle& t = s.tris[std::size_t(h)];
+                for (int e = 0; e < 3; ++e) owner[key(t[e], t[(e + 1) % 3])] = h;
+            }
+            --budget;
+            push(f);
+            push(g);
+            for (const auto& [u, v] : {std::pair{c, a}, std::pair{a, d}, std::pair{d, b}, std::pair{b, c}}) {
+                push(across(u, v));
+            }
+            break;  // f changed: its edges are checked when it comes up again
+        }
+    }
 }
 
 /// Liepa's refinement: splits a patch triangle at its centroid while the centroid is farther

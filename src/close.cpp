@@ -239,9 +239,6 @@ Volume close_holes(const Volume& in, int radius, const MeshOptions& mesh, CloseR
     auto sdf = openvdb::gridPtrCast<openvdb::FloatGrid>(in.sdf->deepCopyGrid());
     const MaskTree original(in.sdf->tree(), false, openvdb::TopologyCopy());
     MaskTree known = original;
-    // The values go into the holes of the band and the slab together: a hole in the samples
-    // leaves a hole in the band too, and where the closing bridged the slab but the band's own
-    // holes stayed open on either side, a cell at the surface would stay invalid.
     // The holes of band and slab together get values; so do the closed voxels up to two
     // voxels past the band around the bridged holes (dents of the band's faces there, where the
     // cube of the closing fits in, would leave invalid cells at the surface); not the rest of

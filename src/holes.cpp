@@ -16,6 +16,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "detail/mesh_graph.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -322,12 +323,11 @@ void fair(Patch& s, const std::vector<Triangle>& mesh_faces) {
             }
         }
     };
-    link(s.tris, false);
-    for (std::size_t v = first; v < nv; ++v) {
-        need[v] = 1;
-        for (std::int32_t j : nb[v]) need[std::size_t(j)] = 1;
+    for (const Triangle& t : s.tris) {  // the new vertices are in patch faces only
+        if (std::size_t(t[0]) >= first || std::size_t(t[1]) >= first || std::size_t(t[2]) >= first) {
+            for (std::int32_t v : t) need[std::size_t(v)] = 1;
+        }
     }
-    for (auto& l : nb) l.clear();
     link(s.tris, false);
     link(mesh_faces, true);
     for (auto& l : nb) {
@@ -425,18 +425,12 @@ void append_patch(Mesh& m, const Patch& s, const std::vector<Loop>& filled) {
     std::vector<Triangle>& faces = m.faces.edit();
     faces.insert(faces.end(), s.tris.begin(), s.tris.end());
     if (!m.normals.empty()) {
-        std::vector<V3> sum(nv - nv0, V3(0.0, 0.0, 0.0));
-        for (const Triangle& t : s.tris) {
-            const V3 n = (s.p[std::size_t(t[1])] - s.p[std::size_t(t[0])])
-                             .cross(s.p[std::size_t(t[2])] - s.p[std::size_t(t[0])]);
-            for (std::int32_t v : t) {
-                if (std::size_t(v) >= nv0) sum[std::size_t(v) - nv0] += n;
-            }
-        }
+        const std::vector<std::array<double, 3>> sum = detail::face_normal_sums(m);
         std::vector<Vec3f>& normals = m.normals.edit();
         normals.resize(nv);
         for (std::size_t v = nv0; v < nv; ++v) {
-            const V3 n = sum[v - nv0].norm() > 0.0 ? V3(sum[v - nv0].normalized()) : V3(0, 0, 1);
+            V3 n(sum[v][0], sum[v][1], sum[v][2]);
+            n = n.norm() > 0.0 ? V3(n.normalized()) : V3(0, 0, 1);
             normals[v] = {float(n[0]), float(n[1]), float(n[2])};
         }
     }

@@ -5,7 +5,6 @@
 // specification (R15): public header block, then point records of `record length` bytes at
 // `offset to point data`.
 #include <algorithm>
-#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -14,6 +13,7 @@
 
 #include "detail/io_common.h"
 #include "vdbrecon/error.h"
+#include "vdbrecon/io.h"
 
 namespace vdbrecon::detail {
 namespace {
@@ -41,18 +41,15 @@ std::size_t rgb_offset(int format) {
     }
 }
 
-}  // namespace
-
+/// Whether the file is LAZ (compressed LAS): by its header's compression bit, or its extension.
 bool is_laz(const std::string& path, std::string_view content) {
     if (content.size() >= 105 && content.compare(0, 4, "LASF") == 0) {
         return (std::uint8_t(content[104]) & 0xC0) != 0;  // LASzip sets bit 7 (or 6)
     }
-    const std::size_t dot = path.find_last_of('.');
-    if (dot == std::string::npos) return false;
-    std::string ext = path.substr(dot + 1);
-    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
-    return ext == "laz";
+    return file_extension(path) == "laz";
 }
+
+}  // namespace
 
 RawPoints read_las_raw(const std::string& path, std::string_view b, const std::vector<int>& classes) {
     if (is_laz(path, b)) {

@@ -39,6 +39,21 @@ std::vector<std::uint64_t> border_edge_keys(Span<Triangle> faces) {
     return keys;  // undirected_edges is sorted by (a, b), so are the keys
 }
 
+VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count) {
+    VertexFaces r;
+    r.first.assign(vertex_count + 1, 0);
+    for (const Triangle& t : faces) {
+        for (std::int32_t i : t) ++r.first[std::size_t(i) + 1];
+    }
+    for (std::size_t v = 0; v < vertex_count; ++v) r.first[v + 1] += r.first[v];
+    r.around.resize(r.first[vertex_count]);
+    std::vector<std::size_t> fill(r.first.begin(), r.first.end() - 1);
+    for (std::size_t f = 0; f < faces.size(); ++f) {
+        for (std::int32_t i : faces[f]) r.around[fill[std::size_t(i)]++] = std::int32_t(f);
+    }
+    return r;
+}
+
 std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count,
                                           const std::vector<char>* only) {
     const std::size_t nf = faces.size();
@@ -52,18 +67,10 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vert
         }
         return x;
     };
-    // Faces around each vertex (counting sort); a face g that holds both ends of an edge (a, b)
-    // of face f has that edge too.
-    std::vector<std::size_t> first(vertex_count + 1, 0);
-    for (const Triangle& t : faces) {
-        for (std::int32_t i : t) ++first[std::size_t(i) + 1];
-    }
-    for (std::size_t v = 0; v < vertex_count; ++v) first[v + 1] += first[v];
-    std::vector<std::int32_t> around(first[vertex_count]);
-    std::vector<std::size_t> fill(first.begin(), first.end() - 1);
-    for (std::size_t f = 0; f < nf; ++f) {
-        for (std::int32_t i : faces[f]) around[fill[std::size_t(i)]++] = std::int32_t(f);
-    }
+    // A face g around a that holds both ends of an edge (a, b) of face f has that edge too.
+    const VertexFaces vf = vertex_faces(faces, vertex_count);
+    const std::vector<std::size_t>& first = vf.first;
+    const std::vector<std::int32_t>& around = vf.around;
     for (std::size_t f = 0; f < nf; ++f) {
         if (only && !(*only)[f]) continue;
         const Triangle& t = faces[f];

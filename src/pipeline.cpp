@@ -10,7 +10,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <iomanip>
 #include <mutex>
 #include <sstream>
 
@@ -249,9 +248,7 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
         // The trims' gap test allows the random gaps of the sample: it needs its spacing, which
         // the volume carries (also in its file) for the closing and the mesher.
         if (const double h = sample_spacing(r); h > 0.0) {
-            std::ostringstream text;
-            text << std::setprecision(17) << h;
-            r.volume.metadata["sample_spacing"] = text.str();
+            r.volume.metadata["sample_spacing"] = detail::format_number(h);  // round-trips
         }
         hand_over("splat", r.volume);
         try {

@@ -14,6 +14,7 @@
 #include <limits>
 
 #include "detail/io_common.h"
+#include "detail/mesh_graph.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
 
@@ -60,27 +61,20 @@ double linear_to_srgb(double c) {
 /// of the corner's face.
 class AutoSmooth {
   public:
-    explicit AutoSmooth(const Mesh& mesh) : first_(mesh.vertices.size() + 1, 0) {
-        const std::size_t nf = mesh.faces.size();
-        normals_.resize(nf);
-        for (std::size_t f = 0; f < nf; ++f) {
+    explicit AutoSmooth(const Mesh& mesh)
+        : around_(detail::vertex_faces(mesh.faces, mesh.vertices.size())) {
+        normals_.resize(mesh.faces.size());
+        for (std::size_t f = 0; f < normals_.size(); ++f) {
             const Triangle& t = mesh.faces[f];
             const V3 a = v3(mesh.vertices[std::size_t(t[0])]);
             normals_[f] = cross(sub(v3(mesh.vertices[std::size_t(t[1])]), a),
                                 sub(v3(mesh.vertices[std::size_t(t[2])]), a));
-            for (std::int32_t v : t) ++first_[std::size_t(v) + 1];
-        }
-        for (std::size_t v = 1; v < first_.size(); ++v) first_[v] += first_[v - 1];
-        around_.resize(first_.back());
-        std::vector<std::size_t> fill(first_.begin(), first_.end() - 1);
-        for (std::size_t f = 0; f < nf; ++f) {
-            for (std::int32_t v : mesh.faces[f]) around_[fill[std::size_t(v)]++] = f;
         }
     }
     V3 corner(std::size_t v, const V3& face_n) const {
         V3 sum{0, 0, 0};
-        for (std::size_t j = first_[v]; j < first_[v + 1]; ++j) {
-            const V3& n = normals_[around_[j]];
+        for (std::size_t j = around_.first[v]; j < around_.first[v + 1]; ++j) {
+            const V3& n = normals_[std::size_t(around_.around[j])];
             const double len = std::sqrt(dot(n, n));
             if (len > 0.0 && dot(n, face_n) > 0.866 * len) sum = add(sum, n);
         }
@@ -88,7 +82,7 @@ class AutoSmooth {
     }
 
   private:
-    std::vector<std::size_t> first_, around_;
+    detail::VertexFaces around_;
     std::vector<V3> normals_;  // unnormalised: area-weighted
 };
 

@@ -135,8 +135,6 @@ RawPoints read_obj_raw(const std::string& path, std::string_view content, bool w
 /// ASPRS LAS 1.0-1.4 (io_las.cpp): the points of `classes` (all when empty), RGB as colours.
 RawPoints read_las_raw(const std::string& path, std::string_view content,
                        const std::vector<int>& classes);
-/// Whether the file is LAZ (compressed LAS): by its header's compression bit, or its extension.
-bool is_laz(const std::string& path, std::string_view content);
 
 /// PLY writer for clouds and meshes. Empty attributes are left out; `faces` may be null.
 void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& origin,

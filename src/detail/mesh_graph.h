@@ -32,6 +32,14 @@ inline std::uint64_t edge_key(std::int32_t a, std::int32_t b) {
 /// The keys (edge_key) of the open border's edges, those one face uses, sorted.
 std::vector<std::uint64_t> border_edge_keys(Span<Triangle> faces);
 
+/// The faces around each vertex, in face order (counting sort): those around v are
+/// around[first[v] .. first[v + 1]).
+struct VertexFaces {
+    std::vector<std::size_t> first;
+    std::vector<std::int32_t> around;
+};
+VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count);
+
 /// Edge-connected components of the faces (two faces that share an edge belong together): per
 /// face, its component's label, the smallest face index in it. Linear time. With `only`, just
 /// the faces it marks are joined (every other face is a component of its own).

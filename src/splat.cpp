@@ -107,10 +107,34 @@ void SplatOptions::validate() const {
     }
 }
 
+namespace detail {
+
+/// Grids that carry the sums from one splat to the next (SplatAccumulator): per voxel the
+/// summed w, u and u * phi, the vector to the nearest sample so far (world units) and, with
+/// colours, the summed u * rgb. Leaves exist wherever a kernel reached; each block's leaves are
+/// read and written only by the task that sums that block.
+struct SplatState {
+    SplatOptions options;
+    Vec3d origin{0.0, 0.0, 0.0};
+    openvdb::FloatGrid::Ptr w = openvdb::FloatGrid::create(0.0f);
+    openvdb::FloatGrid::Ptr u = openvdb::FloatGrid::create(0.0f);
+    openvdb::FloatGrid::Ptr uphi = openvdb::FloatGrid::create(0.0f);
+    openvdb::Vec3fGrid::Ptr nearest = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
+    openvdb::Vec3fGrid::Ptr color;  ///< u * rgb sums; null without colours
+    bool colors = false, started = false;
+    std::size_t points = 0, skipped = 0, updates = 0, clouds = 0;
+    float max_r = 0.0f;  ///< largest kernel radius so far, voxels
+    double sigma_min = std::numeric_limits<double>::infinity(), sigma_max = 0.0;
+    std::vector<double> sigma_medians;  ///< one per cloud, world units
+};
+
+}  // namespace detail
+
 namespace {
 
 using detail::Kernel;
 using detail::Kernels;
+using detail::SplatState;
 
 constexpr int kLeafLog2 = 3;  // 8^3 leaves, OpenVDB's default FloatTree leaf
 constexpr int kLeafDim = 1 << kLeafLog2;
@@ -382,16 +406,137 @@ add_piece_avx512(const Piece& p, BlockSums& sums) {
 }
 #endif
 
-/// Sums every (point, voxel) contribution of one 16^3 block, in increasing point order.
+/// The block index of leaf s's voxel v (s: which of the block's eight 8^3 leaves).
+inline int block_index(int s, int v) {
+    const int lx = (s >> 2) * kLeafDim, ly = ((s >> 1) & 1) * kLeafDim, lz = (s & 1) * kLeafDim;
+    return ((lx + (v >> 6)) << (2 * kBlockLog2)) | ((ly + ((v >> 3) & 7)) << kBlockLog2) |
+           (lz + (v & 7));
+}
+inline openvdb::Coord leaf_offset(int s) {
+    return openvdb::Coord((s >> 2) * kLeafDim, ((s >> 1) & 1) * kLeafDim, (s & 1) * kLeafDim);
+}
+
+/// A voxel's sums, as emit_leaf() reads them.
+struct VoxelSums {
+    double w, u, uphi;
+    openvdb::Vec3f nearest;  ///< voxel to nearest sample, world units
+    double r, g, b;          ///< u * rgb
+};
+
+/// One output leaf (sdf, weight, nearest and colour) at lo_world from the sums of its voxels
+/// (`at(v)`, v the leaf offset): the voxels with w >= min_weight (and w > 0) are valid and get
+/// sdf = u phi / u (clamped to the band), weight w, the nearest vector and the mean colour.
+/// Nothing is written when no voxel is valid. The one rule for splat() and the accumulator.
+template <typename At>
+void emit_leaf(const openvdb::Coord& lo_world, At&& at, bool colors, double min_weight,
+               float background, BlockOut& out, int s) {
+    std::size_t active = 0;
+    for (int v = 0; v < kLeafVoxels; ++v) {
+        const double w = at.w(v);
+        out.touched += w > 0.0;
+        active += w > 0.0 && w >= min_weight;
+    }
+    out.active += active;
+    if (active == 0) return;
+    out.sdf[s] = std::make_unique<FloatLeaf>(lo_world, background, false);
+    out.weight[s] = std::make_unique<FloatLeaf>(lo_world, 0.0f, false);
+    out.nearest[s] = std::make_unique<Vec3Leaf>(lo_world, openvdb::Vec3f(0.0f), false);
+    if (colors) out.color[s] = std::make_unique<Vec3Leaf>(lo_world, openvdb::Vec3f(0.0f), false);
+    for (int v = 0; v < kLeafVoxels; ++v) {
+        const double w = at.w(v);
+        if (!(w > 0.0 && w >= min_weight)) continue;
+        const VoxelSums x = at(v);
+        const double inv_u = 1.0 / x.u;
+        const auto idx = openvdb::Index(v);
+        out.sdf[s]->setValueOn(
+            idx, float(std::clamp(x.uphi * inv_u, -double(background), double(background))));
+        out.weight[s]->setValueOn(idx, float(x.w));
+        out.nearest[s]->setValueOn(idx, x.nearest);
+        if (colors) {
+            out.color[s]->setValueOn(
+                idx, openvdb::Vec3f(float(x.r * inv_u), float(x.g * inv_u), float(x.b * inv_u)));
+        }
+    }
+}
+
+constexpr std::uint32_t kNoPoint = std::numeric_limits<std::uint32_t>::max();
+
+/// Loads the state's sums of the block at o into `sums` (zero where it has none); the nearest
+/// sample of a loaded voxel is the state's (kNoPoint), until a nearer one comes.
+void load_state(const SplatState& state, const openvdb::Coord& o, double voxel, BlockSums& sums,
+                std::vector<ColorSums>& csums) {
+    for (int s = 0; s < 8; ++s) {
+        const openvdb::Coord lo = o + leaf_offset(s);
+        const FloatLeaf* w = state.w->tree().probeConstLeaf(lo);
+        if (!w) continue;
+        const FloatLeaf* u = state.u->tree().probeConstLeaf(lo);
+        const FloatLeaf* uphi = state.uphi->tree().probeConstLeaf(lo);
+        const Vec3Leaf* nearest = state.nearest->tree().probeConstLeaf(lo);
+        const Vec3Leaf* color = state.colors ? state.color->tree().probeConstLeaf(lo) : nullptr;
+        for (int v = 0; v < kLeafVoxels; ++v) {
+            const auto idx = openvdb::Index(v);
+            if (!(w->getValue(idx) > 0.0f)) continue;
+            const int i = block_index(s, v);
+            sums.w[i] = double(w->getValue(idx));
+            sums.u[i] = double(u->getValue(idx));
+            sums.uphi[i] = double(uphi->getValue(idx));
+            const openvdb::Vec3d d = openvdb::Vec3d(nearest->getValue(idx)) / voxel;
+            sums.d2[i] = d.lengthSqr();
+            sums.nearest[i] = kNoPoint;
+            if (color) {
+                const openvdb::Vec3f c = color->getValue(idx);
+                csums[std::size_t(i)] = {double(c[0]), double(c[1]), double(c[2])};
+            }
+        }
+    }
+}
+
+/// Writes the block's sums back to the state's leaves (made beforehand for every leaf a kernel
+/// reaches).
+void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kernels,
+                 double voxel, const BlockSums& sums, const std::vector<ColorSums>& csums) {
+    for (int s = 0; s < 8; ++s) {
+        const openvdb::Coord lo = o + leaf_offset(s);
+        FloatLeaf* w = state.w->tree().probeLeaf(lo);
+        if (!w) continue;
+        FloatLeaf* u = state.u->tree().probeLeaf(lo);
+        FloatLeaf* uphi = state.uphi->tree().probeLeaf(lo);
+        Vec3Leaf* nearest = state.nearest->tree().probeLeaf(lo);
+        Vec3Leaf* color = state.colors ? state.color->tree().probeLeaf(lo) : nullptr;
+        for (int v = 0; v < kLeafVoxels; ++v) {
+            const int i = block_index(s, v);
+            if (!(sums.w[i] > 0.0)) continue;
+            const auto idx = openvdb::Index(v);
+            w->setValueOn(idx, float(sums.w[i]));
+            u->setValueOn(idx, float(sums.u[i]));
+            uphi->setValueOn(idx, float(sums.uphi[i]));
+            if (sums.nearest[i] != kNoPoint) {
+                const openvdb::Vec3d k = kernels.centre(sums.nearest[i]);
+                const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(idx) + lo;
+                nearest->setValueOn(idx, openvdb::Vec3f((k - c.asVec3d()) * voxel));
+            }
+            if (color) {
+                const ColorSums& c3 = csums[std::size_t(i)];
+                color->setValueOn(idx, openvdb::Vec3f(float(c3.r), float(c3.g), float(c3.b)));
+            }
+        }
+    }
+}
+
+/// Sums every (point, voxel) contribution of one 16^3 block, in increasing point order, onto
+/// the state's sums when there is a state (and writes them back), else onto zero (and emits
+/// the block's output leaves).
 template <bool kColors, typename P>
 void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Kernels& kernels,
                  const PointCloud& cloud, double voxel, double min_weight, float background,
-                 int vector_rows, BlockSums& sums, std::vector<ColorSums>& csums, BlockOut& out) {
+                 int vector_rows, SplatState* state, BlockSums& sums,
+                 std::vector<ColorSums>& csums, BlockOut& out) {
     std::fill(std::begin(sums.w), std::end(sums.w), 0.0);
     std::fill(std::begin(sums.u), std::end(sums.u), 0.0);
     std::fill(std::begin(sums.uphi), std::end(sums.uphi), 0.0);
     std::fill(std::begin(sums.d2), std::end(sums.d2), std::numeric_limits<double>::infinity());
     if (kColors) csums.assign(kBlockVoxels, {0, 0, 0});
+    if (state) load_state(*state, o, voxel, sums, csums);
     Piece p{};  // zeroed: the vector rows read (and mask out) lanes outside the box
     std::size_t updates = 0;
     for (const P* q = begin; q != end; ++q) {
@@ -403,11 +548,12 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
         p.point = q->point;
         // Gaussian on consecutive voxels by recurrence, two exp() per axis instead of one per
         // voxel: g(d+1) = g(d) q(d), q(d) = exp(-(2d+1)/s^2), q(d+1) = q(d) exp(-2/s^2).
+        // The x factor carries the confidence (exactly 1 without one).
         const double c[3] = {k.cx, k.cy, k.cz};
         const float nc[3] = {k.nx, k.ny, k.nz};
         for (int a = 0; a < 3; ++a) {
             const double d0 = double(o[a] + p.lo[a]) - c[a];  // index units
-            double gt = std::exp(-d0 * d0 * inv_s2);
+            double gt = std::exp(-d0 * d0 * inv_s2) * (a == 0 ? double(k.conf) : 1.0);
             double qt = std::exp(-(2.0 * d0 + 1.0) * inv_s2);
             for (int t = p.lo[a]; t <= p.hi[a]; ++t) {
                 const double d = double(o[a] + t) - c[a];
@@ -428,47 +574,40 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
         updates += add_piece<kColors>(p, col, sums, csums);
     }
     out.updates = updates;
-    auto valid = [&](int i) { return sums.w[i] > 0.0 && sums.w[i] >= min_weight; };
+    if (state) {
+        store_state(*state, o, kernels, voxel, sums, csums);
+        return;
+    }
     // The block's eight leaves, each written only when one of its voxels is valid.
     for (int s = 0; s < 8; ++s) {
-        const openvdb::Coord lo((s >> 2) * kLeafDim, ((s >> 1) & 1) * kLeafDim, (s & 1) * kLeafDim);
-        auto at = [&](int v) {  // leaf voxel offset -> block index
-            return ((lo[0] + (v >> 6)) << (2 * kBlockLog2)) | ((lo[1] + ((v >> 3) & 7)) << kBlockLog2) |
-                   (lo[2] + (v & 7));
-        };
-        std::size_t active = 0;
-        for (int v = 0; v < kLeafVoxels; ++v) {
-            out.touched += sums.w[at(v)] > 0.0;
-            active += valid(at(v));
-        }
-        out.active += active;
-        if (active == 0) continue;
-        const openvdb::Coord lo_world = o + lo;
-        out.sdf[s] = std::make_unique<FloatLeaf>(lo_world, background, false);
-        out.weight[s] = std::make_unique<FloatLeaf>(lo_world, 0.0f, false);
-        out.nearest[s] = std::make_unique<Vec3Leaf>(lo_world, openvdb::Vec3f(0.0f), false);
-        if (kColors) out.color[s] = std::make_unique<Vec3Leaf>(lo_world, openvdb::Vec3f(0.0f), false);
-        for (int v = 0; v < kLeafVoxels; ++v) {
-            const int i = at(v);
-            if (!valid(i)) continue;
-            const double inv_u = 1.0 / sums.u[i];
-            const auto idx = openvdb::Index(v);
-            out.sdf[s]->setValueOn(idx, float(std::clamp(sums.uphi[i] * inv_u, -double(background),
-                                                          double(background))));
-            out.weight[s]->setValueOn(idx, float(sums.w[i]));
-            // Stored as the vector from the voxel to the sample, world units.
-            const openvdb::Vec3d k = kernels.centre(sums.nearest[i]);
-            const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(idx) + lo_world;
-            const double ex = double(c[0]) - k[0], ey = double(c[1]) - k[1],
-                         ez = double(c[2]) - k[2];
-            out.nearest[s]->setValueOn(idx, openvdb::Vec3f(float(-ex * voxel), float(-ey * voxel),
-                                                           float(-ez * voxel)));
-            if (kColors) {
-                const ColorSums& c3 = csums[std::size_t(i)];
-                out.color[s]->setValueOn(idx, openvdb::Vec3f(float(c3.r * inv_u), float(c3.g * inv_u),
-                                                             float(c3.b * inv_u)));
+        struct At {
+            const BlockSums& sums;
+            const std::vector<ColorSums>& csums;
+            const Kernels& kernels;
+            openvdb::Coord lo_world;
+            double voxel;
+            int s;
+            double w(int v) const { return sums.w[block_index(s, v)]; }
+            VoxelSums operator()(int v) const {
+                const int i = block_index(s, v);
+                // Stored as the vector from the voxel to the sample, world units.
+                const openvdb::Vec3d k = kernels.centre(sums.nearest[i]);
+                const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(openvdb::Index(v)) + lo_world;
+                const double ex = double(c[0]) - k[0], ey = double(c[1]) - k[1],
+                             ez = double(c[2]) - k[2];
+                VoxelSums x{sums.w[i], sums.u[i], sums.uphi[i],
+                            openvdb::Vec3f(float(-ex * voxel), float(-ey * voxel), float(-ez * voxel)),
+                            0, 0, 0};
+                if (kColors) {
+                    const ColorSums& c3 = csums[std::size_t(i)];
+                    x.r = c3.r, x.g = c3.g, x.b = c3.b;
+                }
+                return x;
             }
-        }
+        };
+        const openvdb::Coord lo_world = o + leaf_offset(s);
+        emit_leaf(lo_world, At{sums, csums, kernels, lo_world, voxel, s}, kColors, min_weight,
+                  background, out, s);
     }
 }
 
@@ -479,6 +618,7 @@ struct BlockSetup {
     const PointCloud& cloud;
     const SplatOptions& options;
     float background;  ///< the sdf's background, world units
+    SplatState* state;  ///< sums carried over from earlier clouds (the accumulator), or null
 };
 
 /// The (block, point) pairs are listed, sorted and summed one slab of block x-coordinates at a
@@ -511,6 +651,30 @@ std::size_t for_each_pair(const Kernels& kernels, std::size_t i, int x0, int x1,
         }
     }
     return count;
+}
+
+/// Makes the state's leaves (in all its grids) that the blocks' kernels reach and do not exist
+/// yet (serially: the tree's structure changes); returns the state's leaf count, for the
+/// memory estimate.
+template <typename Key>
+std::size_t make_state_leaves(SplatState& state, const BlockCodec& codec,
+                              const std::vector<Pair<Key>>& pairs,
+                              const std::vector<std::size_t>& block_begin,
+                              const std::vector<std::uint8_t>& touched_leaves) {
+    for (std::size_t B = 0; B + 1 < block_begin.size(); ++B) {
+        const openvdb::Coord o = codec.origin(pairs[block_begin[B]].key);
+        for (int s = 0; s < 8; ++s) {
+            if (!(touched_leaves[B] >> s & 1u)) continue;
+            const openvdb::Coord lo = o + leaf_offset(s);
+            if (state.w->tree().probeConstLeaf(lo)) continue;
+            state.w->tree().touchLeaf(lo);
+            state.u->tree().touchLeaf(lo);
+            state.uphi->tree().touchLeaf(lo);
+            state.nearest->tree().touchLeaf(lo);
+            if (state.colors) state.color->tree().touchLeaf(lo);
+        }
+    }
+    return state.w->tree().leafCount();
 }
 
 /// Lists the (block, point) pairs, sorts them, checks the memory budget and sums every block,
@@ -658,6 +822,8 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
             }
         });
         for (std::uint8_t m : touched_leaves) num_leaves += std::size_t(__builtin_popcount(m));
+        if (setup.state) num_leaves = make_state_leaves(*setup.state, codec, pairs, block_begin,
+                                                        touched_leaves);
         detail::release(touched_leaves);
         {
             std::ostringstream what;
@@ -680,10 +846,12 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
                 BlockOut& out = blocks[first_block + B];
                 if (colors) {
                     splat_block<true>(codec.origin(b->key), b, e, kernels, cloud, voxel,
-                                      min_weight, background, vector_rows, *sums, csums, out);
+                                      min_weight, background, vector_rows, setup.state, *sums,
+                                      csums, out);
                 } else {
                     splat_block<false>(codec.origin(b->key), b, e, kernels, cloud, voxel,
-                                       min_weight, background, vector_rows, *sums, csums, out);
+                                       min_weight, background, vector_rows, setup.state, *sums,
+                                       csums, out);
                 }
             }
         });
@@ -691,23 +859,32 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
     return blocks;
 }
 
-}  // namespace
+/// What summing one cloud found.
+struct CloudSums {
+    std::vector<BlockOut> blocks;  ///< splat() only: an accumulator's sums go to its state
+    float max_r = 0.0f;            ///< largest kernel radius, voxels
+    float background = 0.0f;       ///< the band's half width, world units
+    double sigma_min = 0.0, sigma_median = 0.0, sigma_max = 0.0;  ///< world units
+    std::size_t skipped = 0;       ///< points without a usable normal or confidence
+};
 
-SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
-    options.validate();
-    initialize_openvdb();
+void check_cloud(const PointCloud& cloud) {
     if (cloud.empty()) throw InvalidArgument("splat: the point cloud is empty");
     if (!cloud.has_normals()) {
         throw InvalidArgument("splat: the points have no normals. Hint: estimate them first "
                               "(--normals estimate)");
     }
-    const std::size_t n = cloud.size();
-    const double voxel = options.voxel_size;
-    const bool colors = cloud.has_colors();
-    SplatResult result;
+}
 
-    // Per-point kernels, made when needed; first their range, sigmas and usable normals.
-    Kernels kernels(cloud, options);
+/// Narrow-band half width: no |sdf| can exceed the largest support radius (voxels).
+float band_background(float max_r, double voxel) {
+    return float(std::max(3.0, std::ceil(double(max_r))) * voxel);
+}
+
+/// The kernels' range and sigmas: refuses clouds no kernel of which is usable and voxels the
+/// index range or OpenVDB's transforms cannot take.
+void measure_kernels(const Kernels& kernels, double voxel, CloudSums& out) {
+    const std::size_t n = kernels.size();
     const std::size_t chunks = detail::chunk_count(n);
     std::vector<double> chunk_index(chunks, 0.0);
     std::vector<float> chunk_r(chunks, 0.0f);
@@ -734,9 +911,10 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     // Range check before any big allocation.
     const double max_index = *std::max_element(chunk_index.begin(), chunk_index.end());
     const float max_r = *std::max_element(chunk_r.begin(), chunk_r.end());
-    result.skipped_points =
+    out.max_r = max_r;
+    out.skipped =
         std::accumulate(chunk_skipped.begin(), chunk_skipped.end(), std::size_t(0));
-    if (result.skipped_points == n) {
+    if (out.skipped == n) {
         throw InvalidArgument("splat: none of the " + std::to_string(n) +
                               " points has a usable (non-zero, finite) normal");
     }
@@ -760,17 +938,19 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
         std::vector<float> s = std::move(sigmas);
         s.erase(std::remove(s.begin(), s.end(), -1.0f), s.end());
         std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
-        result.sigma_median = double(s[s.size() / 2]) * voxel;
+        out.sigma_median = double(s[s.size() / 2]) * voxel;
         const auto mm = std::minmax_element(s.begin(), s.end());
-        result.sigma_min = double(*mm.first) * voxel;
-        result.sigma_max = double(*mm.second) * voxel;
+        out.sigma_min = double(*mm.first) * voxel;
+        out.sigma_max = double(*mm.second) * voxel;
     }
 
-    // Area normalisation: every sample's kernel carries the same mass, so where fine and coarse
-    // samples overlap the fine ones (smaller footprint, usually the more accurate, e.g. not at a
-    // grazing angle) dominate -- the scale weighting of FSSR.
-    kernels.set_median_sigma(result.sigma_median / voxel);
+}
 
+/// Lists, sorts and sums the (block, point) pairs of measured kernels (measure_kernels).
+void sum_kernels(const Kernels& kernels, const PointCloud& cloud, const SplatOptions& options,
+                 SplatState* state, CloudSums& out) {
+    const std::size_t n = kernels.size();
+    const double voxel = options.voxel_size;
     // Blocks the kernels touch: per-chunk pair counts and the range of block coordinates.
     std::vector<std::size_t> chunk_pairs(detail::chunk_count(n), 0);
     std::vector<std::array<int, 6>> ranges(detail::chunk_count(n));
@@ -806,20 +986,32 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
         while (std::uint32_t(hi - lo) >> codec.bits[a]) ++codec.bits[a];
     }
 
-    // Narrow-band half width: no |sdf| can exceed the largest support radius.
-    const double half_width = std::max(3.0, std::ceil(double(max_r)));
-    const float background = float(half_width * voxel);
-    BlockSetup setup{kernels, codec, cloud, options, background};
-    std::vector<BlockOut> blocks =
+    out.background = band_background(out.max_r, voxel);
+    BlockSetup setup{kernels, codec, cloud, options, out.background, state};
+    out.blocks =
         codec.total() <= 32 ? sum_blocks<std::uint32_t>(setup, std::move(chunk_pairs), x_hi)
                             : sum_blocks<std::uint64_t>(setup, std::move(chunk_pairs), x_hi);
 
-    // Assemble the trees (serial; leaves are disjoint, so the order does not matter).
-    auto sdf = openvdb::FloatGrid::create(background);
-    auto weight = openvdb::FloatGrid::create(0.0f);
-    auto nearest = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
-    openvdb::Vec3fGrid::Ptr color = colors ? openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f))
-                                           : nullptr;
+}
+
+/// The output grids.
+struct Grids {
+    openvdb::FloatGrid::Ptr sdf, weight;
+    openvdb::Vec3fGrid::Ptr nearest, color;
+};
+
+/// The blocks' leaves put into trees (serial; leaves are disjoint, so the order does not
+/// matter); throws NumericalError when no voxel is valid.
+Grids assemble(std::vector<BlockOut>& blocks, bool colors, float background,
+               const SplatOptions& options, SplatResult& result) {
+    const double voxel = options.voxel_size;
+    Grids g;
+    g.sdf = openvdb::FloatGrid::create(background);
+    g.weight = openvdb::FloatGrid::create(0.0f);
+    g.nearest = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
+    if (colors) g.color = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
+    auto &sdf = g.sdf, &weight = g.weight;
+    auto &nearest = g.nearest, &color = g.color;
     for (BlockOut& l : blocks) {
         result.updates += l.updates;
         result.touched_voxels += l.touched;
@@ -840,15 +1032,20 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
           << "). Hint: a larger --voxel or a smaller --min-weight";
         throw NumericalError(s.str());
     }
-    // Next to sharp creases, the field of each face on its own, combined as the solid they bound.
-    const detail::CreaseStats creases = detail::sharpen_creases(
-        sdf->tree(), kernels, n, voxel, options.crease_angle * M_PI / 180.0, background);
-    result.crease_voxels = creases.modelled;
+    return g;
+}
+
+/// The volume of finished grids: signs flood-filled, transforms, names and metadata.
+void finish_volume(Grids g, const Vec3d& origin, std::size_t points, const SplatOptions& options,
+                   SplatResult& result) {
+    const double voxel = options.voxel_size;
+    auto &sdf = g.sdf, &weight = g.weight;
+    auto &nearest = g.nearest, &color = g.color;
     // Inactive values take the sign of their neighbourhood (a proper narrow-band level set).
     openvdb::tools::signedFloodFill(sdf->tree());
 
     openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(voxel);
-    xform->postTranslate(openvdb::Vec3d(cloud.origin[0], cloud.origin[1], cloud.origin[2]));
+    xform->postTranslate(openvdb::Vec3d(origin[0], origin[1], origin[2]));
     sdf->setTransform(xform);
     sdf->setName("sdf");
     sdf->setGridClass(openvdb::GRID_LEVEL_SET);
@@ -869,7 +1066,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     vol.nearest = nearest;
     vol.color = color;
     vol.voxel_size = voxel;
-    vol.origin = cloud.origin;
+    vol.origin = origin;
     std::ostringstream k;
     k << "gaussian w = exp(-d^2/sigma^2), support " << options.support
       << " sigma, linear basis n.(x-p), averaged with (sigma_median/sigma)^2 w";
@@ -880,8 +1077,146 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     vol.metadata["scale_factor"] = std::to_string(options.scale_factor);
     vol.metadata["min_weight"] = std::to_string(options.min_weight);
     vol.metadata["crease_angle"] = std::to_string(options.crease_angle);
-    vol.metadata["points"] = std::to_string(n);
+    vol.metadata["points"] = std::to_string(points);
     result.memory_bytes = vol.memory_bytes();
+}
+
+}  // namespace
+
+SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
+    options.validate();
+    initialize_openvdb();
+    check_cloud(cloud);
+    const double voxel = options.voxel_size;
+    SplatResult result;
+    // Per-point kernels, made when needed; first their range, sigmas and usable normals.
+    Kernels kernels(cloud, options);
+    CloudSums sums;
+    measure_kernels(kernels, voxel, sums);
+    result.skipped_points = sums.skipped;
+    result.sigma_min = sums.sigma_min;
+    result.sigma_median = sums.sigma_median;
+    result.sigma_max = sums.sigma_max;
+    // Area normalisation: every sample's kernel carries the same mass, so where fine and coarse
+    // samples overlap the fine ones (smaller footprint, usually the more accurate, e.g. not at a
+    // grazing angle) dominate -- the scale weighting of FSSR.
+    kernels.set_median_sigma(result.sigma_median / voxel);
+    sum_kernels(kernels, cloud, options, nullptr, sums);
+    Grids g = assemble(sums.blocks, cloud.has_colors(), sums.background, options, result);
+    // Next to sharp creases, the field of each face on its own, combined as the solid they bound.
+    const detail::CreaseStats creases =
+        detail::sharpen_creases(g.sdf->tree(), kernels, cloud.size(), voxel,
+                                options.crease_angle * M_PI / 180.0, sums.background);
+    result.crease_voxels = creases.modelled;
+    finish_volume(std::move(g), cloud.origin, cloud.size(), options, result);
+    return result;
+}
+
+
+SplatAccumulator::SplatAccumulator(const SplatOptions& options, const Vec3d& origin)
+    : state_(std::make_unique<detail::SplatState>()) {
+    options.validate();
+    initialize_openvdb();
+    state_->options = options;
+    state_->origin = origin;
+}
+SplatAccumulator::~SplatAccumulator() = default;
+SplatAccumulator::SplatAccumulator(SplatAccumulator&&) noexcept = default;
+SplatAccumulator& SplatAccumulator::operator=(SplatAccumulator&&) noexcept = default;
+
+const SplatOptions& SplatAccumulator::options() const { return state_->options; }
+const Vec3d& SplatAccumulator::origin() const { return state_->origin; }
+std::size_t SplatAccumulator::clouds() const { return state_->clouds; }
+std::size_t SplatAccumulator::points() const { return state_->points; }
+
+std::size_t SplatAccumulator::memory_bytes() const {
+    const SplatState& st = *state_;
+    return std::size_t(st.w->memUsage() + st.u->memUsage() + st.uphi->memUsage() +
+                       st.nearest->memUsage() + (st.color ? st.color->memUsage() : 0));
+}
+
+void SplatAccumulator::add(const PointCloud& cloud) {
+    SplatState& st = *state_;
+    check_cloud(cloud);
+    if (cloud.origin != st.origin) {
+        throw InvalidArgument("splat: a cloud added to an accumulator must share its origin");
+    }
+    if (st.started && cloud.has_colors() != st.colors) {
+        throw InvalidArgument("splat: every cloud added to an accumulator must have colours, or "
+                              "none");
+    }
+    const SplatOptions& options = st.options;
+    Kernels kernels(cloud, options);
+    CloudSums sums;
+    measure_kernels(kernels, options.voxel_size, sums);
+    if (!st.started) {
+        st.started = true;
+        st.colors = cloud.has_colors();
+        if (st.colors) st.color = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
+    }
+    // The area normalisation's reference sigma is the voxel, not the cloud's median: a constant
+    // factor of every u, which cancels in u phi / u, so clouds added apart still mix correctly.
+    kernels.set_median_sigma(1.0);
+    sum_kernels(kernels, cloud, options, &st, sums);
+    for (const BlockOut& b : sums.blocks) st.updates += b.updates;
+    st.points += cloud.size();
+    st.skipped += sums.skipped;
+    st.clouds += 1;
+    st.max_r = std::max(st.max_r, sums.max_r);
+    st.sigma_min = std::min(st.sigma_min, sums.sigma_min);
+    st.sigma_max = std::max(st.sigma_max, sums.sigma_max);
+    st.sigma_medians.push_back(sums.sigma_median);
+}
+
+SplatResult SplatAccumulator::result() const {
+    const SplatState& st = *state_;
+    if (st.clouds == 0) throw InvalidArgument("splat: nothing was added to the accumulator");
+    const SplatOptions& options = st.options;
+    const double voxel = options.voxel_size;
+    SplatResult result;
+    result.skipped_points = st.skipped;
+    result.sigma_min = st.sigma_min;
+    result.sigma_max = st.sigma_max;
+    std::vector<double> medians = st.sigma_medians;  // the median of the clouds' medians
+    std::nth_element(medians.begin(), medians.begin() + std::ptrdiff_t(medians.size() / 2),
+                     medians.end());
+    result.sigma_median = medians[medians.size() / 2];
+    const float background = band_background(st.max_r, voxel);
+    // One output leaf per state leaf, in parallel (each task writes its own BlockOut).
+    std::vector<const FloatLeaf*> leaves;
+    leaves.reserve(st.w->tree().leafCount());
+    for (auto it = st.w->tree().cbeginLeaf(); it; ++it) leaves.push_back(&*it);
+    std::vector<BlockOut> blocks(leaves.size());
+    struct At {
+        const FloatLeaf *wl, *ul, *uphil;
+        const Vec3Leaf *nearestl, *colorl;
+        double w(int v) const { return double(wl->getValue(openvdb::Index(v))); }
+        VoxelSums operator()(int v) const {
+            const auto i = openvdb::Index(v);
+            VoxelSums x{w(v), double(ul->getValue(i)), double(uphil->getValue(i)),
+                        nearestl->getValue(i), 0, 0, 0};
+            if (colorl) {
+                const openvdb::Vec3f c = colorl->getValue(i);
+                x.r = double(c[0]), x.g = double(c[1]), x.b = double(c[2]);
+            }
+            return x;
+        }
+    };
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 16),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t j = rg.begin(); j < rg.end(); ++j) {
+            const openvdb::Coord lo = leaves[j]->origin();
+            const At at{leaves[j], st.u->tree().probeConstLeaf(lo),
+                        st.uphi->tree().probeConstLeaf(lo), st.nearest->tree().probeConstLeaf(lo),
+                        st.colors ? st.color->tree().probeConstLeaf(lo) : nullptr};
+            emit_leaf(lo, at, st.colors, options.min_weight, background, blocks[j], 0);
+        }
+    });
+    result.updates = st.updates;
+    Grids g = assemble(blocks, st.colors, background, options, result);
+    finish_volume(std::move(g), st.origin, st.points, options, result);
+    result.volume.metadata["clouds"] = std::to_string(st.clouds);
+    result.volume.metadata["crease_angle"] = "0";
     return result;
 }
 

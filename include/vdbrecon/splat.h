@@ -29,6 +29,7 @@
 #pragma once
 
 #include <cstddef>
+#include <memory>
 
 #include "vdbrecon/types.h"
 #include "vdbrecon/volume.h"
@@ -97,5 +98,43 @@ struct SplatResult {
 /// Splats an oriented cloud (normals required) into a Volume. Throws InvalidArgument when the
 /// cloud has no normals or the options are out of range.
 SplatResult splat(const PointCloud& cloud, const SplatOptions& options);
+
+namespace detail {
+struct SplatState;
+}
+
+/// Splats clouds one after another onto the same sums: range-image fusion adds one frame at a
+/// time, so memory follows the grid, not the number of frames. result() is the volume of all
+/// clouds added so far, by the rules of splat(); adding the same clouds in the same order gives
+/// the same grids bit for bit for any thread count. What differs from one splat() of all of
+/// them at once: the sums are kept in float between clouds (in double within one), the area
+/// normalisation's reference sigma is the voxel (a constant factor of every u that cancels in
+/// sdf = sum u phi / sum u), and there is no crease model (it needs every sample of a leaf at
+/// once).
+class SplatAccumulator {
+  public:
+    /// Throws InvalidArgument when the options are out of range. Clouds added must have
+    /// `origin` as their origin.
+    explicit SplatAccumulator(const SplatOptions& options, const Vec3d& origin = {0.0, 0.0, 0.0});
+    ~SplatAccumulator();
+    SplatAccumulator(SplatAccumulator&&) noexcept;
+    SplatAccumulator& operator=(SplatAccumulator&&) noexcept;
+
+    /// Adds an oriented cloud (normals required; confidences, scales and colours used as by
+    /// splat(): every cloud has colours or none). Throws InvalidArgument as splat() does.
+    void add(const PointCloud& cloud);
+    /// The volume of everything added so far (NumericalError when no voxel is valid).
+    SplatResult result() const;
+
+    const SplatOptions& options() const;
+    const Vec3d& origin() const;
+    std::size_t clouds() const;  ///< clouds added
+    std::size_t points() const;  ///< their points
+    /// Memory of the accumulated sums, bytes.
+    std::size_t memory_bytes() const;
+
+  private:
+    std::unique_ptr<detail::SplatState> state_;
+};
 
 }  // namespace vdbrecon

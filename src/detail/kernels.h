@@ -19,6 +19,7 @@ struct Kernel {
     float s;            // sigma, voxels
     float r;            // support radius, voxels (0 = point skipped)
     float amp;          // (sigma_median / sigma)^2: equal kernel mass per sample
+    float conf;         // the sample's confidence (1 without one): scales w and u alike
     double inv_s2;      // 1 / sigma^2
     double rho;         // exp(-2 / sigma^2), the Gaussian recurrence's ratio step
 };
@@ -30,7 +31,8 @@ struct Kernel {
 class Kernels {
   public:
     Kernels(const PointCloud& cloud, const SplatOptions& options)
-        : cloud_(cloud), options_(options), use_scale_(cloud.has_scales()) {}
+        : cloud_(cloud), options_(options), use_scale_(cloud.has_scales()),
+          use_conf_(cloud.has_confidences()) {}
 
     std::size_t size() const { return cloud_.size(); }
     /// Point i's kernel centre, index units.
@@ -61,8 +63,11 @@ class Kernels {
         }
         s = std::clamp(s, options_.min_sigma_voxels, options_.max_sigma_voxels);
         k.s = float(s);
-        if (!(std::isfinite(len) && len > 1e-12)) {
-            k.r = 0.0f;  // no usable normal: skipped
+        // FSSR's weight carries the sample's confidence; a sample of confidence <= 0 (or NaN)
+        // weighs nothing and is skipped like one without a normal.
+        k.conf = use_conf_ ? cloud_.confidences[i] : 1.0f;
+        if (!(std::isfinite(len) && len > 1e-12) || !(k.conf > 0.0f && std::isfinite(k.conf))) {
+            k.r = 0.0f;  // no usable normal (or no confidence): skipped
             return k;
         }
         k.r = float(options_.support * s);
@@ -82,6 +87,7 @@ class Kernels {
     const PointCloud& cloud_;
     const SplatOptions& options_;
     bool use_scale_;
+    bool use_conf_;
     double median_sigma_ = 0.0;
 };
 

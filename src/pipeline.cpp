@@ -15,6 +15,7 @@
 
 #include "detail/io_common.h"
 #include "detail/release.h"
+#include "detail/run.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
 #include "vdbrecon/log.h"
@@ -70,39 +71,17 @@ std::string stage_volume_path(const std::string& mesh_path, const std::string& s
     return stem + "." + stage + ".vdb";
 }
 
-namespace {
-
-double peak_rss_mb();
-
-class StageClock {
-public:
-    StageClock(std::vector<StageTiming>& timings, const StageCallback& cb, const char* name)
-        : timings_(timings), name_(name), start_(std::chrono::steady_clock::now()) {
-        if (cb) cb(name);
-    }
-    ~StageClock() {
-        const auto end = std::chrono::steady_clock::now();
-        timings_.push_back(
-            {name_, std::chrono::duration<double>(end - start_).count(), peak_rss_mb()});
-    }
-
-private:
-    std::vector<StageTiming>& timings_;
-    std::string name_;
-    std::chrono::steady_clock::time_point start_;
-};
-
-double peak_rss_mb() {
+double detail::peak_rss_mb() {
     struct rusage ru {};
     ::getrusage(RUSAGE_SELF, &ru);
     return double(ru.ru_maxrss) / 1024.0;  // Linux reports kilobytes
 }
 
-template <typename F>
-auto in_arena(int threads, F&& f) {
-    tbb::task_arena arena(threads > 0 ? threads : tbb::task_arena::automatic);
-    return arena.execute(std::forward<F>(f));
-}
+namespace {
+
+using detail::in_arena;
+using detail::peak_rss_mb;
+using detail::StageClock;
 
 std::string basename_stem(const std::string& path) {
     const std::size_t slash = path.find_last_of('/');
@@ -174,6 +153,66 @@ void fill_and_close(PipelineResult& r, const PipelineOptions& options, const Vol
     if (options.keep_volumes) r.closed_volume = std::move(closed);
 }
 
+/// The stages after the splat, on r.volume: close > mesh > clean > fill (and the closed
+/// volume). Each volume goes to on_volume while the next stage runs.
+void mesh_stages(PipelineResult& r, const PipelineOptions& options, const StageCallback& on_stage,
+                 const VolumeCallback& on_volume) {
+    // Each volume is handed to on_volume (e.g. written to disk) while the next stage runs.
+    tbb::task_group side;
+    auto hand_over = [&](const char* stage, const Volume& v) {
+        if (on_volume) side.run([&on_volume, stage, &v] { on_volume(stage, v); });
+    };
+    auto stop_side = [&] {
+        side.cancel();
+        try {
+            side.wait();
+        } catch (...) {
+        }
+    };
+    hand_over("splat", r.volume);
+    try {
+        const Volume* meshed = &r.volume;
+        if (options.close.enabled()) {
+            StageClock clock(r.timings, on_stage, "close");
+            r.close = close_volume(r.volume, options.close, options.mesh);
+            r.closed_volume = std::move(r.close.volume);
+            r.close.volume = Volume{};
+            meshed = &r.closed_volume;
+            hand_over("closed", r.closed_volume);
+        }
+        StageClock clock(r.timings, on_stage, "mesh");
+        r.mesh_stats = extract_mesh(*meshed, options.mesh);
+        r.mesh = std::move(r.mesh_stats.mesh);
+        r.mesh_stats.mesh = Mesh{};
+    } catch (...) {
+        stop_side();
+        throw;
+    }
+    side.wait();  // rethrows what on_volume threw
+    // --watertight keeps the grid frame for the closed mesh's volume.
+    Volume frame;
+    if (options.watertight) {
+        frame.sdf = openvdb::FloatGrid::create(r.volume.sdf->background());  // its frame only
+        frame.sdf->setTransform(r.volume.sdf->transform().copy());
+        frame.voxel_size = r.volume.voxel_size;
+        frame.origin = r.volume.origin;
+        frame.metadata = r.volume.metadata;
+    }
+    if (!options.keep_volumes) {
+        r.volume = Volume{};
+        r.closed_volume = Volume{};
+    }
+    {
+        StageClock clock(r.timings, on_stage, "clean");
+        CleanOptions clean = options.clean;
+        if (options.watertight) clean.min_component_ratio = 1.0;  // one piece
+        r.clean_stats = clean_mesh(r.mesh, clean);
+        r.mesh = std::move(r.clean_stats.mesh);
+        r.clean_stats.mesh = Mesh{};
+    }
+    fill_and_close(r, options, frame, on_stage, on_volume);
+}
+
 /// reconstruct(); `consume`: free the cloud after the splat.
 PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const PipelineOptions& options,
                                  const StageCallback& on_stage, const VolumeCallback& on_volume) {
@@ -232,66 +271,13 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
             r.volume = std::move(r.splat.volume);
             r.splat.volume = Volume{};
         }
-        if (consume) cloud = PointCloud{};
-        // Each volume is handed to on_volume (e.g. written to disk) while the next stage runs.
-        tbb::task_group side;
-        auto hand_over = [&](const char* stage, const Volume& v) {
-            if (on_volume) side.run([&on_volume, stage, &v] { on_volume(stage, v); });
-        };
-        auto stop_side = [&] {
-            side.cancel();
-            try {
-                side.wait();
-            } catch (...) {
-            }
-        };
         // The trims' gap test allows the random gaps of the sample: it needs its spacing, which
         // the volume carries (also in its file) for the closing and the mesher.
         if (const double h = sample_spacing(r); h > 0.0) {
             r.volume.metadata["sample_spacing"] = detail::format_number(h);  // round-trips
         }
-        hand_over("splat", r.volume);
-        try {
-            const Volume* meshed = &r.volume;
-            if (options.close.enabled()) {
-                StageClock clock(r.timings, on_stage, "close");
-                r.close = close_volume(r.volume, options.close, options.mesh);
-                r.closed_volume = std::move(r.close.volume);
-                r.close.volume = Volume{};
-                meshed = &r.closed_volume;
-                hand_over("closed", r.closed_volume);
-            }
-            StageClock clock(r.timings, on_stage, "mesh");
-            r.mesh_stats = extract_mesh(*meshed, options.mesh);
-            r.mesh = std::move(r.mesh_stats.mesh);
-            r.mesh_stats.mesh = Mesh{};
-        } catch (...) {
-            stop_side();
-            throw;
-        }
-        side.wait();  // rethrows what on_volume threw
-        // --watertight keeps the grid frame for the closed mesh's volume.
-        Volume frame;
-        if (options.watertight) {
-            frame.sdf = openvdb::FloatGrid::create(r.volume.sdf->background());  // its frame only
-            frame.sdf->setTransform(r.volume.sdf->transform().copy());
-            frame.voxel_size = r.volume.voxel_size;
-            frame.origin = r.volume.origin;
-            frame.metadata = r.volume.metadata;
-        }
-        if (!options.keep_volumes) {
-            r.volume = Volume{};
-            r.closed_volume = Volume{};
-        }
-        {
-            StageClock clock(r.timings, on_stage, "clean");
-            CleanOptions clean = options.clean;
-            if (options.watertight) clean.min_component_ratio = 1.0;  // one piece
-            r.clean_stats = clean_mesh(r.mesh, clean);
-            r.mesh = std::move(r.clean_stats.mesh);
-            r.clean_stats.mesh = Mesh{};
-        }
-        fill_and_close(r, options, frame, on_stage, on_volume);
+        if (consume) cloud = PointCloud{};
+        mesh_stages(r, options, on_stage, on_volume);
     });
     if (r.mesh.faces.empty()) {
         log_warning("reconstruct: the surface is empty (no valid cell crosses zero)");
@@ -311,8 +297,11 @@ PipelineResult reconstruct(PointCloud&& cloud, const PipelineOptions& options,
     return reconstruct_cloud(cloud, true, options, on_stage, on_volume);
 }
 
-RunResult run(const std::string& input, const std::string& output, const PipelineOptions& options,
-              const StageCallback& on_stage) {
+namespace detail {
+
+RunResult run_to_files(const std::string& input, const std::string& output,
+                       const PipelineOptions& options, const StageCallback& on_stage,
+                       const RunCompute& compute) {
     options.validate();
     RunResult out;
     out.mesh_path = output.empty() ? basename_stem(input) + ".recon.ply" : output;
@@ -342,17 +331,10 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     // whole run has succeeded: a failure at any stage leaves earlier outputs untouched.
     detail::StagedOutputs staged;
     std::vector<StageTiming> timings;
-    PointCloud cloud;
     // TBB sets itself up at a process's first parallel loop: it loads its allocator library,
     // looks for a resource manager and starts the worker threads (2-3 ms on the 2-core VM). Done
     // here, that start-up is not charged to the first stage's work.
     tbb::parallel_for(0, 2, [](int) {});
-    {
-        StageClock clock(timings, on_stage, "read");
-        out.read = read_points(input, options.read);
-        cloud = std::move(out.read.cloud);
-        out.read.cloud = PointCloud{};
-    }
     // The volumes are written while the next stage runs (I/O and compression are serial).
     double vdb_seconds = 0.0;
     std::mutex vdb_mutex;  // the two volumes may be written at the same time
@@ -374,14 +356,11 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     }
     // Errors of the computing stages name the input they are about ("scan.ply: splat: ...").
     try {
-        const std::size_t points = cloud.size();
-        out.result = reconstruct(std::move(cloud), options, on_stage, write_vdb);
+        out.result = compute(out, timings, write_vdb);
         if (out.result.mesh.faces.empty()) {
-            const PipelineResult& r = out.result;
             std::ostringstream s;
-            s << "no surface: no valid cell crosses zero at voxel " << r.voxel_size << " ("
-              << points - r.outliers.statistical - r.outliers.planarity
-              << " points). Hint: a larger --voxel, or more points";
+            s << "no surface: no valid cell crosses zero at voxel " << out.result.voxel_size
+              << ". Hint: a larger --voxel, or more data";
             throw NumericalError(s.str());
         }
     } catch (const Error& e) {
@@ -411,6 +390,47 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
     if (options.write_vdb) timings.push_back({"vdb (in the background)", vdb_seconds, peak_rss_mb()});
     out.result.timings = std::move(timings);
     return out;
+}
+
+}  // namespace detail
+
+RunResult run(const std::string& input, const std::string& output, const PipelineOptions& options,
+              const StageCallback& on_stage) {
+    auto compute = [&](RunResult& out, std::vector<StageTiming>& timings,
+                       const VolumeCallback& write_vdb) {
+        PointCloud cloud;
+        {
+            StageClock clock(timings, on_stage, "read");
+            out.read = read_points(input, options.read);
+            cloud = std::move(out.read.cloud);
+            out.read.cloud = PointCloud{};
+        }
+        const std::size_t points = cloud.size();
+        PipelineResult r = reconstruct(std::move(cloud), options, on_stage, write_vdb);
+        if (r.mesh.faces.empty()) {
+            std::ostringstream s;
+            s << "no surface: no valid cell crosses zero at voxel " << r.voxel_size << " ("
+              << points - r.outliers.statistical - r.outliers.planarity
+              << " points). Hint: a larger --voxel, or more points";
+            throw NumericalError(s.str());
+        }
+        return r;
+    };
+    return detail::run_to_files(input, output, options, on_stage, compute);
+}
+
+PipelineResult reconstruct_volume(Volume volume, const PipelineOptions& options,
+                                  const StageCallback& on_stage, const VolumeCallback& on_volume) {
+    options.validate();
+    if (volume.empty()) throw InvalidArgument("reconstruct: the volume is empty");
+    PipelineResult r;
+    r.voxel_size = volume.voxel_size;
+    r.volume = std::move(volume);
+    in_arena(options.threads, [&] { mesh_stages(r, options, on_stage, on_volume); });
+    if (r.mesh.faces.empty()) {
+        log_warning("reconstruct: the surface is empty (no valid cell crosses zero)");
+    }
+    return r;
 }
 
 }  // namespace vdbrecon

@@ -114,6 +114,13 @@ PipelineResult reconstruct(PointCloud&& cloud, const PipelineOptions& options,
                            const StageCallback& on_stage = {},
                            const VolumeCallback& on_volume = {});
 
+/// The stages after the splat (close > mesh > clean > fill holes) on a volume made elsewhere:
+/// a SplatAccumulator's (range-image fusion), a .vdb file's. Throws InvalidArgument for an
+/// empty volume.
+PipelineResult reconstruct_volume(Volume volume, const PipelineOptions& options,
+                                  const StageCallback& on_stage = {},
+                                  const VolumeCallback& on_volume = {});
+
 /// Output paths of a file-to-file run.
 struct RunResult {
     PipelineResult result;

@@ -25,6 +25,7 @@
 #include "vdbrecon/choices.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
+#include "vdbrecon/scene.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/log.h"
 #include "vdbrecon/pipeline.h"
@@ -98,6 +99,7 @@ void print_help() {
         << "vdbrecon " << version() << " - surface reconstruction from point clouds on OpenVDB\n"
         << "\n"
         << "usage: vdbrecon INPUT [options]\n"
+        << "       vdbrecon fuse SCENE [fuse options] [reconstruction options]\n"
         << "       vdbrecon eval RECON REF [--tau T[,T...]] [--samples N]\n"
         << "                     [--mask-points FILE --mask-distance D]\n"
         << "                     [--ignore-reference-holes]\n"
@@ -170,6 +172,21 @@ void print_help() {
         << "                         depth channel Z [none]\n"
         << "  -q, --quiet            no progress or timings on stderr\n"
         << "  --help, --version\n"
+        << "\n"
+        << "fuse: SCENE is a transforms.json (NeRF/Blender: depth_file_path or file_path +\n"
+        << "      _depth.exr/.png, transform_matrix in OpenGL axes) or a TUM RGB-D folder\n"
+        << "      (depth.txt + groundtruth.txt); depth images .exr (channel Z, depth, R, Y or\n"
+        << "      a layer's .Z) or 16-bit .png. Every reconstruction option applies.\n"
+        << "  --depth-scale S        PNG depth units per metre [transforms.json: 1/depth_scale,\n"
+        << "                         TUM 5000, else 1000]\n"
+        << "  --intrinsics fx,fy,cx,cy[,w,h]  pixels, pixel centres at integers (needed for TUM)\n"
+        << "  --depth-kind K         planar (along the optical axis) or ray (range) [planar]\n"
+        << "  --min-depth D, --max-depth D    depths outside are no measurement [0, none]\n"
+        << "  --max-jump J           no normal across a depth jump > J x depth [0.05]\n"
+        << "  --min-view-cos C       no sample seen more grazing than this cosine [0.1]\n"
+        << "  --reference-depth D    confidence falls as (D/depth)^2 beyond D [off]\n"
+        << "  --frame-step N, --max-frames N  every N-th frame; at most N frames [1, all]\n"
+        << "  the voxel defaults to 1.4 x the first frame's median pixel footprint\n"
         << "\n"
         << "eval options:\n"
         << "  --tau T[,T...]         F-score thresholds, world units [0.2% of REF's diagonal]\n"
@@ -305,102 +322,108 @@ int run_eval(Args& args) {
 /// `startup_rss_mb`: what the process held before it read anything, the executable and the
 /// shared libraries the dynamic linker mapped (libopenvdb.so alone is 28 MB: its symbol tables
 /// are read in full, since it is linked with BIND_NOW); the log says how much the run added.
-int run_reconstruct(Args& args, double startup_rss_mb) {
-    const auto start = std::chrono::steady_clock::now();
-    PipelineOptions o;
-    o.keep_volumes = false;  // written to .vdb files by the time the mesh is cleaned
-    std::string input, output;
-    bool quiet = false;
-    while (!args.done()) {
-        const std::string a = args.next();
-        if (a == "-o" || a == "--output") {
-            output = args.value(a);
-        } else if (a == "--voxel") {
-            o.splat.voxel_size = parse_number(a, args.value(a));
-            if (!(o.splat.voxel_size > 0.0)) {
-                throw UsageError("--voxel must be a positive number (got " +
-                                 fmt(o.splat.voxel_size) + ")");
-            }
-        } else if (a == "--sigma") {
-            o.splat.scale_factor = parse_number(a, args.value(a));
-        } else if (a == "--sigma-voxels") {
-            o.splat.sigma_voxels = parse_number(a, args.value(a));
-        } else if (a == "--min-sigma") {
-            o.splat.min_sigma_voxels = parse_number(a, args.value(a));
-        } else if (a == "--max-sigma") {
-            o.splat.max_sigma_voxels = parse_number(a, args.value(a));
-        } else if (a == "--support") {
-            o.splat.support = parse_number(a, args.value(a));
-        } else if (a == "--min-weight") {
-            o.splat.min_weight = parse_number(a, args.value(a));
-        } else if (a == "--crease-angle") {
-            o.splat.crease_angle = parse_number(a, args.value(a));
-        } else if (a == "--surface-weight") {
-            o.mesh.min_surface_weight = parse_number(a, args.value(a));
-        } else if (a == "--max-gap") {
-            o.mesh.max_gap = parse_number(a, args.value(a));
-        } else if (a == "--normals") {
-            o.normals.mode = parse_choice(a, args.value(a), normal_mode_choices());
-        } else if (a == "--k") {
-            o.normals.k = parse_int(a, args.value(a));
-        } else if (a == "--scale") {
-            o.normals.scale = parse_choice(a, args.value(a), scale_mode_choices());
-        } else if (a == "--classes") {
-            for (double c : parse_list(a, args.value(a))) {
-                if (!(c >= 0 && c <= 255 && c == std::floor(c))) {
-                    throw UsageError("--classes: LAS classification codes are integers 0..255");
-                }
-                o.read.classes.push_back(int(c));
-            }
-        } else if (a == "--viewpoint") {
-            const std::vector<double> v = parse_list(a, args.value(a));
-            if (v.size() != 3) throw UsageError("--viewpoint needs three numbers: x,y,z");
-            o.normals.viewpoint = Vec3d{v[0], v[1], v[2]};
-        } else if (a == "--outliers") {
-            o.outliers.enabled = true;
-        } else if (a == "--no-outliers") {
-            o.outliers.enabled = false;
-        } else if (a == "--close") {
-            o.close.hole_radius = parse_int(a, args.value(a));
-        } else if (a == "--close-solid") {
-            o.close.solid_radius = parse_int(a, args.value(a));
-        } else if (a == "--fill-holes") {
-            const int n = parse_int(a, args.value(a));
-            if (n < 0) throw UsageError(a + ": " + std::to_string(n) + " must be >= 0");
-            o.fill_holes = std::size_t(n);
-        } else if (a == "--watertight") {
-            o.watertight = true;
-        } else if (a == "--mesher") {
-            o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
-        } else if (a == "--adaptivity") {
-            o.mesh.adaptivity = parse_number(a, args.value(a));
-        } else if (a == "--min-component") {
-            o.clean.min_component_ratio = parse_number(a, args.value(a));
-        } else if (a == "--smooth") {
-            o.clean.smooth_iterations = parse_int(a, args.value(a));
-        } else if (a == "--ascii") {
-            o.write.encoding = PlyEncoding::ascii;
-        } else if (a == "--threads") {
-            o.threads = parse_int(a, args.value(a));
-            if (o.threads < 0) throw UsageError("--threads must be >= 0");
-        } else if (a == "--max-memory") {
-            o.splat.max_memory = parse_bytes(a, args.value(a));
-        } else if (a == "--preview") {
-            o.preview_path = args.value(a);
-        } else if (a == "--no-vdb") {
-            o.write_vdb = false;
-        } else if (a == "-q" || a == "--quiet") {
-            quiet = true;
-        } else if (a.size() > 1 && a[0] == '-') {
-            throw UsageError("unknown option '" + a + "' (see --help)");
-        } else if (input.empty()) {
-            input = a;
-        } else {
-            throw UsageError("more than one input given ('" + input + "' and '" + a + "')");
+/// Consumes option `a` (and its value) when it is one of the pipeline's; false otherwise.
+bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o) {
+    if (a == "--voxel") {
+        o.splat.voxel_size = parse_number(a, args.value(a));
+        if (!(o.splat.voxel_size > 0.0)) {
+            throw UsageError("--voxel must be a positive number (got " +
+                             fmt(o.splat.voxel_size) + ")");
         }
+    } else if (a == "--sigma") {
+        o.splat.scale_factor = parse_number(a, args.value(a));
+    } else if (a == "--sigma-voxels") {
+        o.splat.sigma_voxels = parse_number(a, args.value(a));
+    } else if (a == "--min-sigma") {
+        o.splat.min_sigma_voxels = parse_number(a, args.value(a));
+    } else if (a == "--max-sigma") {
+        o.splat.max_sigma_voxels = parse_number(a, args.value(a));
+    } else if (a == "--support") {
+        o.splat.support = parse_number(a, args.value(a));
+    } else if (a == "--min-weight") {
+        o.splat.min_weight = parse_number(a, args.value(a));
+    } else if (a == "--crease-angle") {
+        o.splat.crease_angle = parse_number(a, args.value(a));
+    } else if (a == "--surface-weight") {
+        o.mesh.min_surface_weight = parse_number(a, args.value(a));
+    } else if (a == "--max-gap") {
+        o.mesh.max_gap = parse_number(a, args.value(a));
+    } else if (a == "--normals") {
+        o.normals.mode = parse_choice(a, args.value(a), normal_mode_choices());
+    } else if (a == "--k") {
+        o.normals.k = parse_int(a, args.value(a));
+    } else if (a == "--scale") {
+        o.normals.scale = parse_choice(a, args.value(a), scale_mode_choices());
+    } else if (a == "--classes") {
+        for (double c : parse_list(a, args.value(a))) {
+            if (!(c >= 0 && c <= 255 && c == std::floor(c))) {
+                throw UsageError("--classes: LAS classification codes are integers 0..255");
+            }
+            o.read.classes.push_back(int(c));
+        }
+    } else if (a == "--viewpoint") {
+        const std::vector<double> v = parse_list(a, args.value(a));
+        if (v.size() != 3) throw UsageError("--viewpoint needs three numbers: x,y,z");
+        o.normals.viewpoint = Vec3d{v[0], v[1], v[2]};
+    } else if (a == "--outliers") {
+        o.outliers.enabled = true;
+    } else if (a == "--no-outliers") {
+        o.outliers.enabled = false;
+    } else if (a == "--close") {
+        o.close.hole_radius = parse_int(a, args.value(a));
+    } else if (a == "--close-solid") {
+        o.close.solid_radius = parse_int(a, args.value(a));
+    } else if (a == "--fill-holes") {
+        const int n = parse_int(a, args.value(a));
+        if (n < 0) throw UsageError(a + ": " + std::to_string(n) + " must be >= 0");
+        o.fill_holes = std::size_t(n);
+    } else if (a == "--watertight") {
+        o.watertight = true;
+    } else if (a == "--mesher") {
+        o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
+    } else if (a == "--adaptivity") {
+        o.mesh.adaptivity = parse_number(a, args.value(a));
+    } else if (a == "--min-component") {
+        o.clean.min_component_ratio = parse_number(a, args.value(a));
+    } else if (a == "--smooth") {
+        o.clean.smooth_iterations = parse_int(a, args.value(a));
+    } else if (a == "--ascii") {
+        o.write.encoding = PlyEncoding::ascii;
+    } else if (a == "--threads") {
+        o.threads = parse_int(a, args.value(a));
+        if (o.threads < 0) throw UsageError("--threads must be >= 0");
+    } else if (a == "--max-memory") {
+        o.splat.max_memory = parse_bytes(a, args.value(a));
+    } else if (a == "--preview") {
+        o.preview_path = args.value(a);
+    } else if (a == "--no-vdb") {
+        o.write_vdb = false;
+    } else {
+        return false;
     }
-    if (input.empty()) throw UsageError("no input file (see --help)");
+    return true;
+}
 
+/// The options every run takes (-o, -q, the pipeline's) and its one positional input.
+void parse_common_option(const std::string& a, Args& args, PipelineOptions& o, std::string& input,
+                         std::string& output, bool& quiet) {
+    if (a == "-o" || a == "--output") {
+        output = args.value(a);
+    } else if (a == "-q" || a == "--quiet") {
+        quiet = true;
+    } else if (parse_pipeline_option(a, args, o)) {
+    } else if (a.size() > 1 && a[0] == '-') {
+        throw UsageError("unknown option '" + a + "' (see --help)");
+    } else if (input.empty()) {
+        input = a;
+    } else {
+        throw UsageError("more than one input given ('" + input + "' and '" + a + "')");
+    }
+}
+
+/// Warnings to stderr, and (unless quiet) information and each stage's start; returns the
+/// stage callback.
+StageCallback install_log_handler(bool quiet) {
     set_log_handler([quiet](LogLevel level, const std::string& m) {
         if (level == LogLevel::warning) {
             std::cerr << "vdbrecon: warning: " << m << "\n";
@@ -408,36 +431,49 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
             std::cerr << "vdbrecon: " << m << "\n";
         }
     });
-    auto on_stage = [quiet](const std::string& stage) {
+    return [quiet](const std::string& stage) {
         if (!quiet) std::cerr << "vdbrecon: " << stage << " ...\n";
     };
-    const RunResult r = run(input, output, o, on_stage);
+}
+
+/// What a run did, on stderr; the output paths on stdout.
+void report(const RunResult& r, const PipelineOptions& o,
+            std::chrono::steady_clock::time_point start, double startup_rss_mb, bool fused) {
     const PipelineResult& p = r.result;
-    if (!quiet) {
+    {
         std::ostringstream s;
-        s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << "), "
-          << fmt_megabytes(r.read.bytes) << " in memory";
-        if (r.read.dropped_nonfinite) s << ", dropped " << r.read.dropped_nonfinite << " NaN/inf";
-        s << "\n";
+        if (fused) {
+            s << "vdbrecon: fused " << r.read.rows << " samples from the depth images ("
+              << r.read.format << ")\n";
+        } else {
+            s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << "), "
+              << fmt_megabytes(r.read.bytes) << " in memory";
+            if (r.read.dropped_nonfinite) s << ", dropped " << r.read.dropped_nonfinite << " NaN/inf";
+            s << "\n";
+        }
         if (o.outliers.enabled) {
             s << "vdbrecon: outliers: removed " << p.outliers.statistical << " (statistical) + "
               << p.outliers.planarity << " (planarity) points\n";
         }
-        s << "vdbrecon: normals: ";
-        if (p.normals.estimated == 0) {
-            s << "from the file";
-        } else if (p.normals.oriented_to_viewpoint) {
-            s << p.normals.estimated << " estimated (k=" << o.normals.k
-              << "), oriented towards the viewpoint";
-        } else {
-            s << p.normals.estimated << " estimated (k=" << o.normals.k
-              << "), oriented by MST in " << p.normals.components << " component(s)";
+        if (!fused) {
+            s << "vdbrecon: normals: ";
+            if (p.normals.estimated == 0) {
+                s << "from the file";
+            } else if (p.normals.oriented_to_viewpoint) {
+                s << p.normals.estimated << " estimated (k=" << o.normals.k
+                  << "), oriented towards the viewpoint";
+            } else {
+                s << p.normals.estimated << " estimated (k=" << o.normals.k
+                  << "), oriented by MST in " << p.normals.components << " component(s)";
+            }
+            s << "; median scale " << p.normals.median_scale << "\n";
         }
-        s << "; median scale " << p.normals.median_scale << "\n";
         s << "vdbrecon: voxel " << p.voxel_size;
         if (p.voxel_chosen) {
-            s << " (chosen: " << o.auto_voxel_factor << " x median spacing " << p.spacing
-              << "; set --voxel to override)";
+            s << " (chosen: " << o.auto_voxel_factor << " x median "
+              << (fused ? "pixel footprint of the first frame" : "spacing ") ;
+            if (!fused) s << p.spacing;
+            s << "; set --voxel to override)";
         }
         s << "\n";
         s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max
@@ -501,6 +537,71 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
         if (!o.preview_path.empty()) std::cout << "preview: " << o.preview_path << "\n";
         if (!r.closed_vdb_path.empty()) std::cout << "closed volume: " << r.closed_vdb_path << "\n";
     }
+}
+
+int run_reconstruct(Args& args, double startup_rss_mb) {
+    const auto start = std::chrono::steady_clock::now();
+    PipelineOptions o;
+    o.keep_volumes = false;  // written to .vdb files by the time the mesh is cleaned
+    std::string input, output;
+    bool quiet = false;
+    while (!args.done()) {
+        parse_common_option(args.next(), args, o, input, output, quiet);
+    }
+    if (input.empty()) throw UsageError("no input file (see --help)");
+
+    const StageCallback on_stage = install_log_handler(quiet);
+    const RunResult r = run(input, output, o, on_stage);
+    if (!quiet) report(r, o, start, startup_rss_mb, false);
+    return kExitOk;
+}
+
+int run_fuse(Args& args, double startup_rss_mb) {
+    const auto start = std::chrono::steady_clock::now();
+    PipelineOptions o;
+    o.keep_volumes = false;
+    FuseOptions f;
+    std::string input, output;
+    bool quiet = false;
+    while (!args.done()) {
+        const std::string a = args.next();
+        if (a == "--depth-scale") {
+            f.scene.units_per_metre = parse_number(a, args.value(a));
+            if (!(f.scene.units_per_metre > 0.0)) throw UsageError("--depth-scale must be > 0");
+        } else if (a == "--intrinsics") {
+            const std::vector<double> v = parse_list(a, args.value(a));
+            if (v.size() != 4 && v.size() != 6) {
+                throw UsageError("--intrinsics needs fx,fy,cx,cy (or fx,fy,cx,cy,width,height)");
+            }
+            Intrinsics K{v[0], v[1], v[2], v[3], 0, 0};
+            if (v.size() == 6) K.width = int(v[4]), K.height = int(v[5]);
+            f.scene.intrinsics = K;
+        } else if (a == "--depth-kind") {
+            const std::string k = args.value(a);
+            if (k != "planar" && k != "ray") throw UsageError("--depth-kind: planar or ray, not '" + k + "'");
+            f.depth.kind = k == "ray" ? DepthKind::ray : DepthKind::planar;
+        } else if (a == "--min-depth") {
+            f.depth.min_depth = parse_number(a, args.value(a));
+        } else if (a == "--max-depth") {
+            f.depth.max_depth = parse_number(a, args.value(a));
+        } else if (a == "--max-jump") {
+            f.depth.max_jump = parse_number(a, args.value(a));
+        } else if (a == "--min-view-cos") {
+            f.depth.min_view_cos = parse_number(a, args.value(a));
+        } else if (a == "--reference-depth") {
+            f.depth.reference_depth = parse_number(a, args.value(a));
+        } else if (a == "--frame-step" || a == "--max-frames") {
+            const int n = parse_int(a, args.value(a));
+            if (n < (a == "--frame-step" ? 1 : 0)) throw UsageError(a + ": " + std::to_string(n) + " is out of range");
+            (a == "--frame-step" ? f.frame_step : f.max_frames) = std::size_t(n);
+        } else {
+            parse_common_option(a, args, o, input, output, quiet);
+        }
+    }
+    if (input.empty()) throw UsageError("fuse: no scene (a transforms.json or a TUM folder)");
+    const StageCallback on_stage = install_log_handler(quiet);
+    const RunResult r = fuse(input, output, o, f, on_stage);
+    if (!quiet) report(r, o, start, startup_rss_mb, true);
     return kExitOk;
 }
 
@@ -541,6 +642,10 @@ int main(int argc, char** argv) {
         if (args.argv[0] == "eval") {
             args.i = 1;
             return run_eval(args);
+        }
+        if (args.argv[0] == "fuse") {
+            args.i = 1;
+            return run_fuse(args, resident_mb());
         }
         return run_reconstruct(args, resident_mb());
     } catch (const UsageError& e) {

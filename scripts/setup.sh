@@ -9,6 +9,7 @@ PACKAGES=(
   libopenvdb-dev libboost-iostreams-dev   # OpenVDB 10; FindOpenVDB needs boost_iostreams
   libtbb-dev libeigen3-dev
   libopenexr-dev zlib1g-dev               # --preview pictures: .exr (with depth), .png
+  libpng-dev nlohmann-json3-dev           # fuse: 16-bit PNG depth, transforms.json
   catch2                                  # Catch2 v2 tests
   pybind11-dev python3-dev python3-numpy  # the Python module (built for /usr/bin/python3)
   python3-pytest                          # its tests

@@ -1,0 +1,129 @@
+// Range-image fusion: posed depth images become oriented, scaled, weighted samples, splatted
+// into the same sparse grids as point input, one frame at a time (SplatAccumulator), so memory
+// follows the grid, not the number of frames.
+//
+// Each valid pixel (u, v) with depth d is back-projected through the pinhole model to the
+// camera-frame point p = d (( u - cx) / fx, (v - cy) / fy, 1) (planar depth; for range along
+// the ray, d is first divided by the ray's length) and moved to the world by the pose. As in
+// FSSR's input path (S. Fuhrmann and M. Goesele, "Floating Scale Surface Reconstruction",
+// SIGGRAPH 2014):
+//  - normal: the cross product of the central differences to the pixel's four neighbours
+//    (one-sided where a neighbour is missing), oriented toward the camera; a neighbour across
+//    a depth jump (relative difference > max_jump) is not used, and a pixel with no usable pair
+//    gives no sample;
+//  - scale: the pixel footprint, d / f (f = the mean focal length in pixels), divided by the
+//    cosine of the viewing angle (a grazing pixel covers more surface);
+//  - confidence: the cosine of the viewing angle (pixels at a grazing angle below
+//    min_view_cos give no sample) times (reference depth / d)^2 past the reference depth:
+//    structured-light and stereo depth noise grows with the square of the depth (Khoshelham
+//    and Elberink 2012), so far pixels weigh less.
+//
+// Pose convention: camera-to-world rigid transforms, 4x4 row-major, OpenCV camera axes (x
+// right, y down, looking down +z). Readers of scenes with OpenGL axes (NeRF/Blender
+// transforms.json: y up, looking down -z) convert (scene.h).
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "vdbrecon/pipeline.h"
+#include "vdbrecon/splat.h"
+#include "vdbrecon/types.h"
+#include "vdbrecon/volume.h"
+
+namespace vdbrecon {
+
+/// Pinhole intrinsics in pixels; pixel (u, v) has its centre at (u, v) (u right, v down).
+struct Intrinsics {
+    double fx = 0.0, fy = 0.0, cx = 0.0, cy = 0.0;
+    int width = 0, height = 0;
+
+    /// Throws InvalidArgument naming the field when not usable.
+    void validate() const;
+};
+
+/// A depth image: width x height values, row-major, top row first, in world units; 0, NaN,
+/// inf and negative values are "no measurement".
+struct DepthImage {
+    int width = 0, height = 0;
+    std::vector<float> depth;
+
+    float at(int u, int v) const { return depth[std::size_t(v) * std::size_t(width) + std::size_t(u)]; }
+};
+
+/// Camera-to-world rigid transform, row-major 4x4 (OpenCV camera axes).
+using Pose = std::array<double, 16>;
+
+/// Throws InvalidArgument when the pose is not finite, its last row not (0 0 0 1), or its 3x3
+/// part not a rotation (orthonormal within 1e-3, determinant +1).
+void validate_pose(const Pose& pose);
+
+/// What a depth value measures.
+enum class DepthKind {
+    planar,  ///< along the optical axis (z), as depth cameras and renderers' Z passes give
+    ray,     ///< range along the pixel's ray
+};
+
+struct DepthOptions {
+    DepthKind kind = DepthKind::planar;
+    /// Depths at or below this (world units) are "no measurement".
+    double min_depth = 0.0;
+    /// Depths beyond this are "no measurement" (world units; 0 = no limit).
+    double max_depth = 0.0;
+    /// Neighbours whose depth differs by more than this fraction of the pixel's depth are
+    /// across a depth jump: not used for its normal (dimensionless).
+    double max_jump = 0.05;
+    /// Pixels seen at a grazing angle, cos(angle between the ray and the normal) below this,
+    /// give no sample.
+    double min_view_cos = 0.1;
+    /// Depth up to which pixels have full confidence; beyond it the confidence falls as
+    /// (reference / d)^2 (world units; 0 = no fall-off).
+    double reference_depth = 0.0;
+
+    /// Throws InvalidArgument naming the field when out of range.
+    void validate() const;
+};
+
+/// The oriented samples of one frame: positions relative to `origin`, normals toward the
+/// camera, scales (footprint) and confidences. Pixels without a measurement, a normal or
+/// a usable viewing angle give none. Throws InvalidArgument when the image does not match the
+/// intrinsics' size or the pose is not a rotation.
+PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,
+                         const DepthOptions& options, const Vec3d& origin = {0.0, 0.0, 0.0});
+
+/// Fuses posed depth images (and oriented clouds) into one volume, one frame at a time.
+class Fusion {
+  public:
+    /// options.splat.voxel_size must be > 0. `origin`: the world position of the local frame
+    /// (pick one near the scene, e.g. the first camera, for far-away coordinates).
+    explicit Fusion(const PipelineOptions& options, const DepthOptions& depth = {},
+                    const Vec3d& origin = {0.0, 0.0, 0.0});
+
+    /// Adds one frame; returns its number of samples (0: nothing usable in it, not an error).
+    std::size_t integrate(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world);
+    /// Adds an oriented cloud (normals required), e.g. one scan with normals toward its sensor.
+    std::size_t integrate(const PointCloud& cloud);
+
+    /// The fused volume so far (NumericalError when nothing valid was integrated).
+    Volume volume() const;
+    /// The same with the splat's statistics.
+    SplatResult splat() const;
+    /// close > mesh > clean > fill of the fused volume, by the pipeline's options.
+    PipelineResult reconstruct(const StageCallback& on_stage = {},
+                               const VolumeCallback& on_volume = {}) const;
+
+    std::size_t frames() const { return frames_; }
+    std::size_t samples() const { return accumulator_.points(); }
+    const PipelineOptions& options() const { return options_; }
+    const DepthOptions& depth_options() const { return depth_; }
+
+  private:
+    PipelineOptions options_;
+    DepthOptions depth_;
+    SplatAccumulator accumulator_;
+    std::size_t frames_ = 0;
+};
+
+}  // namespace vdbrecon

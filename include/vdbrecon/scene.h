@@ -1,0 +1,84 @@
+// Reading posed depth images: depth image files and the scene files that list them with their
+// cameras (`vdbrecon fuse`).
+//
+// Depth images:
+//  - OpenEXR: the channel "Z", else "depth" / "Depth", "R", "Y", else a layer's ".Z" / ".Depth"
+//    (Blender's "ViewLayer.Depth.Z", Houdini's "depth.Z"); half, float or uint. Blender marks
+//    pixels that saw nothing with 1e10 (65504 in half): values >= 65504 are "no measurement".
+//  - PNG: 16-bit (or 8-bit) greyscale, value / units_per_metre (TUM: 5000, Open3D/Redwood and
+//    most depth cameras: 1000); 0 = no measurement.
+// Scenes:
+//  - transforms.json (NeRF / Blender / instant-ngp / nerfstudio): `fl_x fl_y cx cy w h` or
+//    `camera_angle_x` [`camera_angle_y`], optionally per frame; `frames[]` with
+//    `depth_file_path` (else `file_path` plus a depth suffix tried in turn: _depth.exr,
+//    _depth.png, _depth_0001.exr, _depth_0001.png, .depth.exr) and a 4x4 camera-to-world
+//    `transform_matrix` in OpenGL camera axes (x right, y up, looking down -z), converted to
+//    OpenCV axes. cx, cy count from the image's corner (pixel (0, 0) covers [0,1]^2), as
+//    NeRF's ray generators do, so our pixel-centre intrinsics are cx - 0.5, cy - 0.5.
+//    `depth_scale` or `integer_depth_scale` (metres per stored unit) applies to PNG depth.
+//  - TUM RGB-D folder (or its depth.txt): `depth.txt` (timestamp path) and `groundtruth.txt`
+//    (timestamp tx ty tz qx qy qz qw, camera-to-world, OpenCV axes), associated by the nearest
+//    timestamp within 0.02 s (TUM's associate.py); the intrinsics must be given.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "vdbrecon/fusion.h"
+
+namespace vdbrecon {
+
+/// Reads a depth image (.exr, .png); PNG values are divided by `units_per_metre` (EXR values
+/// are taken as they are). Throws IoError / FormatError naming the file.
+DepthImage read_depth_image(const std::string& path, double units_per_metre = 1000.0);
+
+/// Writes a depth image: .exr (one float channel "Z") or .png (16-bit greyscale, value =
+/// round(depth x units_per_metre), 0 for no measurement; depths past 65535 units are refused).
+/// Atomic (temporary file + rename). Throws IoError / InvalidArgument.
+void write_depth_image(const std::string& path, const DepthImage& depth,
+                       double units_per_metre = 1000.0);
+
+/// One frame of a scene.
+struct SceneFrame {
+    std::string depth_path;
+    Intrinsics intrinsics;  ///< width/height 0: taken from the image (cx, cy then its centre)
+    Pose pose{};            ///< camera to world, OpenCV axes
+    double units_per_metre = 1000.0;  ///< for PNG depth
+};
+
+struct SceneOptions {
+    /// PNG depth units per metre; 0 = the scene's own (transforms.json's depth_scale; TUM 5000;
+    /// else 1000).
+    double units_per_metre = 0.0;
+    /// Intrinsics for every frame (required for TUM; overrides transforms.json's).
+    std::optional<Intrinsics> intrinsics;
+};
+
+struct Scene {
+    std::string kind;  ///< "transforms.json" or "tum"
+    std::vector<SceneFrame> frames;
+};
+
+/// What `vdbrecon fuse` does besides the pipeline's options.
+struct FuseOptions {
+    SceneOptions scene;
+    DepthOptions depth;
+    /// Integrate every step-th frame (1 = all).
+    std::size_t frame_step = 1;
+    /// At most this many frames (0 = all).
+    std::size_t max_frames = 0;
+};
+
+/// Reads a scene, fuses its frames one at a time (the pipeline's splat options; voxel 0 =
+/// auto_voxel_factor x the first frame's median pixel footprint), meshes and writes the result
+/// as run() does (mesh, <out>.splat.vdb, preview; all or nothing). Errors name the scene and
+/// the depth file. The local frame's origin is the first camera's position.
+RunResult fuse(const std::string& scene, const std::string& output, const PipelineOptions& options,
+               const FuseOptions& fuse_options = {}, const StageCallback& on_stage = {});
+
+/// Reads a scene: a transforms.json file, or a TUM RGB-D folder (or its depth.txt). The depth
+/// files are not opened. Throws IoError / FormatError / InvalidArgument naming the file.
+Scene read_scene(const std::string& path, const SceneOptions& options = {});
+
+}  // namespace vdbrecon

@@ -1,0 +1,378 @@
+// Range-image fusion (see fusion.h): depth pixels to oriented samples, one frame at a time into
+// a SplatAccumulator.
+#include "vdbrecon/fusion.h"
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <sstream>
+
+#include "detail/io_common.h"
+#include "detail/run.h"
+#include "vdbrecon/scene.h"
+#include "vdbrecon/error.h"
+
+namespace vdbrecon {
+
+void Intrinsics::validate() const {
+    auto positive = [](double v, const char* name) {
+        if (!(std::isfinite(v) && v > 0.0)) {
+            std::ostringstream s;
+            s << "intrinsics: " << name << " = " << v << ": must be a positive number";
+            throw InvalidArgument(s.str());
+        }
+    };
+    positive(fx, "fx");
+    positive(fy, "fy");
+    if (!std::isfinite(cx) || !std::isfinite(cy)) {
+        throw InvalidArgument("intrinsics: cx and cy must be finite numbers");
+    }
+    if (width <= 0 || height <= 0 || width > (1 << 16) || height > (1 << 16)) {
+        throw InvalidArgument("intrinsics: image size " + std::to_string(width) + " x " +
+                              std::to_string(height) + " is not in 1..65536");
+    }
+}
+
+void validate_pose(const Pose& m) {
+    for (double v : m) {
+        if (!std::isfinite(v)) throw InvalidArgument("pose: has a NaN or infinite entry");
+    }
+    if (m[12] != 0.0 || m[13] != 0.0 || m[14] != 0.0 || m[15] != 1.0) {
+        throw InvalidArgument("pose: the last row must be 0 0 0 1");
+    }
+    double worst = 0.0;  // |R^T R - I|, largest entry
+    for (int a = 0; a < 3; ++a) {
+        for (int b = 0; b < 3; ++b) {
+            double dot = 0.0;
+            for (int r = 0; r < 3; ++r) dot += m[std::size_t(r * 4 + a)] * m[std::size_t(r * 4 + b)];
+            worst = std::max(worst, std::fabs(dot - (a == b ? 1.0 : 0.0)));
+        }
+    }
+    const double det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) +
+                       m[2] * (m[4] * m[9] - m[5] * m[8]);
+    if (worst > 1e-3 || det < 0.0) {
+        std::ostringstream s;
+        s << "pose: the 3x3 part is not a rotation (|R^T R - I| = " << worst << ", det " << det
+          << "); poses must be rigid camera-to-world transforms";
+        throw InvalidArgument(s.str());
+    }
+}
+
+void DepthOptions::validate() const {
+    if (!(std::isfinite(min_depth) && min_depth >= 0.0)) {
+        throw InvalidArgument("depth.min_depth must be a non-negative number");
+    }
+    if (!(std::isfinite(max_depth) && max_depth >= 0.0)) {
+        throw InvalidArgument("depth.max_depth must be a non-negative number (0 = no limit)");
+    }
+    if (max_depth > 0.0 && max_depth <= min_depth) {
+        throw InvalidArgument("depth.max_depth must exceed depth.min_depth");
+    }
+    if (!(max_jump > 0.0 && max_jump <= 1.0)) {
+        throw InvalidArgument("depth.max_jump must be in (0, 1] (a fraction of the depth)");
+    }
+    if (!(min_view_cos >= 0.0 && min_view_cos < 1.0)) {
+        throw InvalidArgument("depth.min_view_cos must be in [0, 1)");
+    }
+    if (!(std::isfinite(reference_depth) && reference_depth >= 0.0)) {
+        throw InvalidArgument("depth.reference_depth must be a non-negative number (0 = off)");
+    }
+}
+
+namespace {
+
+using V3 = std::array<double, 3>;
+
+inline V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+inline double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+inline V3 cross(const V3& a, const V3& b) {
+    return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+
+/// The camera-frame points of a frame's pixels (valid[i] false: no measurement).
+struct FramePoints {
+    std::vector<V3> p;
+    std::vector<char> valid;
+};
+
+FramePoints back_project(const DepthImage& depth, const Intrinsics& K, const DepthOptions& o) {
+    const int w = depth.width, h = depth.height;
+    FramePoints f;
+    f.p.resize(std::size_t(w) * std::size_t(h));
+    f.valid.assign(f.p.size(), 0);
+    const double max_depth = o.max_depth > 0.0 ? o.max_depth : HUGE_VAL;
+    for (int v = 0; v < h; ++v) {
+        for (int u = 0; u < w; ++u) {
+            const std::size_t i = std::size_t(v) * std::size_t(w) + std::size_t(u);
+            double d = double(depth.depth[i]);
+            if (!(std::isfinite(d) && d > o.min_depth && d > 0.0 && d <= max_depth)) continue;
+            const V3 ray = {(u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0};
+            if (o.kind == DepthKind::ray) d /= std::sqrt(dot(ray, ray));
+            f.p[i] = {ray[0] * d, ray[1] * d, d};
+            f.valid[i] = 1;
+        }
+    }
+    return f;
+}
+
+}  // namespace
+
+PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
+                         const DepthOptions& options, const Vec3d& origin) {
+    K.validate();
+    options.validate();
+    validate_pose(pose);
+    if (depth.width != K.width || depth.height != K.height) {
+        std::ostringstream s;
+        s << "depth image is " << depth.width << " x " << depth.height
+          << " pixels, the intrinsics say " << K.width << " x " << K.height;
+        throw InvalidArgument(s.str());
+    }
+    if (depth.depth.size() != std::size_t(depth.width) * std::size_t(depth.height)) {
+        throw InvalidArgument("depth image: its values do not fill width x height");
+    }
+    const int w = depth.width, h = depth.height;
+    const FramePoints f = back_project(depth, K, options);
+    const double focal = 0.5 * (K.fx + K.fy);
+    auto usable = [&](int u, int v, double d) {  // a neighbour on the same surface
+        if (u < 0 || v < 0 || u >= w || v >= h) return false;
+        const std::size_t j = std::size_t(v) * std::size_t(w) + std::size_t(u);
+        return f.valid[j] && std::fabs(f.p[j][2] - d) <= options.max_jump * d;
+    };
+    auto at = [&](int u, int v) { return f.p[std::size_t(v) * std::size_t(w) + std::size_t(u)]; };
+    // A tangent along one image axis: central difference, else one-sided; false when neither
+    // neighbour is usable.
+    auto tangent = [&](int u, int v, int du, int dv, double d, V3& t, double& step) {
+        const bool a = usable(u - du, v - dv, d), b = usable(u + du, v + dv, d);
+        if (!a && !b) return false;
+        const V3 lo = a ? at(u - du, v - dv) : at(u, v), hi = b ? at(u + du, v + dv) : at(u, v);
+        t = sub(hi, lo);
+        step = std::sqrt(dot(t, t)) / double(int(a) + int(b));
+        return step > 0.0;
+    };
+    PointCloud cloud;
+    cloud.origin = origin;
+    std::vector<Vec3f> positions, normals;
+    std::vector<float> scales, confidences;
+    const V3 t = {pose[3], pose[7], pose[11]};
+    auto rotate = [&](const V3& x) {
+        return V3{pose[0] * x[0] + pose[1] * x[1] + pose[2] * x[2],
+                  pose[4] * x[0] + pose[5] * x[1] + pose[6] * x[2],
+                  pose[8] * x[0] + pose[9] * x[1] + pose[10] * x[2]};
+    };
+    for (int v = 0; v < h; ++v) {
+        for (int u = 0; u < w; ++u) {
+            const std::size_t i = std::size_t(v) * std::size_t(w) + std::size_t(u);
+            if (!f.valid[i]) continue;
+            const V3& p = f.p[i];
+            V3 tu, tv;
+            double su = 0.0, sv = 0.0;
+            if (!tangent(u, v, 1, 0, p[2], tu, su) || !tangent(u, v, 0, 1, p[2], tv, sv)) continue;
+            V3 n = cross(tu, tv);
+            const double len = std::sqrt(dot(n, n)), dist = std::sqrt(dot(p, p));
+            if (!(len > 0.0)) continue;
+            double c = -dot(n, p) / (len * dist);  // cosine of the viewing angle, signed
+            if (c < 0.0) {  // orient toward the camera
+                n = {-n[0], -n[1], -n[2]};
+                c = -c;
+            }
+            if (c < options.min_view_cos) continue;
+            // Footprint: the spacing to the neighbours, at most that of a pixel seen at
+            // min_view_cos (a jump below max_jump must not widen the kernel further).
+            const double footprint = std::min(0.5 * (su + sv), dist / focal / options.min_view_cos);
+            double conf = c;
+            if (options.reference_depth > 0.0 && p[2] > options.reference_depth) {
+                const double r = options.reference_depth / p[2];
+                conf *= r * r;
+            }
+            const V3 pw = rotate(p), nw = rotate(n);
+            positions.push_back({float(pw[0] + t[0] - origin[0]), float(pw[1] + t[1] - origin[1]),
+                                 float(pw[2] + t[2] - origin[2])});
+            normals.push_back({float(nw[0] / len), float(nw[1] / len), float(nw[2] / len)});
+            scales.push_back(float(footprint));
+            confidences.push_back(float(conf));
+        }
+    }
+    cloud.positions = std::move(positions);
+    cloud.normals = std::move(normals);
+    cloud.scales = std::move(scales);
+    cloud.confidences = std::move(confidences);
+    return cloud;
+}
+
+namespace {
+
+PipelineOptions checked(const PipelineOptions& options) {
+    if (!(options.splat.voxel_size > 0.0)) {
+        throw InvalidArgument("fusion: the voxel size must be given (> 0)");
+    }
+    options.validate();
+    return options;
+}
+
+}  // namespace
+
+Fusion::Fusion(const PipelineOptions& options, const DepthOptions& depth, const Vec3d& origin)
+    : options_(checked(options)), depth_(depth), accumulator_(options_.splat, origin) {
+    depth_.validate();
+}
+
+std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose) {
+    const PointCloud samples = depth_samples(depth, K, pose, depth_, accumulator_.origin());
+    ++frames_;
+    if (samples.empty()) return 0;
+    accumulator_.add(samples);
+    return samples.size();
+}
+
+std::size_t Fusion::integrate(const PointCloud& cloud) {
+    if (cloud.empty()) return 0;
+    if (cloud.origin == accumulator_.origin()) {
+        accumulator_.add(cloud);
+    } else {  // the same points in the fusion's frame
+        PointCloud moved = cloud.view();
+        std::vector<Vec3f> p(cloud.positions.begin(), cloud.positions.end());
+        const Vec3d& o = accumulator_.origin();
+        for (Vec3f& x : p) {
+            for (int a = 0; a < 3; ++a) x[a] = float(double(x[a]) + cloud.origin[a] - o[a]);
+        }
+        moved.positions = std::move(p);
+        moved.origin = o;
+        accumulator_.add(moved);
+    }
+    ++frames_;
+    return cloud.size();
+}
+
+SplatResult Fusion::splat() const {
+    if (accumulator_.clouds() == 0) {
+        throw NumericalError("fusion: none of the " + std::to_string(frames_) +
+                             " frames has a usable pixel (depth missing or out of range, or "
+                             "no neighbour for a normal)");
+    }
+    SplatResult r = accumulator_.result();
+    // The mesher's gap test allows gaps of a few sample spacings: here the pixel footprint.
+    const double spacing = r.sigma_median / options_.splat.scale_factor;
+    if (spacing > 0.0) r.volume.metadata["sample_spacing"] = detail::format_number(spacing);
+    r.volume.metadata["frames"] = std::to_string(frames_);
+    return r;
+}
+
+Volume Fusion::volume() const { return splat().volume; }
+
+PipelineResult Fusion::reconstruct(const StageCallback& on_stage,
+                                   const VolumeCallback& on_volume) const {
+    return reconstruct_volume(volume(), options_, on_stage, on_volume);
+}
+
+// ---- the file front end: vdbrecon fuse ----------------------------------------------------
+
+namespace {
+
+/// The frame's intrinsics, completed from its image (size; principal point at the centre).
+Intrinsics frame_intrinsics(const SceneFrame& frame, const DepthImage& img) {
+    Intrinsics K = frame.intrinsics;
+    if (K.width == 0 && K.height == 0) {
+        K.width = img.width;
+        K.height = img.height;
+    }
+    if (!std::isfinite(K.cx)) K.cx = 0.5 * K.width - 0.5;
+    if (!std::isfinite(K.cy)) K.cy = 0.5 * K.height - 0.5;
+    return K;
+}
+
+/// The same error with `name: ` in front.
+[[noreturn]] void rethrow_with(const std::string& name, const Error& e) {
+    const std::string m = name + ": " + e.what();
+    if (dynamic_cast<const IoError*>(&e)) throw IoError(m);
+    if (dynamic_cast<const FormatError*>(&e)) throw FormatError(m);
+    if (dynamic_cast<const InvalidArgument*>(&e)) throw InvalidArgument(m);
+    throw NumericalError(m);
+}
+
+/// The median footprint of a frame's samples (world units), for the automatic voxel.
+double median_footprint(const DepthImage& img, const Intrinsics& K, const Pose& pose,
+                        const DepthOptions& depth) {
+    PointCloud s = depth_samples(img, K, pose, depth);
+    std::vector<float> f = s.scales.to_vector();
+    if (f.empty()) return 0.0;
+    std::nth_element(f.begin(), f.begin() + std::ptrdiff_t(f.size() / 2), f.end());
+    return double(f[f.size() / 2]);
+}
+
+}  // namespace
+
+RunResult fuse(const std::string& scene_path, const std::string& output,
+               const PipelineOptions& options, const FuseOptions& fo,
+               const StageCallback& on_stage) {
+    if (fo.frame_step == 0) throw InvalidArgument("fuse: the frame step must be at least 1");
+    fo.depth.validate();
+    const std::string out_path =
+        output.empty() ? scene_path + ".recon.ply" : output;  // a folder: <folder>.recon.ply
+    auto compute = [&](RunResult& out, std::vector<StageTiming>& timings,
+                       const VolumeCallback& write_vdb) {
+        Scene scene;
+        {
+            detail::StageClock clock(timings, on_stage, "read scene");
+            scene = read_scene(scene_path, fo.scene);
+        }
+        std::vector<const SceneFrame*> frames;
+        for (std::size_t i = 0; i < scene.frames.size(); i += fo.frame_step) {
+            if (fo.max_frames > 0 && frames.size() == fo.max_frames) break;
+            frames.push_back(&scene.frames[i]);
+        }
+        auto read = [&](const SceneFrame& f, Intrinsics& K) {
+            try {
+                DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
+                K = frame_intrinsics(f, img);
+                K.validate();
+                return img;
+            } catch (const Error& e) {
+                rethrow_with(f.depth_path, e);
+            }
+        };
+        PipelineOptions po = options;
+        std::unique_ptr<Fusion> fusion;
+        {
+            detail::StageClock clock(timings, on_stage, "integrate");
+            for (const SceneFrame* f : frames) {
+                Intrinsics K;
+                const DepthImage img = read(*f, K);
+                if (!fusion) {
+                    if (po.splat.voxel_size == 0.0) {
+                        const double h = median_footprint(img, K, f->pose, fo.depth);
+                        if (!(h > 0.0)) {
+                            throw NumericalError(f->depth_path + ": the first frame has no usable "
+                                                 "pixel to choose a voxel from. Hint: --voxel");
+                        }
+                        po.splat.voxel_size = options.auto_voxel_factor * h;
+                    }
+                    po.splat.crease_angle = 0.0;  // the accumulator has no crease model
+                    fusion = std::make_unique<Fusion>(
+                        po, fo.depth, Vec3d{f->pose[3], f->pose[7], f->pose[11]});
+                }
+                try {
+                    fusion->integrate(img, K, f->pose);
+                } catch (const Error& e) {
+                    rethrow_with(f->depth_path, e);
+                }
+            }
+        }
+        out.read.rows = fusion->samples();
+        out.read.format = scene.kind;
+        SplatResult splat;
+        {
+            detail::StageClock clock(timings, on_stage, "splat");
+            splat = fusion->splat();
+        }
+        Volume volume = std::move(splat.volume);
+        splat.volume = Volume{};
+        PipelineResult r = reconstruct_volume(std::move(volume), po, on_stage, write_vdb);
+        r.splat = std::move(splat);
+        r.voxel_chosen = options.splat.voxel_size == 0.0;
+        return r;
+    };
+    return detail::run_to_files(scene_path, out_path, options, on_stage, compute);
+}
+
+}  // namespace vdbrecon

@@ -1,0 +1,288 @@
+// Scenes of posed depth images: transforms.json and TUM RGB-D folders (see scene.h).
+#include <sys/stat.h>
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "detail/io_common.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/io.h"
+#include "vdbrecon/scene.h"
+
+namespace vdbrecon {
+
+namespace {
+
+using Json = nlohmann::json;
+
+bool is_file(const std::string& p) {
+    struct stat st {};
+    return ::stat(p.c_str(), &st) == 0 && S_ISREG(st.st_mode);
+}
+bool is_dir(const std::string& p) {
+    struct stat st {};
+    return ::stat(p.c_str(), &st) == 0 && S_ISDIR(st.st_mode);
+}
+std::string dir_of(const std::string& path) {
+    const std::size_t slash = path.find_last_of('/');
+    return slash == std::string::npos ? "." : path.substr(0, slash);
+}
+std::string join(const std::string& dir, const std::string& rel) {
+    if (!rel.empty() && rel[0] == '/') return rel;
+    std::string r = rel;
+    while (r.rfind("./", 0) == 0) r = r.substr(2);
+    return dir + "/" + r;
+}
+
+/// A number from a JSON object, or `fallback` when the key is absent; FormatError when the
+/// value is not a finite number.
+double number(const Json& obj, const char* key, double fallback, const std::string& path,
+              const std::string& where) {
+    auto it = obj.find(key);
+    if (it == obj.end() || it->is_null()) return fallback;
+    if (!it->is_number() || !std::isfinite(it->get<double>())) {
+        throw FormatError(detail::where(path, where + "'" + key + "' is not a finite number"));
+    }
+    return it->get<double>();
+}
+
+/// The camera of a transforms.json object (the file's top level, or a frame overriding it).
+Intrinsics camera(const Json& obj, const Intrinsics& base, const std::string& path,
+                  const std::string& where) {
+    Intrinsics K = base;
+    K.width = int(number(obj, "w", K.width, path, where));
+    K.height = int(number(obj, "h", K.height, path, where));
+    const double angle_x = number(obj, "camera_angle_x", NAN, path, where);
+    const double angle_y = number(obj, "camera_angle_y", NAN, path, where);
+    if (std::isfinite(angle_x) && K.width > 0) K.fx = K.fy = 0.5 * K.width / std::tan(0.5 * angle_x);
+    if (std::isfinite(angle_y) && K.height > 0) K.fy = 0.5 * K.height / std::tan(0.5 * angle_y);
+    K.fx = number(obj, "fl_x", K.fx, path, where);
+    K.fy = number(obj, "fl_y", obj.contains("fl_x") && !obj.contains("fl_y") ? K.fx : K.fy, path, where);
+    // Corner-based principal point (NeRF) to our pixel-centre one.
+    const double cx = number(obj, "cx", NAN, path, where), cy = number(obj, "cy", NAN, path, where);
+    if (std::isfinite(cx)) K.cx = cx - 0.5;
+    if (std::isfinite(cy)) K.cy = cy - 0.5;
+    return K;
+}
+
+/// A frame's depth file: depth_file_path (or depth_path), else file_path plus a depth suffix.
+std::string depth_file(const Json& frame, const std::string& dir, const std::string& path,
+                       const std::string& where) {
+    for (const char* key : {"depth_file_path", "depth_path"}) {
+        auto it = frame.find(key);
+        if (it == frame.end()) continue;
+        if (!it->is_string()) throw FormatError(detail::where(path, where + "'" + key + "' is not a string"));
+        std::string p = join(dir, it->get<std::string>());
+        if (file_extension(p).empty()) {
+            for (const char* ext : {".exr", ".png"}) {
+                if (is_file(p + ext)) return p + ext;
+            }
+        }
+        return p;
+    }
+    auto it = frame.find("file_path");
+    if (it == frame.end() || !it->is_string()) {
+        throw FormatError(detail::where(path, where + "has neither 'depth_file_path' nor 'file_path'"));
+    }
+    std::string stem = join(dir, it->get<std::string>());
+    const std::string ext = file_extension(stem);
+    if (!ext.empty()) stem = stem.substr(0, stem.size() - ext.size() - 1);
+    const char* suffixes[] = {"_depth.exr", "_depth.png", "_depth_0001.exr", "_depth_0001.png", ".depth.exr"};
+    for (const char* s : suffixes) {
+        if (is_file(stem + s)) return stem + s;
+    }
+    throw IoError(detail::where(path, where + "no depth image beside '" +
+                                          detail::printable(it->get<std::string>()) +
+                                          "' (tried _depth.exr, _depth.png, _depth_0001.exr, "
+                                          "_depth_0001.png, .depth.exr)"));
+}
+
+/// A 4x4 transform_matrix (OpenGL camera axes) as a camera-to-world pose in OpenCV axes.
+Pose gl_pose(const Json& frame, const std::string& path, const std::string& where) {
+    auto it = frame.find("transform_matrix");
+    if (it == frame.end()) throw FormatError(detail::where(path, where + "has no 'transform_matrix'"));
+    const Json& m = *it;
+    Pose pose{};
+    bool ok = m.is_array() && m.size() == 4;
+    for (std::size_t r = 0; ok && r < 4; ++r) {
+        ok = m[r].is_array() && m[r].size() == 4;
+        for (std::size_t c = 0; ok && c < 4; ++c) {
+            ok = m[r][c].is_number();
+            if (ok) pose[r * 4 + c] = m[r][c].get<double>();
+        }
+    }
+    if (!ok) throw FormatError(detail::where(path, where + "'transform_matrix' is not 4x4 numbers"));
+    // OpenGL (y up, looking down -z) to OpenCV (y down, looking down +z): negate columns 1, 2.
+    for (std::size_t r = 0; r < 3; ++r) {
+        pose[r * 4 + 1] = -pose[r * 4 + 1];
+        pose[r * 4 + 2] = -pose[r * 4 + 2];
+    }
+    try {
+        validate_pose(pose);
+    } catch (const InvalidArgument& e) {
+        throw FormatError(detail::where(path, where + e.what()));
+    }
+    return pose;
+}
+
+Scene read_transforms(const std::string& path, const SceneOptions& options) {
+    Json doc;
+    try {
+        doc = Json::parse(detail::read_file(path));
+    } catch (const Json::exception& e) {
+        throw FormatError(detail::where(path, std::string("not valid JSON: ") + detail::printable(e.what())));
+    }
+    if (!doc.is_object()) throw FormatError(detail::where(path, "the top level is not a JSON object"));
+    auto frames = doc.find("frames");
+    if (frames == doc.end() || !frames->is_array() || frames->empty()) {
+        throw FormatError(detail::where(path, "no 'frames' (a non-empty array)"));
+    }
+    const Intrinsics base = camera(doc, Intrinsics{NAN, NAN, NAN, NAN, 0, 0}, path, "");
+    double metres_per_unit = number(doc, "depth_scale", NAN, path, "");
+    metres_per_unit = number(doc, "integer_depth_scale", metres_per_unit, path, "");
+    if (std::isfinite(metres_per_unit) && !(metres_per_unit > 0.0)) {
+        throw FormatError(detail::where(path, "'depth_scale' must be positive (metres per unit)"));
+    }
+    Scene scene;
+    scene.kind = "transforms.json";
+    const std::string dir = dir_of(path);
+    for (std::size_t i = 0; i < frames->size(); ++i) {
+        const Json& f = (*frames)[i];
+        const std::string where = "frame " + std::to_string(i) + ": ";
+        if (!f.is_object()) throw FormatError(detail::where(path, where + "is not a JSON object"));
+        SceneFrame frame;
+        frame.depth_path = depth_file(f, dir, path, where);
+        frame.pose = gl_pose(f, path, where);
+        frame.intrinsics = options.intrinsics ? *options.intrinsics : camera(f, base, path, where);
+        frame.units_per_metre = options.units_per_metre > 0.0 ? options.units_per_metre
+                                : std::isfinite(metres_per_unit) ? 1.0 / metres_per_unit
+                                                                 : 1000.0;
+        const Intrinsics& K = frame.intrinsics;
+        if (!std::isfinite(K.fx) || !std::isfinite(K.fy)) {
+            throw FormatError(detail::where(path, where + "no focal length (fl_x or camera_angle_x)"));
+        }
+        scene.frames.push_back(std::move(frame));
+    }
+    return scene;
+}
+
+/// TUM's "timestamp rest" lines (# comments), in file order.
+std::vector<std::pair<double, std::string>> tum_lines(const std::string& path) {
+    const std::string text = detail::read_file(path);
+    std::vector<std::pair<double, std::string>> out;
+    std::istringstream in(text);
+    std::string line;
+    std::size_t number = 0;
+    while (std::getline(in, line)) {
+        ++number;
+        if (line.empty() || line[0] == '#' || line.find_first_not_of(" \t\r") == std::string::npos) continue;
+        std::istringstream l(line);
+        double t = NAN;
+        std::string rest;
+        l >> t;
+        std::getline(l, rest);
+        const std::size_t a = rest.find_first_not_of(" \t"), b = rest.find_last_not_of(" \t\r");
+        if (!std::isfinite(t) || a == std::string::npos) {
+            throw FormatError(detail::where(path, "line " + std::to_string(number) +
+                                                      ": expected 'timestamp ...', got '" +
+                                                      detail::printable(line) + "'"));
+        }
+        out.push_back({t, rest.substr(a, b - a + 1)});
+    }
+    if (out.empty()) throw FormatError(detail::where(path, "no entries"));
+    return out;
+}
+
+/// Camera-to-world from TUM's tx ty tz qx qy qz qw.
+Pose tum_pose(const std::string& values, const std::string& path, double t) {
+    std::istringstream in(values);
+    double v[7];
+    for (double& x : v) {
+        if (!(in >> x) || !std::isfinite(x)) {
+            std::ostringstream s;
+            s.precision(17);
+            s << "pose at " << t << ": expected tx ty tz qx qy qz qw";
+            throw FormatError(detail::where(path, s.str()));
+        }
+    }
+    double x = v[3], y = v[4], z = v[5], w = v[6];
+    const double n = std::sqrt(x * x + y * y + z * z + w * w);
+    if (!(std::fabs(n - 1.0) < 1e-2)) {
+        std::ostringstream s;
+        s.precision(17);
+        s << "pose at " << t << ": the quaternion has length " << n << ", not 1";
+        throw FormatError(detail::where(path, s.str()));
+    }
+    x /= n, y /= n, z /= n, w /= n;
+    return {1 - 2 * (y * y + z * z), 2 * (x * y - z * w),     2 * (x * z + y * w),     v[0],
+            2 * (x * y + z * w),     1 - 2 * (x * x + z * z), 2 * (y * z - x * w),     v[1],
+            2 * (x * z - y * w),     2 * (y * z + x * w),     1 - 2 * (x * x + y * y), v[2],
+            0, 0, 0, 1};
+}
+
+Scene read_tum(const std::string& depth_txt, const SceneOptions& options) {
+    const std::string dir = dir_of(depth_txt);
+    const std::string gt_path = dir + "/groundtruth.txt";
+    if (!options.intrinsics) {
+        throw InvalidArgument(detail::where(depth_txt, "a TUM scene needs the intrinsics: "
+                                                       "--intrinsics fx,fy,cx,cy (the TUM default "
+                                                       "is 525,525,319.5,239.5)"));
+    }
+    const auto depth = tum_lines(depth_txt);
+    const auto gt = tum_lines(gt_path);
+    std::vector<std::size_t> order(gt.size());
+    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::size_t a, std::size_t b) { return gt[a].first < gt[b].first; });
+    Scene scene;
+    scene.kind = "tum";
+    for (const auto& [t, file] : depth) {
+        // The nearest ground-truth timestamp, within 0.02 s (TUM's associate.py).
+        auto it = std::lower_bound(order.begin(), order.end(), t,
+                                   [&](std::size_t i, double v) { return gt[i].first < v; });
+        std::size_t best = gt.size();
+        double gap = 0.02;
+        for (auto c : {it, it == order.begin() ? it : it - 1}) {
+            if (c == order.end()) continue;
+            const double d = std::fabs(gt[*c].first - t);
+            if (d <= gap) gap = d, best = *c;
+        }
+        if (best == gt.size()) continue;  // no pose for this frame
+        SceneFrame frame;
+        frame.depth_path = join(dir, file);
+        frame.pose = tum_pose(gt[best].second, gt_path, gt[best].first);
+        frame.intrinsics = *options.intrinsics;
+        frame.units_per_metre = options.units_per_metre > 0.0 ? options.units_per_metre : 5000.0;
+        scene.frames.push_back(std::move(frame));
+    }
+    if (scene.frames.empty()) {
+        throw FormatError(detail::where(depth_txt, "no depth frame has a ground-truth pose within "
+                                                   "0.02 s in " + gt_path));
+    }
+    return scene;
+}
+
+}  // namespace
+
+Scene read_scene(const std::string& path, const SceneOptions& options) {
+    if (options.intrinsics) {  // its size may be left to the images
+        Intrinsics K = *options.intrinsics;
+        if (K.width == 0 && K.height == 0) K.width = K.height = 1;
+        K.validate();
+    }
+    if (is_dir(path)) {
+        if (is_file(path + "/transforms.json")) return read_transforms(path + "/transforms.json", options);
+        return read_tum(path + "/depth.txt", options);
+    }
+    const std::string ext = file_extension(path);
+    if (ext == "json") return read_transforms(path, options);
+    if (ext == "txt") return read_tum(path, options);
+    if (!is_file(path)) throw IoError(detail::where(path, "no such file or folder"));
+    throw FormatError(detail::where(path, "not a scene: expected a transforms.json, or a TUM "
+                                          "RGB-D folder or its depth.txt"));
+}
+
+}  // namespace vdbrecon

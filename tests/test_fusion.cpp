@@ -1,0 +1,307 @@
+// Range-image fusion: depth pixels to samples, depth image files, scene files, and fused meshes
+// of known shapes seen from every side (tests/depth_scenes.h renders them).
+#include <catch2/catch.hpp>
+
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include "depth_scenes.h"
+#include "shapes.h"
+#include "support.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
+#include "vdbrecon/fusion.h"
+#include "vdbrecon/io.h"
+#include "vdbrecon/scene.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+Vec3d centre_of(const Mesh& m) {
+    const BBox b = bounding_box(m.vertices);
+    return {0.5 * (double(b.min[0]) + b.max[0]) + m.origin[0],
+            0.5 * (double(b.min[1]) + b.max[1]) + m.origin[1],
+            0.5 * (double(b.min[2]) + b.max[2]) + m.origin[2]};
+}
+
+struct Views {
+    Intrinsics K;
+    std::vector<Pose> poses;
+    std::vector<DepthImage> depths;
+};
+
+/// `count` views of the mesh from a sphere `distance` diagonals away.
+Views views_of(const Mesh& mesh, int count, int width, int height, double distance = 2.0) {
+    Views v;
+    v.K = camera_intrinsics(width, height, 50.0);
+    const double diag = bounding_box(mesh.vertices).diagonal();
+    v.poses = orbit_poses(count, centre_of(mesh), distance * diag);
+    for (const Pose& p : v.poses) v.depths.push_back(render_depth(mesh, v.K, p));
+    return v;
+}
+
+PipelineOptions fusion_options(double voxel) {
+    PipelineOptions o;
+    o.splat.voxel_size = voxel;
+    o.splat.crease_angle = 0.0;
+    return o;
+}
+
+EvalResult compare(const Mesh& recon, const Mesh& ref, double tau) {
+    EvalOptions e;
+    e.taus = {tau};
+    e.samples = 200000;
+    return evaluate(recon, ref, e);
+}
+
+}  // namespace
+
+TEST_CASE("depth pixels of a plane become samples on it, facing the camera", "[fusion]") {
+    const Intrinsics K = camera_intrinsics(64, 48, 60.0);
+    DepthImage img{64, 48, std::vector<float>(64 * 48, 2.0f)};
+    const Pose identity{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    // A camera at (1, 2, 3) turned 90 degrees about z.
+    const Pose turned{0, -1, 0, 1, 1, 0, 0, 2, 0, 0, 1, 3, 0, 0, 0, 1};
+    const PointCloud s = depth_samples(img, K, identity, DepthOptions{});
+    REQUIRE(s.size() == 64 * 48);
+    const double footprint = 2.0 / K.fx;
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        REQUIRE(s.positions[i][2] == Approx(2.0).margin(1e-6));
+        REQUIRE(s.normals[i][2] == Approx(-1.0).margin(1e-6));
+        REQUIRE(s.scales[i] == Approx(footprint).epsilon(1e-3));
+        REQUIRE(s.confidences[i] <= 1.0f);
+    }
+    // The centre pixel looks straight at the plane: full confidence.
+    const std::size_t c = 24 * 64 + 32;
+    CHECK(s.confidences[c] == Approx(1.0).margin(2e-3));
+    const PointCloud t = depth_samples(img, K, turned, DepthOptions{});
+    REQUIRE(t.size() == s.size());
+    for (std::size_t i = 0; i < s.size(); i += 97) {
+        // x' = -y + 1, y' = x + 2, z' = z + 3
+        CHECK(t.positions[i][0] == Approx(-s.positions[i][1] + 1.0).margin(1e-5));
+        CHECK(t.positions[i][1] == Approx(s.positions[i][0] + 2.0).margin(1e-5));
+        CHECK(t.positions[i][2] == Approx(s.positions[i][2] + 3.0).margin(1e-5));
+    }
+    // The same plane as a range image: depth along the ray is longer off the axis.
+    DepthImage range = img;
+    for (int v = 0; v < 48; ++v) {
+        for (int u = 0; u < 64; ++u) {
+            const double x = (u - K.cx) / K.fx, y = (v - K.cy) / K.fy;
+            range.depth[std::size_t(v * 64 + u)] = float(2.0 * std::sqrt(x * x + y * y + 1.0));
+        }
+    }
+    DepthOptions ray;
+    ray.kind = DepthKind::ray;
+    const PointCloud r = depth_samples(range, K, identity, ray);
+    REQUIRE(r.size() == s.size());
+    for (std::size_t i = 0; i < r.size(); ++i) REQUIRE(r.positions[i][2] == Approx(2.0).margin(1e-5));
+}
+
+TEST_CASE("no normal across a depth jump, none from lone pixels, none past max_depth", "[fusion]") {
+    const Intrinsics K = camera_intrinsics(32, 32, 60.0);
+    DepthImage img{32, 32, std::vector<float>(32 * 32, 1.0f)};
+    for (int v = 0; v < 32; ++v) {
+        for (int u = 16; u < 32; ++u) img.depth[std::size_t(v * 32 + u)] = 3.0f;  // a step
+    }
+    img.depth[5 * 32 + 5] = NAN;
+    const Pose I{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    const PointCloud s = depth_samples(img, K, I, DepthOptions{});
+    // Every pixel has a neighbour on its own side: all but the NaN one give a sample, and every
+    // normal faces the camera squarely (none is tilted by the step).
+    REQUIRE(s.size() == 32 * 32 - 1);
+    for (std::size_t i = 0; i < s.size(); ++i) REQUIRE(s.normals[i][2] == Approx(-1.0).margin(1e-6));
+    DepthOptions near;
+    near.max_depth = 2.0;
+    CHECK(depth_samples(img, K, I, near).size() == 16 * 32 - 1);
+    DepthImage lone{32, 32, std::vector<float>(32 * 32, 0.0f)};
+    lone.depth[10 * 32 + 10] = 1.0f;
+    CHECK(depth_samples(lone, K, I, DepthOptions{}).empty());
+}
+
+TEST_CASE("poses that are not rigid transforms are refused", "[fusion]") {
+    Pose p{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    CHECK_NOTHROW(validate_pose(p));
+    Pose scaled = p;
+    scaled[0] = 2.0;
+    CHECK_THROWS_AS(validate_pose(scaled), InvalidArgument);
+    Pose mirrored = p;
+    mirrored[10] = -1.0;
+    CHECK_THROWS_WITH(validate_pose(mirrored), Catch::Contains("not a rotation"));
+    Pose nan = p;
+    nan[3] = NAN;
+    CHECK_THROWS_WITH(validate_pose(nan), Catch::Contains("NaN"));
+}
+
+TEST_CASE("depth images round-trip through EXR exactly and PNG to a unit", "[fusion][io]") {
+    TempDir dir;
+    DepthImage img{7, 5, {}};
+    for (int i = 0; i < 35; ++i) img.depth.push_back(i % 6 == 0 ? 0.0f : 0.5f + 0.0731f * float(i));
+    write_depth_image(dir.file("d.exr"), img);
+    const DepthImage e = read_depth_image(dir.file("d.exr"));
+    REQUIRE(e.width == 7);
+    REQUIRE(e.height == 5);
+    CHECK(e.depth == img.depth);
+    write_depth_image(dir.file("d.png"), img, 5000.0);
+    const DepthImage p = read_depth_image(dir.file("d.png"), 5000.0);
+    REQUIRE(p.depth.size() == img.depth.size());
+    for (std::size_t i = 0; i < img.depth.size(); ++i) {
+        REQUIRE(p.depth[i] == Approx(img.depth[i]).margin(0.5 / 5000.0 + 1e-7));
+    }
+    CHECK_THROWS_WITH(write_depth_image(dir.file("far.png"), img, 1e6), Catch::Contains("65535"));
+    write_bytes(dir.file("bad.png"), "\x89PNG\r\n\x1a\n garbage");
+    CHECK_THROWS_WITH(read_depth_image(dir.file("bad.png")), Catch::Contains("bad.png"));
+    write_bytes(dir.file("bad.exr"), "v/1\x01 not an exr");
+    CHECK_THROWS_AS(read_depth_image(dir.file("bad.exr")), FormatError);
+    CHECK_THROWS_AS(read_depth_image(dir.file("missing.exr")), IoError);
+}
+
+TEST_CASE("the accumulator gives the same grids for any thread count", "[fusion]") {
+    const Shape box = make_shape("cube");
+    const Views v = views_of(box.mesh, 6, 160, 120);
+    auto fuse_with = [&](int threads) {
+        tbb::task_arena arena(threads);
+        return arena.execute([&] {
+            Fusion f(fusion_options(0.03));
+            for (std::size_t i = 0; i < v.depths.size(); ++i) f.integrate(v.depths[i], v.K, v.poses[i]);
+            return f.volume();
+        });
+    };
+    const Volume a = fuse_with(1), b = fuse_with(2);
+    REQUIRE(a.sdf->activeVoxelCount() == b.sdf->activeVoxelCount());
+    REQUIRE(a.sdf->activeVoxelCount() > 1000);
+    auto acc = b.sdf->getConstAccessor();
+    auto wacc = b.weight->getConstAccessor();
+    for (auto it = a.sdf->cbeginValueOn(); it; ++it) {
+        REQUIRE(acc.getValue(it.getCoord()) == *it);
+        REQUIRE(wacc.getValue(it.getCoord()) == a.weight->getConstAccessor().getValue(it.getCoord()));
+    }
+}
+
+TEST_CASE("a sphere and a box seen from 24 poses fuse into one closed piece", "[fusion]") {
+    for (const char* name : {"sphere", "cube"}) {
+        const Shape shape = make_shape(name);
+        const double voxel = bounding_box(shape.mesh.vertices).diagonal() / 80.0;
+        const Views v = views_of(shape.mesh, 24, 320, 240);
+        Fusion f(fusion_options(voxel), DepthOptions{}, Vec3d{0.25, -0.5, 1.0});
+        for (std::size_t i = 0; i < v.depths.size(); ++i) f.integrate(v.depths[i], v.K, v.poses[i]);
+        const PipelineResult r = f.reconstruct();
+        const EvalResult e = compare(r.mesh, shape.mesh, voxel);
+        INFO(name << ": F@voxel " << e.fscores[0].fscore << ", chamfer " << e.chamfer_l1 / voxel
+                  << " voxels, " << e.recon.boundary_edges << " boundary edges");
+        CHECK(e.fscores[0].fscore >= 0.99);
+        CHECK(e.recon.components == 1);
+        CHECK(e.recon.boundary_edges == 0);
+        CHECK(e.recon.nonmanifold_edges == 0);
+    }
+}
+
+TEST_CASE("vdbrecon fuse reads transforms.json (EXR and PNG) and TUM folders alike", "[fusion][cli]") {
+    const Shape shape = make_shape("boss");
+    const double voxel = bounding_box(shape.mesh.vertices).diagonal() / 60.0;
+    const Views v = views_of(shape.mesh, 20, 200, 150);
+    TempDir exr, png, tum, out;
+    const std::string scenes[] = {
+        write_transforms_scene(exr.path(), v.depths, v.K, v.poses, "exr"),
+        write_transforms_scene(png.path(), v.depths, v.K, v.poses, "png", 10000.0),
+        write_tum_scene(tum.path(), v.depths, v.poses)};
+    for (const std::string& scene : scenes) {
+        const std::string mesh = out.file("m.ply");
+        std::ostringstream args;
+        args.precision(17);
+        args << "fuse '" << scene << "' -o '" << mesh << "' --voxel " << voxel << " -q";
+        if (scene == tum.path()) {
+            args << " --intrinsics " << v.K.fx << "," << v.K.fy << "," << v.K.cx << "," << v.K.cy;
+        }
+        const CliRun r = run_cli(args.str());
+        INFO(scene << ": " << r.err);
+        REQUIRE(r.code == 0);
+        REQUIRE(file_exists(out.file("m.splat.vdb")));
+        const EvalResult e = compare(read_mesh(mesh), shape.mesh, voxel);
+        INFO("F@voxel " << e.fscores[0].fscore << ", chamfer " << e.chamfer_l1 / voxel << " voxels");
+        CHECK(e.fscores[0].fscore >= 0.99);
+        CHECK(e.recon.components == 1);
+        CHECK(e.recon.watertight());
+    }
+}
+
+TEST_CASE("the bunny's reference mesh seen from 24 poses fuses back onto itself", "[fusion][data]") {
+    const std::string gt = shared_data("stanford_bunny/bun_zipper_gt.ply");
+    if (gt.empty()) return;
+    const Mesh bunny = read_mesh(gt);
+    const double voxel = 0.001;
+    const Views v = views_of(bunny, 24, 320, 240, 1.5);
+    Fusion f(fusion_options(voxel), DepthOptions{}, centre_of(bunny));
+    for (std::size_t i = 0; i < v.depths.size(); ++i) f.integrate(v.depths[i], v.K, v.poses[i]);
+    const PipelineResult r = f.reconstruct();
+    EvalOptions o;
+    o.taus = {voxel};
+    o.samples = 300000;
+    o.ignore_reference_holes = true;  // the reference is open underneath
+    const EvalResult e = evaluate(r.mesh, bunny, o);
+    INFO("F@1mm " << e.fscores[0].fscore << ", chamfer " << e.chamfer_l1 * 1e6 << " um, "
+                  << e.recon.components << " pieces");
+    CHECK(e.fscores[0].fscore >= 0.99);
+    CHECK(e.recon.components == 1);
+}
+
+TEST_CASE("fuse: bad frames give one line naming the file, a non-zero exit and no output", "[fusion][cli][bad]") {
+    const Shape shape = make_shape("sphere");
+    const Views v = views_of(shape.mesh, 4, 64, 48);
+    TempDir dir, out;
+    const std::string json = write_transforms_scene(dir.path(), v.depths, v.K, v.poses, "exr");
+    const std::string good = read_bytes(json);
+    const std::string mesh = out.file("m.ply");
+    auto fuse = [&](const std::string& extra = "") {
+        return run_cli("fuse '" + json + "' -o '" + mesh + "' --voxel 0.05 -q " + extra);
+    };
+    auto check_failed = [&](const CliRun& r, const std::string& names, const std::string& what) {
+        INFO(r.err);
+        CHECK(r.code != 0);
+        CHECK(r.err.find(names) != std::string::npos);
+        CHECK(r.err.find(what) != std::string::npos);
+        CHECK(std::count(r.err.begin(), r.err.end(), '\n') == 1);
+        CHECK(!file_exists(mesh));
+        CHECK(!file_exists(out.file("m.splat.vdb")));
+        CHECK(count_files(out.path()) == 0);
+    };
+    {  // a frame of another size
+        DepthImage small{32, 24, std::vector<float>(32 * 24, 1.0f)};
+        write_depth_image(dir.file("d_2.exr"), small);
+        check_failed(fuse(), "d_2.exr", "32 x 24");
+        write_depth_image(dir.file("d_2.exr"), v.depths[2]);
+    }
+    {  // a missing file
+        std::rename(dir.file("d_1.exr").c_str(), dir.file("gone.exr").c_str());
+        check_failed(fuse(), "d_1.exr", "d_1.exr");
+        std::rename(dir.file("gone.exr").c_str(), dir.file("d_1.exr").c_str());
+    }
+    auto with_matrix = [&](const std::string& row) {  // frame 0's first row replaced
+        std::string s = good;
+        const std::size_t a = s.find("\"transform_matrix\": [[") + 22;
+        const std::size_t b = s.find(']', a);
+        s.replace(a, b - a, row);
+        write_bytes(json, s);
+    };
+    with_matrix("2, 0, 0, 1");
+    check_failed(fuse(), "transforms.json", "not a rotation");
+    with_matrix("NaN, 0, 0, 1");
+    check_failed(fuse(), "transforms.json", "JSON");
+    write_bytes(json, good.substr(0, good.size() / 2));
+    check_failed(fuse(), "transforms.json", "JSON");
+    write_bytes(json, good);
+    {  // empty depth images: nothing measured anywhere
+        for (int i = 0; i < 4; ++i) {
+            write_depth_image(dir.file("d_" + std::to_string(i) + ".exr"),
+                              DepthImage{64, 48, std::vector<float>(64 * 48, 0.0f)});
+        }
+        check_failed(fuse(), "transforms.json", "has a usable pixel");
+    }
+    check_failed(run_cli("fuse '" + dir.file("nothing.json") + "' -o '" + mesh + "' --voxel 0.05 -q"),
+                 "nothing.json", "nothing.json");
+}

@@ -6,6 +6,7 @@
 #include <utility>
 #include <vector>
 
+#include "vdbrecon/fusion.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/normals.h"
@@ -28,6 +29,10 @@ inline const Choices<ScaleMode>& scale_mode_choices() {
 }
 inline const Choices<Mesher>& mesher_choices() {
     static const Choices<Mesher> c = {{"vdb", Mesher::vdb}, {"mc", Mesher::mc}, {"dc", Mesher::dc}};
+    return c;
+}
+inline const Choices<DepthKind>& depth_kind_choices() {
+    static const Choices<DepthKind> c = {{"planar", DepthKind::planar}, {"ray", DepthKind::ray}};
     return c;
 }
 inline const Choices<NonFinitePolicy>& non_finite_choices() {

@@ -23,4 +23,5 @@ PYBIND11_MODULE(_vdbrecon, m) {
     bind_holes(m);
     bind_eval(m);
     bind_pipeline(m);
+    bind_fusion(m);
 }

@@ -46,6 +46,7 @@ from ._vdbrecon import (  # noqa: F401  (re-exported)
     CleanOptions,
     CleanResult,
     CloseOptions,
+    DepthOptions,
     CloseResult,
     Error,
     EvalOptions,
@@ -83,7 +84,7 @@ from ._vdbrecon import (  # noqa: F401  (re-exported)
 __version__ = _v.__version__
 
 __all__ = [
-    "reconstruct", "run", "read_points", "read_mesh", "write_mesh", "write_points",
+    "reconstruct", "run", "Fusion", "DepthOptions", "read_points", "read_mesh", "write_mesh", "write_points",
     "remove_outliers", "estimate_normals", "splat", "close", "extract_mesh", "clean_mesh",
     "fill_holes", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
     "version", "stage_volume_path",
@@ -672,3 +673,88 @@ Returns a RunResult: .result (PipelineResult), .read (ReadResult counts), .mesh_
 .vdb_path, .closed_vdb_path.""",
           _keyword_entries(_RUN_NAMES, _RUN_PLACES), [_pos("input"), _pos("output", None),
                                                       _kw("voxel", None)])
+
+
+# ---- range-image fusion ----------------------------------------------------------------------
+
+_DEPTH_FIELDS = [f for f, _ in DepthOptions._fields]
+
+
+class Fusion:
+    """Fuses posed depth images (and oriented clouds) into one volume, one frame at a time
+    (FSSR-style samples: normals from the depth neighbours, scale from the pixel footprint,
+    confidence from the viewing angle), then meshes it like reconstruct().
+
+    voxel: voxel edge, world units (required).
+    origin: world position of the local float frame (pick one near the scene).
+    depth_scale: integer depth arrays are divided by it (units per metre, as Open3D's).
+    Options: every reconstruct() option by the same name (mesher, hole_radius, ...), and the
+    DepthOptions fields (kind or depth_kind, min_depth, max_depth, max_jump, min_view_cos,
+    reference_depth).
+    """
+
+    def __init__(self, voxel, *, origin=(0.0, 0.0, 0.0), depth_scale=1000.0, **options):
+        depth = {}
+        for name in list(options):
+            field = name[len("depth_"):] if name.startswith("depth_") else name
+            if field in _DEPTH_FIELDS and name not in _RECONSTRUCT_NAMES:
+                depth[field] = options.pop(name)
+        if "voxel_size" in options or "splat_voxel_size" in options:
+            raise TypeError("Fusion(): give voxel, not voxel_size")
+        options["voxel_size"] = voxel
+        o = _fill_pipeline(_RECONSTRUCT_NAMES, options, "Fusion")
+        if not depth_scale > 0:
+            raise ValueError("Fusion(): depth_scale must be > 0 (units per metre)")
+        self._depth_scale = float(depth_scale)
+        self._f = _v._Fusion(o, _fill(DepthOptions, depth, "Fusion"), tuple(float(x) for x in origin))
+
+    def integrate(self, depth, K, pose, *, convention="opencv"):
+        """Adds one depth image.
+
+        depth: (H, W) array; float: world units, integer: units of 1/depth_scale; 0, NaN and
+        inf are no measurement.
+        K: (3, 3) intrinsic matrix, or (fx, fy, cx, cy), pixels (pixel centres at integers).
+        pose: (4, 4) camera-to-world transform; convention 'opencv' (x right, y down, looking
+        down +z; TUM, Open3D after inverting its extrinsic) or 'opengl' (y up, looking down -z;
+        Blender, NeRF transforms.json).
+        Returns the number of samples the frame gave."""
+        d = _np.asarray(depth)
+        if d.dtype.kind in "iu":
+            d = d.astype(_np.float32) / _np.float32(self._depth_scale)
+        k = _np.asarray(K, dtype=_np.float64)
+        if k.shape == (3, 3):
+            fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+        elif k.shape == (4,):
+            fx, fy, cx, cy = k
+        else:
+            raise ValueError("K: expected a (3, 3) matrix or (fx, fy, cx, cy)")
+        p = _np.array(pose, dtype=_np.float64)
+        if p.shape != (4, 4):
+            raise ValueError("pose: expected a (4, 4) camera-to-world matrix")
+        if convention == "opengl":
+            p[:3, 1:3] *= -1.0
+        elif convention != "opencv":
+            raise ValueError("convention: 'opencv' or 'opengl'")
+        return self._f.integrate_depth(d, float(fx), float(fy), float(cx), float(cy), p)
+
+    def integrate_points(self, points, normals=None):
+        """Adds an oriented cloud (e.g. one scan with normals toward its sensor)."""
+        return self._f.integrate_cloud(_cloud(points, normals))
+
+    def volume(self):
+        """The fused Volume so far."""
+        return self._f.volume()
+
+    def mesh(self, return_result=False):
+        """The mesh of the fused volume (close > mesh > clean > fill, by the options); with
+        return_result the PipelineResult."""
+        r = self._f.reconstruct()
+        return r if return_result else r.mesh
+
+    @property
+    def frames(self):
+        return self._f.frames
+
+    @property
+    def samples(self):
+        return self._f.samples

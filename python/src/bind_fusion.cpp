@@ -1,0 +1,78 @@
+// Range-image fusion (vdbrecon/fusion.h): the Fusion class with numpy depth images.
+#include "bind.h"
+#include "vdbrecon/choices.h"
+#include "vdbrecon/fusion.h"
+
+namespace vdbrecon::python {
+
+namespace {
+
+/// A (H, W) float32 C-contiguous array as a DepthImage (copied: the fusion keeps nothing).
+DepthImage depth_image(const py::array_t<float, py::array::c_style | py::array::forcecast>& a) {
+    if (a.ndim() != 2) throw InvalidArgument("depth: expected an (H, W) array");
+    DepthImage img;
+    img.height = int(a.shape(0));
+    img.width = int(a.shape(1));
+    img.depth.assign(a.data(), a.data() + a.size());
+    return img;
+}
+
+Pose pose_of(const py::array_t<double, py::array::c_style | py::array::forcecast>& a) {
+    if (a.size() != 16) throw InvalidArgument("pose: expected a (4, 4) camera-to-world matrix");
+    Pose p;
+    std::copy(a.data(), a.data() + 16, p.begin());
+    return p;
+}
+
+}  // namespace
+
+void bind_fusion(py::module_& m) {
+    OptionsClass<DepthOptions> o(m, "DepthOptions", "How depth pixels become samples (fuse).");
+    o.choice("kind", &DepthOptions::kind, depth_kind_choices(),
+             "'planar': depth along the optical axis; 'ray': range along the pixel's ray "
+             "(CLI --depth-kind).")
+        .field("min_depth", &DepthOptions::min_depth,
+               "Depths at or below this are no measurement, world units (CLI --min-depth).")
+        .field("max_depth", &DepthOptions::max_depth,
+               "Depths beyond this are no measurement, world units; 0 = no limit (CLI "
+               "--max-depth).")
+        .field("max_jump", &DepthOptions::max_jump,
+               "Neighbours whose depth differs by more than this fraction of the pixel's are "
+               "not used for its normal (CLI --max-jump).")
+        .field("min_view_cos", &DepthOptions::min_view_cos,
+               "Pixels seen at a grazing angle, cosine below this, give no sample (CLI "
+               "--min-view-cos).")
+        .field("reference_depth", &DepthOptions::reference_depth,
+               "Beyond this depth the confidence falls as (reference/depth)^2, world units; 0 = "
+               "off (CLI --reference-depth).");
+    o.finish();
+
+    py::class_<Fusion>(m, "_Fusion", "Fuses posed depth images into one volume (internal).")
+        .def(py::init<const PipelineOptions&, const DepthOptions&, const Vec3d&>(),
+             py::arg("options"), py::arg("depth"), py::arg("origin"))
+        .def(
+            "integrate_depth",
+            [](Fusion& f, const py::array_t<float, py::array::c_style | py::array::forcecast>& depth,
+               double fx, double fy, double cx, double cy,
+               const py::array_t<double, py::array::c_style | py::array::forcecast>& pose) {
+                const DepthImage img = depth_image(depth);
+                const Intrinsics K{fx, fy, cx, cy, img.width, img.height};
+                const Pose p = pose_of(pose);
+                return without_gil([&] { return f.integrate(img, K, p); });
+            },
+            py::arg("depth"), py::arg("fx"), py::arg("fy"), py::arg("cx"), py::arg("cy"),
+            py::arg("pose"))
+        .def(
+            "integrate_cloud",
+            [](Fusion& f, const PointCloud& cloud) {
+                return without_gil([&] { return f.integrate(cloud); });
+            },
+            py::arg("cloud"))
+        .def("volume", [](const Fusion& f) { return without_gil([&] { return f.volume(); }); })
+        .def("reconstruct",
+             [](const Fusion& f) { return without_gil([&] { return f.reconstruct(); }); })
+        .def_property_readonly("frames", &Fusion::frames)
+        .def_property_readonly("samples", &Fusion::samples);
+}
+
+}  // namespace vdbrecon::python

@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# Range-image fusion benchmark (issue 23): one rendered depth sequence of the bunny's reference
+# mesh (bench/fusion_scene: 30 poses on a sphere, 640x480, Gaussian depth noise of 0.4 voxel,
+# 16-bit PNG), fused by `vdbrecon fuse` and by Open3D's ScalableTSDFVolume (sdf_trunc 4 voxels,
+# bench/fusion_open3d.py); F-score and Chamfer against the mesh, pieces, boundary edges, wall
+# time and peak memory. Prints a markdown table for bench/RESULTS.md.
+#   bench/fusion.sh [build-dir]   (needs ../shared/data; installs python3-open3d; run scripts/setup.sh)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+BUILD=${1:-build}
+OUT=bench/out/fusion
+VOXEL=${VOXEL:-0.001}
+FRAMES=${FRAMES:-30}
+REF=../shared/data/stanford_bunny/bun_zipper_gt.ply
+source bench/harness.sh   # common.sh, ensure_packages
+ensure_packages time python3-open3d
+mkdir -p "$OUT/scene"
+rm -f "$OUT"/scene/*
+"$BUILD/tests/fusion_scene" "$REF" "$OUT/scene" "$FRAMES" 640 480 "$(/usr/bin/python3 -c "print(0.4 * $VOXEL)")" >/dev/null
+
+machine_line
+echo
+echo "Bunny reference mesh rendered from $FRAMES poses (640x480, noise 0.4 voxel), --voxel $VOXEL;"
+echo "best wall time of $REPEAT runs each; quality against the mesh (\`vdbrecon eval --tau $VOXEL\`)."
+echo
+echo "| tool | wall s | peak RSS MB | faces | pieces | boundary edges | F@1 voxel | Chamfer-L1 um |"
+echo "|---|---|---|---|---|---|---|---|"
+run_tool() {  # name, mesh, command...
+  local name=$1 mesh=$2 best="" rss=""
+  shift 2
+  for ((k = 0; k < REPEAT; ++k)); do
+    /usr/bin/time -f "%e %M" -o "$OUT/time.txt" "$@" >/dev/null 2>"$OUT/try.log"
+    read -r w r <"$OUT/time.txt"
+    if [ -z "$best" ] || /usr/bin/python3 -c "import sys; sys.exit(0 if $w < $best else 1)"; then
+      best=$w; rss=$r
+    fi
+  done
+  "$BUILD/vdbrecon" eval "$mesh" "$REF" --tau "$VOXEL" >"$OUT/eval.json"
+  /usr/bin/python3 - "$OUT/eval.json" "$name" "$best" "$rss" <<'PY'
+import json, sys
+e = json.load(open(sys.argv[1]))
+r = e["recon"]
+print(f"| {sys.argv[2]} | {float(sys.argv[3]):.2f} | {int(sys.argv[4]) // 1024} | {r['faces']} | "
+      f"{r['components']} | {r['boundary_edges']} | {e['fscore'][0]['fscore']:.4f} | "
+      f"{e['chamfer_l1'] * 1e6:.1f} |")
+PY
+}
+run_tool "vdbrecon fuse" "$OUT/vdbrecon.ply" "$BUILD/vdbrecon" fuse "$OUT/scene/transforms.json" \
+  -o "$OUT/vdbrecon.ply" --voxel "$VOXEL" --no-vdb
+run_tool "Open3D ScalableTSDFVolume" "$OUT/open3d.ply" /usr/bin/python3 bench/fusion_open3d.py \
+  "$OUT/scene/transforms.json" "$OUT/open3d.ply" "$VOXEL"

@@ -22,6 +22,9 @@ namespace vdbrecon {
 namespace {
 
 constexpr int kMaxSide = 1 << 16;
+/// At most this many pixels (a 16k x 8k image): a hostile header must not make us allocate
+/// gigabytes before a single row is read.
+constexpr long kMaxPixels = 1L << 27;
 /// Blender marks pixels that saw nothing with 1e10 (in half: 65504, the largest half).
 constexpr float kNoHit = 65504.0f;
 
@@ -45,7 +48,7 @@ DepthImage read_exr_depth(const std::string& path) {
         Imf::InputFile in(path.c_str());
         const Imath::Box2i dw = in.header().dataWindow();
         const long w = long(dw.max.x) - dw.min.x + 1, h = long(dw.max.y) - dw.min.y + 1;
-        if (w <= 0 || h <= 0 || w > kMaxSide || h > kMaxSide) {
+        if (w <= 0 || h <= 0 || w > kMaxSide || h > kMaxSide || w * h > kMaxPixels) {
             throw FormatError(detail::where(path, "EXR data window of " + std::to_string(w) +
                                                       " x " + std::to_string(h) + " pixels"));
         }
@@ -112,7 +115,10 @@ DepthImage read_png_depth(const std::string& path, double units_per_metre) {
         png_read_info(png, info);
         const png_uint_32 w = png_get_image_width(png, info), h = png_get_image_height(png, info);
         const int depth = png_get_bit_depth(png, info), type = png_get_color_type(png, info);
-        if (type != PNG_COLOR_TYPE_GRAY || (depth != 16 && depth != 8)) {
+        if (long(w) * long(h) > kMaxPixels) {
+            problem = "PNG of " + std::to_string(w) + " x " + std::to_string(h) +
+                      " pixels, more than a depth image can have (2^27)";
+        } else if (type != PNG_COLOR_TYPE_GRAY || (depth != 16 && depth != 8)) {
             problem = "a depth PNG must be 16-bit (or 8-bit) greyscale; this one has colour type " +
                       std::to_string(type) + " at " + std::to_string(depth) + " bits";
         } else {

@@ -3,6 +3,7 @@
 #include <catch2/catch.hpp>
 
 #include <tbb/task_arena.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <cmath>
@@ -159,6 +160,22 @@ TEST_CASE("depth images round-trip through EXR exactly and PNG to a unit", "[fus
     write_bytes(dir.file("bad.exr"), "v/1\x01 not an exr");
     CHECK_THROWS_AS(read_depth_image(dir.file("bad.exr")), FormatError);
     CHECK_THROWS_AS(read_depth_image(dir.file("missing.exr")), IoError);
+    // A header promising 60000 x 60000 pixels (valid CRCs), then no data: refused before any
+    // allocation of that size.
+    std::string ihdr = "IHDR";
+    for (std::uint32_t v : {60000u, 60000u}) {
+        for (int b = 3; b >= 0; --b) ihdr += char((v >> (8 * b)) & 255u);
+    }
+    ihdr += std::string("\x10\x00\x00\x00\x00", 5);
+    const unsigned long crc = crc32(0L, reinterpret_cast<const Bytef*>(ihdr.data()), uInt(ihdr.size()));
+    std::string png = std::string("\x89PNG\r\n\x1a\n", 8) + std::string("\x00\x00\x00\x0d", 4) + ihdr;
+    for (int b = 3; b >= 0; --b) png += char((crc >> (8 * b)) & 255u);
+    const std::string idat = "IDAT\x78\x9c";  // the start of a zlib stream, then nothing
+    const unsigned long idat_crc = crc32(0L, reinterpret_cast<const Bytef*>(idat.data()), uInt(idat.size()));
+    png += std::string("\x00\x00\x00\x02", 4) + idat;
+    for (int b = 3; b >= 0; --b) png += char((idat_crc >> (8 * b)) & 255u);
+    write_bytes(dir.file("huge.png"), png);
+    CHECK_THROWS_WITH(read_depth_image(dir.file("huge.png")), Catch::Contains("huge.png") && Catch::Contains("60000"));
 }
 
 TEST_CASE("the accumulator gives the same grids for any thread count", "[fusion]") {

@@ -185,6 +185,8 @@ void print_help() {
         << "  --max-jump J           no normal across a depth jump > J x depth [0.05]\n"
         << "  --min-view-cos C       no sample seen more grazing than this cosine [0.1]\n"
         << "  --reference-depth D    confidence falls as (D/depth)^2 beyond D [off]\n"
+        << "  --merge-footprint F    merge pixel blocks of frames whose footprint is below F,\n"
+        << "                         world units; 0 = never [min-sigma x voxel / 2]\n"
         << "  --frame-step N, --max-frames N  every N-th frame; at most N frames [1, all]\n"
         << "  the voxel defaults to 1.4 x the first frame's median pixel footprint\n"
         << "\n"
@@ -588,6 +590,8 @@ int run_fuse(Args& args, double startup_rss_mb) {
             f.depth.max_jump = parse_number(a, args.value(a));
         } else if (a == "--min-view-cos") {
             f.depth.min_view_cos = parse_number(a, args.value(a));
+        } else if (a == "--merge-footprint") {
+            f.depth.merge_footprint = parse_number(a, args.value(a));
         } else if (a == "--reference-depth") {
             f.depth.reference_depth = parse_number(a, args.value(a));
         } else if (a == "--frame-step" || a == "--max-frames") {

@@ -89,21 +89,29 @@ inline V3 cross(const V3& a, const V3& b) {
     return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
 }
 
-/// The camera-frame points of a frame's pixels (valid[i] false: no measurement).
+/// A grid of camera-frame points (an image's pixels, or blocks of them): valid[i] false where
+/// nothing was measured; count[i] the pixels a point stands for.
 struct FramePoints {
+    int w = 0, h = 0;
     std::vector<V3> p;
     std::vector<char> valid;
+    std::vector<float> count;
+
+    std::size_t index(int u, int v) const { return std::size_t(v) * std::size_t(w) + std::size_t(u); }
 };
 
 FramePoints back_project(const DepthImage& depth, const Intrinsics& K, const DepthOptions& o) {
     const int w = depth.width, h = depth.height;
     FramePoints f;
+    f.w = w;
+    f.h = h;
     f.p.resize(std::size_t(w) * std::size_t(h));
     f.valid.assign(f.p.size(), 0);
+    f.count.assign(f.p.size(), 1.0f);
     const double max_depth = o.max_depth > 0.0 ? o.max_depth : HUGE_VAL;
     for (int v = 0; v < h; ++v) {
         for (int u = 0; u < w; ++u) {
-            const std::size_t i = std::size_t(v) * std::size_t(w) + std::size_t(u);
+            const std::size_t i = f.index(u, v);
             double d = double(depth.depth[i]);
             if (!(std::isfinite(d) && d > o.min_depth && d > 0.0 && d <= max_depth)) continue;
             const V3 ray = {(u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0};
@@ -115,31 +123,74 @@ FramePoints back_project(const DepthImage& depth, const Intrinsics& K, const Dep
     return f;
 }
 
-}  // namespace
+/// The pixel blocks (b x b) a frame is merged into where its footprint is below
+/// `merge_footprint`: b = floor(merge_footprint / the median footprint), at most 4.
+int merge_factor(const FramePoints& f, double focal, double merge_footprint) {
+    if (!(merge_footprint > 0.0)) return 1;
+    std::vector<double> z;
+    for (std::size_t i = 0; i < f.p.size(); i += 7) {  // a sample of the pixels is enough
+        if (f.valid[i]) z.push_back(f.p[i][2]);
+    }
+    if (z.empty()) return 1;
+    std::nth_element(z.begin(), z.begin() + std::ptrdiff_t(z.size() / 2), z.end());
+    const double footprint = z[z.size() / 2] / focal;
+    return std::clamp(int(std::floor(merge_footprint / footprint)), 1, 4);
+}
 
-PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
-                         const DepthOptions& options, const Vec3d& origin) {
-    K.validate();
-    options.validate();
-    validate_pose(pose);
-    if (depth.width != K.width || depth.height != K.height) {
-        std::ostringstream s;
-        s << "depth image is " << depth.width << " x " << depth.height
-          << " pixels, the intrinsics say " << K.width << " x " << K.height;
-        throw InvalidArgument(s.str());
+/// b x b blocks of pixels as one point each: the mean of the block's pixels on the surface of
+/// its median depth (within max_jump), standing for their count. Averaging pixels that each
+/// weigh the same is what splatting them with kernels wider than their spacing does, at a
+/// b^2-th of the kernels.
+FramePoints merge_blocks(const FramePoints& f, int b, double max_jump) {
+    FramePoints m;
+    m.w = (f.w + b - 1) / b;
+    m.h = (f.h + b - 1) / b;
+    m.p.assign(std::size_t(m.w) * std::size_t(m.h), V3{0, 0, 0});
+    m.valid.assign(m.p.size(), 0);
+    m.count.assign(m.p.size(), 0.0f);
+    std::vector<double> z;
+    for (int bv = 0; bv < m.h; ++bv) {
+        for (int bu = 0; bu < m.w; ++bu) {
+            z.clear();
+            const int u1 = std::min(f.w, (bu + 1) * b), v1 = std::min(f.h, (bv + 1) * b);
+            for (int v = bv * b; v < v1; ++v) {
+                for (int u = bu * b; u < u1; ++u) {
+                    if (f.valid[f.index(u, v)]) z.push_back(f.p[f.index(u, v)][2]);
+                }
+            }
+            if (z.empty()) continue;
+            std::nth_element(z.begin(), z.begin() + std::ptrdiff_t(z.size() / 2), z.end());
+            const double ref = z[z.size() / 2];
+            V3 sum{0, 0, 0};
+            int n = 0;
+            for (int v = bv * b; v < v1; ++v) {
+                for (int u = bu * b; u < u1; ++u) {
+                    const std::size_t i = f.index(u, v);
+                    if (!f.valid[i] || std::fabs(f.p[i][2] - ref) > max_jump * ref) continue;
+                    for (int a = 0; a < 3; ++a) sum[std::size_t(a)] += f.p[i][std::size_t(a)];
+                    ++n;
+                }
+            }
+            const std::size_t j = m.index(bu, bv);
+            m.p[j] = {sum[0] / n, sum[1] / n, sum[2] / n};
+            m.valid[j] = 1;
+            m.count[j] = float(n);
+        }
     }
-    if (depth.depth.size() != std::size_t(depth.width) * std::size_t(depth.height)) {
-        throw InvalidArgument("depth image: its values do not fill width x height");
-    }
-    const int w = depth.width, h = depth.height;
-    const FramePoints f = back_project(depth, K, options);
-    const double focal = 0.5 * (K.fx + K.fy);
+    return m;
+}
+
+/// The oriented samples of a grid of camera-frame points (see fusion.h); `focal`: the grid's
+/// focal length in cells.
+PointCloud grid_samples(const FramePoints& f, double focal, const Pose& pose,
+                        const DepthOptions& options, const Vec3d& origin) {
+    const int w = f.w, h = f.h;
     auto usable = [&](int u, int v, double d) {  // a neighbour on the same surface
         if (u < 0 || v < 0 || u >= w || v >= h) return false;
-        const std::size_t j = std::size_t(v) * std::size_t(w) + std::size_t(u);
+        const std::size_t j = f.index(u, v);
         return f.valid[j] && std::fabs(f.p[j][2] - d) <= options.max_jump * d;
     };
-    auto at = [&](int u, int v) { return f.p[std::size_t(v) * std::size_t(w) + std::size_t(u)]; };
+    auto at = [&](int u, int v) { return f.p[f.index(u, v)]; };
     // A tangent along one image axis: central difference, else one-sided; false when neither
     // neighbour is usable.
     auto tangent = [&](int u, int v, int du, int dv, double d, V3& t, double& step) {
@@ -162,7 +213,7 @@ PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pos
     };
     for (int v = 0; v < h; ++v) {
         for (int u = 0; u < w; ++u) {
-            const std::size_t i = std::size_t(v) * std::size_t(w) + std::size_t(u);
+            const std::size_t i = f.index(u, v);
             if (!f.valid[i]) continue;
             const V3& p = f.p[i];
             V3 tu, tv;
@@ -177,10 +228,10 @@ PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pos
                 c = -c;
             }
             if (c < options.min_view_cos) continue;
-            // Footprint: the spacing to the neighbours, at most that of a pixel seen at
+            // Footprint: the spacing to the neighbours, at most that of a cell seen at
             // min_view_cos (a jump below max_jump must not widen the kernel further).
             const double footprint = std::min(0.5 * (su + sv), dist / focal / options.min_view_cos);
-            double conf = c;
+            double conf = c * double(f.count[i]);
             if (options.reference_depth > 0.0 && p[2] > options.reference_depth) {
                 const double r = options.reference_depth / p[2];
                 conf *= r * r;
@@ -200,6 +251,29 @@ PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pos
     return cloud;
 }
 
+}  // namespace
+
+PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
+                         const DepthOptions& options, const Vec3d& origin) {
+    K.validate();
+    options.validate();
+    validate_pose(pose);
+    if (depth.width != K.width || depth.height != K.height) {
+        std::ostringstream s;
+        s << "depth image is " << depth.width << " x " << depth.height
+          << " pixels, the intrinsics say " << K.width << " x " << K.height;
+        throw InvalidArgument(s.str());
+    }
+    if (depth.depth.size() != std::size_t(depth.width) * std::size_t(depth.height)) {
+        throw InvalidArgument("depth image: its values do not fill width x height");
+    }
+    const double focal = 0.5 * (K.fx + K.fy);
+    FramePoints f = back_project(depth, K, options);
+    const int b = merge_factor(f, focal, options.merge_footprint);
+    if (b > 1) f = merge_blocks(f, b, options.max_jump);
+    return grid_samples(f, focal / b, pose, options, origin);
+}
+
 namespace {
 
 PipelineOptions checked(const PipelineOptions& options) {
@@ -215,6 +289,10 @@ PipelineOptions checked(const PipelineOptions& options) {
 Fusion::Fusion(const PipelineOptions& options, const DepthOptions& depth, const Vec3d& origin)
     : options_(checked(options)), depth_(depth), accumulator_(options_.splat, origin) {
     depth_.validate();
+    if (depth_.merge_footprint < 0.0) {  // automatic: up to half the smallest kernel
+        const SplatOptions& s = options_.splat;
+        depth_.merge_footprint = 0.5 * s.min_sigma_voxels * s.voxel_size / s.scale_factor;
+    }
 }
 
 std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose) {
@@ -352,7 +430,7 @@ RunResult fuse(const std::string& scene_path, const std::string& output,
                         po, fo.depth, Vec3d{f->pose[3], f->pose[7], f->pose[11]});
                 }
                 try {
-                    fusion->integrate(img, K, f->pose);
+                    detail::in_arena(po.threads, [&] { fusion->integrate(img, K, f->pose); });
                 } catch (const Error& e) {
                     rethrow_with(f->depth_path, e);
                 }
@@ -363,7 +441,7 @@ RunResult fuse(const std::string& scene_path, const std::string& output,
         SplatResult splat;
         {
             detail::StageClock clock(timings, on_stage, "splat");
-            splat = fusion->splat();
+            splat = detail::in_arena(po.threads, [&] { return fusion->splat(); });
         }
         Volume volume = std::move(splat.volume);
         splat.volume = Volume{};

@@ -465,26 +465,28 @@ constexpr std::uint32_t kNoPoint = std::numeric_limits<std::uint32_t>::max();
 /// sample of a loaded voxel is the state's (kNoPoint), until a nearer one comes.
 void load_state(const SplatState& state, const openvdb::Coord& o, double voxel, BlockSums& sums,
                 std::vector<ColorSums>& csums) {
+    const double inv_voxel2 = 1.0 / (voxel * voxel);
     for (int s = 0; s < 8; ++s) {
         const openvdb::Coord lo = o + leaf_offset(s);
-        const FloatLeaf* w = state.w->tree().probeConstLeaf(lo);
-        if (!w) continue;
-        const FloatLeaf* u = state.u->tree().probeConstLeaf(lo);
-        const FloatLeaf* uphi = state.uphi->tree().probeConstLeaf(lo);
-        const Vec3Leaf* nearest = state.nearest->tree().probeConstLeaf(lo);
-        const Vec3Leaf* color = state.colors ? state.color->tree().probeConstLeaf(lo) : nullptr;
+        const FloatLeaf* wl = state.w->tree().probeConstLeaf(lo);
+        if (!wl) continue;
+        // The leaves' value arrays directly (leaf order: x-major, rows of 8 along z).
+        const float* w = wl->buffer().data();
+        const float* u = state.u->tree().probeConstLeaf(lo)->buffer().data();
+        const float* uphi = state.uphi->tree().probeConstLeaf(lo)->buffer().data();
+        const openvdb::Vec3f* nearest = state.nearest->tree().probeConstLeaf(lo)->buffer().data();
+        const openvdb::Vec3f* color =
+            state.colors ? state.color->tree().probeConstLeaf(lo)->buffer().data() : nullptr;
         for (int v = 0; v < kLeafVoxels; ++v) {
-            const auto idx = openvdb::Index(v);
-            if (!(w->getValue(idx) > 0.0f)) continue;
+            if (!(w[v] > 0.0f)) continue;
             const int i = block_index(s, v);
-            sums.w[i] = double(w->getValue(idx));
-            sums.u[i] = double(u->getValue(idx));
-            sums.uphi[i] = double(uphi->getValue(idx));
-            const openvdb::Vec3d d = openvdb::Vec3d(nearest->getValue(idx)) / voxel;
-            sums.d2[i] = d.lengthSqr();
+            sums.w[i] = double(w[v]);
+            sums.u[i] = double(u[v]);
+            sums.uphi[i] = double(uphi[v]);
+            sums.d2[i] = openvdb::Vec3d(nearest[v]).lengthSqr() * inv_voxel2;
             sums.nearest[i] = kNoPoint;
             if (color) {
-                const openvdb::Vec3f c = color->getValue(idx);
+                const openvdb::Vec3f& c = color[v];
                 csums[std::size_t(i)] = {double(c[0]), double(c[1]), double(c[2])};
             }
         }
@@ -492,32 +494,32 @@ void load_state(const SplatState& state, const openvdb::Coord& o, double voxel, 
 }
 
 /// Writes the block's sums back to the state's leaves (made beforehand for every leaf a kernel
-/// reaches).
+/// reaches). Values only: the state's grids mean "summed" by w > 0, not by active bits.
 void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kernels,
                  double voxel, const BlockSums& sums, const std::vector<ColorSums>& csums) {
     for (int s = 0; s < 8; ++s) {
         const openvdb::Coord lo = o + leaf_offset(s);
-        FloatLeaf* w = state.w->tree().probeLeaf(lo);
-        if (!w) continue;
-        FloatLeaf* u = state.u->tree().probeLeaf(lo);
-        FloatLeaf* uphi = state.uphi->tree().probeLeaf(lo);
-        Vec3Leaf* nearest = state.nearest->tree().probeLeaf(lo);
-        Vec3Leaf* color = state.colors ? state.color->tree().probeLeaf(lo) : nullptr;
+        FloatLeaf* wl = state.w->tree().probeLeaf(lo);
+        if (!wl) continue;
+        float* w = wl->buffer().data();
+        float* u = state.u->tree().probeLeaf(lo)->buffer().data();
+        float* uphi = state.uphi->tree().probeLeaf(lo)->buffer().data();
+        openvdb::Vec3f* nearest = state.nearest->tree().probeLeaf(lo)->buffer().data();
+        openvdb::Vec3f* color = state.colors ? state.color->tree().probeLeaf(lo)->buffer().data() : nullptr;
         for (int v = 0; v < kLeafVoxels; ++v) {
             const int i = block_index(s, v);
             if (!(sums.w[i] > 0.0)) continue;
-            const auto idx = openvdb::Index(v);
-            w->setValueOn(idx, float(sums.w[i]));
-            u->setValueOn(idx, float(sums.u[i]));
-            uphi->setValueOn(idx, float(sums.uphi[i]));
+            w[v] = float(sums.w[i]);
+            u[v] = float(sums.u[i]);
+            uphi[v] = float(sums.uphi[i]);
             if (sums.nearest[i] != kNoPoint) {
                 const openvdb::Vec3d k = kernels.centre(sums.nearest[i]);
-                const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(idx) + lo;
-                nearest->setValueOn(idx, openvdb::Vec3f((k - c.asVec3d()) * voxel));
+                const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(openvdb::Index(v)) + lo;
+                nearest[v] = openvdb::Vec3f((k - c.asVec3d()) * voxel);
             }
             if (color) {
                 const ColorSums& c3 = csums[std::size_t(i)];
-                color->setValueOn(idx, openvdb::Vec3f(float(c3.r), float(c3.g), float(c3.b)));
+                color[v] = openvdb::Vec3f(float(c3.r), float(c3.g), float(c3.b));
             }
         }
     }

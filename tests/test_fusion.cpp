@@ -322,3 +322,25 @@ TEST_CASE("fuse: bad frames give one line naming the file, a non-zero exit and n
     check_failed(run_cli("fuse '" + dir.file("nothing.json") + "' -o '" + mesh + "' --voxel 0.05 -q"),
                  "nothing.json", "nothing.json");
 }
+
+TEST_CASE("frames far finer than the voxel are merged into pixel blocks, same surface", "[fusion]") {
+    const Shape shape = make_shape("sphere");
+    const double voxel = bounding_box(shape.mesh.vertices).diagonal() / 30.0;
+    const Views v = views_of(shape.mesh, 12, 320, 240);
+    auto fuse_with = [&](double merge) {
+        DepthOptions d;
+        d.merge_footprint = merge;
+        Fusion f(fusion_options(voxel), d);
+        for (std::size_t i = 0; i < v.depths.size(); ++i) f.integrate(v.depths[i], v.K, v.poses[i]);
+        return std::make_pair(f.samples(), f.reconstruct().mesh);
+    };
+    const auto [all, full] = fuse_with(0.0);
+    const auto [merged, coarse] = fuse_with(-1.0);  // automatic: up to half a voxel
+    // The footprint is about voxel / 7 here: 3 x 3 blocks.
+    CHECK(merged * 6 < all);
+    const EvalResult a = compare(full, shape.mesh, voxel), b = compare(coarse, shape.mesh, voxel);
+    INFO("chamfer all " << a.chamfer_l1 / voxel << ", merged " << b.chamfer_l1 / voxel << " voxels");
+    CHECK(b.fscores[0].fscore >= 0.99);
+    CHECK(b.chamfer_l1 <= 1.2 * a.chamfer_l1 + 0.01 * voxel);
+    CHECK(b.recon.watertight());
+}

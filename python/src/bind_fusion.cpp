@@ -42,6 +42,9 @@ void bind_fusion(py::module_& m) {
         .field("min_view_cos", &DepthOptions::min_view_cos,
                "Pixels seen at a grazing angle, cosine below this, give no sample (CLI "
                "--min-view-cos).")
+        .field("merge_footprint", &DepthOptions::merge_footprint,
+               "Frames whose pixel footprint is below this are merged into pixel blocks, world "
+               "units; 0 = never, < 0 = half the smallest kernel (CLI --merge-footprint).")
         .field("reference_depth", &DepthOptions::reference_depth,
                "Beyond this depth the confidence falls as (reference/depth)^2, world units; 0 = "
                "off (CLI --reference-depth).");

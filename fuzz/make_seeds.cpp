@@ -51,7 +51,7 @@ int main(int argc, char** argv) {
         return 2;
     }
     const std::string dir = argv[1];
-    for (const char* sub : {"", "/ply", "/xyz", "/obj"}) ::mkdir((dir + sub).c_str(), 0755);
+    for (const char* sub : {"", "/ply", "/xyz", "/obj", "/pcd"}) ::mkdir((dir + sub).c_str(), 0755);
 
     const char* names[] = {"le", "be", "ascii"};
     const PlyEncoding encodings[] = {PlyEncoding::binary_little_endian,
@@ -83,6 +83,17 @@ int main(int argc, char** argv) {
     WriteOptions none;
     write_points(dir + "/xyz/normals.xyz", cloud(8, 0.0), none);
     write_points(dir + "/xyz/far.xyz", cloud(4, 1e7), none);
+    text(dir + "/pcd/ascii.pcd",
+         "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+         "WIDTH 2\nHEIGHT 2\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 4\nDATA ascii\n0 0 1 4.2e-39\n"
+         "nan nan nan 0\n1 0 1 0\n0 1 1.5 0\n");
+    text(dir + "/pcd/binary.pcd",
+         std::string("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\n"
+                     "HEIGHT 1\nPOINTS 1\nDATA binary\n") + std::string(12, '\0'));
+    text(dir + "/pcd/lzf.pcd",
+         std::string("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\n"
+                     "HEIGHT 1\nPOINTS 2\nDATA binary_compressed\n") +
+             std::string("\x05\x00\x00\x00\x18\x00\x00\x00\x00\x00\xe0\x0e\x00", 13));
     text(dir + "/xyz/plain.xyz", "# x y z\n1 2 3\n4,5,6\n\n7\t8 9\n// c\n+1e-3 -2E+2 nan\n");
     text(dir + "/xyz/intensity.xyz", "0 0 0 10\n1 1 1 20\n2 2 2 inf\n");
     text(dir + "/xyz/scan.pts", "3\n1 2 3 10 255 0 0\n4 5 6 10 0 255 0\n7 8 9 -5 0 0 255\n");

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Fuzzes the point readers with libFuzzer (clang++-14, AddressSanitizer + UBSan):
 #
-#   scripts/fuzz.sh [SECONDS] [ply|xyz|obj ...]   run each target for SECONDS (default 60), in turn
-#   scripts/fuzz.sh coverage [ply|xyz|obj ...]    line coverage of src/io*.cpp by the corpora
+#   scripts/fuzz.sh [SECONDS] [ply|xyz|obj|pcd ...]   run each target for SECONDS (default 60), in turn
+#   scripts/fuzz.sh coverage [ply|xyz|obj|pcd ...]    line coverage of src/io*.cpp by the corpora
 #
 # One fuzzer at a time, one process, one core. Everything goes to fuzz/out/ (git-ignored): the
 # build, the seeds (written by fuzz/make_seeds.cpp), each target's growing corpus, one log per
@@ -22,7 +22,7 @@ elif [ -n "${1:-}" ]; then
   shift
 fi
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(ply xyz obj)
+[ ${#targets[@]} -gt 0 ] || targets=(ply xyz obj pcd)
 
 CXX=${FUZZ_CXX:-clang++-14}
 command -v "$CXX" >/dev/null || { echo "fuzz: $CXX not found (apt-get install clang-14)" >&2; exit 2; }

@@ -89,13 +89,31 @@ inline V3 cross(const V3& a, const V3& b) {
     return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
 }
 
-/// A grid of camera-frame points (an image's pixels, or blocks of them): valid[i] false where
-/// nothing was measured; count[i] the pixels a point stands for.
+/// A grid of sensor-centred points (an image's pixels, or blocks of them, or an organized
+/// cloud's points less the sensor position): valid[i] false where nothing was measured; r[i]
+/// the range (distance from the sensor), which the depth-jump tests compare; count[i] the
+/// pixels a point stands for.
 struct FramePoints {
     int w = 0, h = 0;
     std::vector<V3> p;
+    std::vector<double> r;
     std::vector<char> valid;
     std::vector<float> count;
+
+    void resize(int width, int height) {
+        w = width;
+        h = height;
+        const std::size_t n = std::size_t(w) * std::size_t(h);
+        p.assign(n, V3{0, 0, 0});
+        r.assign(n, 0.0);
+        valid.assign(n, 0);
+        count.assign(n, 1.0f);
+    }
+    void set(std::size_t i, const V3& x) {
+        p[i] = x;
+        r[i] = std::sqrt(dot(x, x));
+        valid[i] = r[i] > 0.0;
+    }
 
     std::size_t index(int u, int v) const { return std::size_t(v) * std::size_t(w) + std::size_t(u); }
 };
@@ -103,11 +121,7 @@ struct FramePoints {
 FramePoints back_project(const DepthImage& depth, const Intrinsics& K, const DepthOptions& o) {
     const int w = depth.width, h = depth.height;
     FramePoints f;
-    f.w = w;
-    f.h = h;
-    f.p.resize(std::size_t(w) * std::size_t(h));
-    f.valid.assign(f.p.size(), 0);
-    f.count.assign(f.p.size(), 1.0f);
+    f.resize(w, h);
     const double max_depth = o.max_depth > 0.0 ? o.max_depth : HUGE_VAL;
     for (int v = 0; v < h; ++v) {
         for (int u = 0; u < w; ++u) {
@@ -116,8 +130,7 @@ FramePoints back_project(const DepthImage& depth, const Intrinsics& K, const Dep
             if (!(std::isfinite(d) && d > o.min_depth && d > 0.0 && d <= max_depth)) continue;
             const V3 ray = {(u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0};
             if (o.kind == DepthKind::ray) d /= std::sqrt(dot(ray, ray));
-            f.p[i] = {ray[0] * d, ray[1] * d, d};
-            f.valid[i] = 1;
+            f.set(i, {ray[0] * d, ray[1] * d, d});
         }
     }
     return f;
@@ -129,7 +142,7 @@ int merge_factor(const FramePoints& f, double focal, double merge_footprint) {
     if (!(merge_footprint > 0.0)) return 1;
     std::vector<double> z;
     for (std::size_t i = 0; i < f.p.size(); i += 7) {  // a sample of the pixels is enough
-        if (f.valid[i]) z.push_back(f.p[i][2]);
+        if (f.valid[i]) z.push_back(f.r[i]);
     }
     if (z.empty()) return 1;
     std::nth_element(z.begin(), z.begin() + std::ptrdiff_t(z.size() / 2), z.end());
@@ -143,11 +156,7 @@ int merge_factor(const FramePoints& f, double focal, double merge_footprint) {
 /// b^2-th of the kernels.
 FramePoints merge_blocks(const FramePoints& f, int b, double max_jump) {
     FramePoints m;
-    m.w = (f.w + b - 1) / b;
-    m.h = (f.h + b - 1) / b;
-    m.p.assign(std::size_t(m.w) * std::size_t(m.h), V3{0, 0, 0});
-    m.valid.assign(m.p.size(), 0);
-    m.count.assign(m.p.size(), 0.0f);
+    m.resize((f.w + b - 1) / b, (f.h + b - 1) / b);
     std::vector<double> z;
     for (int bv = 0; bv < m.h; ++bv) {
         for (int bu = 0; bu < m.w; ++bu) {
@@ -155,7 +164,7 @@ FramePoints merge_blocks(const FramePoints& f, int b, double max_jump) {
             const int u1 = std::min(f.w, (bu + 1) * b), v1 = std::min(f.h, (bv + 1) * b);
             for (int v = bv * b; v < v1; ++v) {
                 for (int u = bu * b; u < u1; ++u) {
-                    if (f.valid[f.index(u, v)]) z.push_back(f.p[f.index(u, v)][2]);
+                    if (f.valid[f.index(u, v)]) z.push_back(f.r[f.index(u, v)]);
                 }
             }
             if (z.empty()) continue;
@@ -166,14 +175,13 @@ FramePoints merge_blocks(const FramePoints& f, int b, double max_jump) {
             for (int v = bv * b; v < v1; ++v) {
                 for (int u = bu * b; u < u1; ++u) {
                     const std::size_t i = f.index(u, v);
-                    if (!f.valid[i] || std::fabs(f.p[i][2] - ref) > max_jump * ref) continue;
+                    if (!f.valid[i] || std::fabs(f.r[i] - ref) > max_jump * ref) continue;
                     for (int a = 0; a < 3; ++a) sum[std::size_t(a)] += f.p[i][std::size_t(a)];
                     ++n;
                 }
             }
             const std::size_t j = m.index(bu, bv);
-            m.p[j] = {sum[0] / n, sum[1] / n, sum[2] / n};
-            m.valid[j] = 1;
+            m.set(j, {sum[0] / n, sum[1] / n, sum[2] / n});
             m.count[j] = float(n);
         }
     }
@@ -188,7 +196,7 @@ PointCloud grid_samples(const FramePoints& f, double focal, const Pose& pose,
     auto usable = [&](int u, int v, double d) {  // a neighbour on the same surface
         if (u < 0 || v < 0 || u >= w || v >= h) return false;
         const std::size_t j = f.index(u, v);
-        return f.valid[j] && std::fabs(f.p[j][2] - d) <= options.max_jump * d;
+        return f.valid[j] && std::fabs(f.r[j] - d) <= options.max_jump * d;
     };
     auto at = [&](int u, int v) { return f.p[f.index(u, v)]; };
     // A tangent along one image axis: central difference, else one-sided; false when neither
@@ -218,7 +226,8 @@ PointCloud grid_samples(const FramePoints& f, double focal, const Pose& pose,
             const V3& p = f.p[i];
             V3 tu, tv;
             double su = 0.0, sv = 0.0;
-            if (!tangent(u, v, 1, 0, p[2], tu, su) || !tangent(u, v, 0, 1, p[2], tv, sv)) continue;
+            const double range = f.r[i];
+            if (!tangent(u, v, 1, 0, range, tu, su) || !tangent(u, v, 0, 1, range, tv, sv)) continue;
             V3 n = cross(tu, tv);
             const double len = std::sqrt(dot(n, n)), dist = std::sqrt(dot(p, p));
             if (!(len > 0.0)) continue;
@@ -232,8 +241,8 @@ PointCloud grid_samples(const FramePoints& f, double focal, const Pose& pose,
             // min_view_cos (a jump below max_jump must not widen the kernel further).
             const double footprint = std::min(0.5 * (su + sv), dist / focal / options.min_view_cos);
             double conf = c * double(f.count[i]);
-            if (options.reference_depth > 0.0 && p[2] > options.reference_depth) {
-                const double r = options.reference_depth / p[2];
+            if (options.reference_depth > 0.0 && range > options.reference_depth) {
+                const double r = options.reference_depth / range;
                 conf *= r * r;
             }
             const V3 pw = rotate(p), nw = rotate(n);
@@ -251,7 +260,47 @@ PointCloud grid_samples(const FramePoints& f, double focal, const Pose& pose,
     return cloud;
 }
 
+/// The focal length (in cells) of an organized grid: the median of range / spacing between
+/// horizontal neighbours on one surface.
+double grid_focal(const FramePoints& f, double max_jump) {
+    std::vector<double> q;
+    for (int v = 0; v < f.h; v += 3) {
+        for (int u = 0; u + 1 < f.w; u += 3) {
+            const std::size_t i = f.index(u, v), j = i + 1;
+            if (!f.valid[i] || !f.valid[j] || std::fabs(f.r[i] - f.r[j]) > max_jump * f.r[i]) continue;
+            const double d = std::sqrt(dot(sub(f.p[i], f.p[j]), sub(f.p[i], f.p[j])));
+            if (d > 0.0) q.push_back(f.r[i] / d);
+        }
+    }
+    if (q.empty()) return 1.0;
+    std::nth_element(q.begin(), q.begin() + std::ptrdiff_t(q.size() / 2), q.end());
+    return q[q.size() / 2];
+}
+
 }  // namespace
+
+PointCloud organized_samples(const OrganizedCloud& c, const DepthOptions& options,
+                             const Vec3d& origin) {
+    options.validate();
+    if (c.width <= 0 || c.height <= 0 ||
+        c.points.size() != std::size_t(c.width) * std::size_t(c.height)) {
+        throw InvalidArgument("organized cloud: its points do not fill width x height");
+    }
+    FramePoints f;
+    f.resize(c.width, c.height);
+    const double max_depth = options.max_depth > 0.0 ? options.max_depth : HUGE_VAL;
+    for (std::size_t i = 0; i < c.points.size(); ++i) {
+        const Vec3f& x = c.points[i];
+        const V3 p = {double(x[0]) + c.origin[0] - c.sensor[0], double(x[1]) + c.origin[1] - c.sensor[1],
+                      double(x[2]) + c.origin[2] - c.sensor[2]};
+        if (!(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) continue;
+        f.set(i, p);
+        if (!(f.r[i] > options.min_depth && f.r[i] <= max_depth)) f.valid[i] = 0;
+    }
+    // The sensor frame is the world's axes moved to the sensor: a pure translation.
+    const Pose pose{1, 0, 0, c.sensor[0], 0, 1, 0, c.sensor[1], 0, 0, 1, c.sensor[2], 0, 0, 0, 1};
+    return grid_samples(f, grid_focal(f, options.max_jump), pose, options, origin);
+}
 
 PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
                          const DepthOptions& options, const Vec3d& origin) {
@@ -336,6 +385,14 @@ SplatResult Fusion::splat() const {
     return r;
 }
 
+std::size_t Fusion::integrate(const OrganizedCloud& cloud) {
+    const PointCloud samples = organized_samples(cloud, depth_, accumulator_.origin());
+    ++frames_;
+    if (samples.empty()) return 0;
+    accumulator_.add(samples);
+    return samples.size();
+}
+
 Volume Fusion::volume() const { return splat().volume; }
 
 PipelineResult Fusion::reconstruct(const StageCallback& on_stage,
@@ -369,9 +426,7 @@ Intrinsics frame_intrinsics(const SceneFrame& frame, const DepthImage& img) {
 }
 
 /// The median footprint of a frame's samples (world units), for the automatic voxel.
-double median_footprint(const DepthImage& img, const Intrinsics& K, const Pose& pose,
-                        const DepthOptions& depth) {
-    PointCloud s = depth_samples(img, K, pose, depth);
+double median_footprint(const PointCloud& s) {
     std::vector<float> f = s.scales.to_vector();
     if (f.empty()) return 0.0;
     std::nth_element(f.begin(), f.begin() + std::ptrdiff_t(f.size() / 2), f.end());
@@ -411,25 +466,42 @@ RunResult fuse(const std::string& scene_path, const std::string& output,
         };
         PipelineOptions po = options;
         std::unique_ptr<Fusion> fusion;
+        // The first frame's samples choose the voxel when none is given.
+        auto start = [&](const PointCloud& first, const std::string& name, const Vec3d& origin) {
+            if (po.splat.voxel_size == 0.0) {
+                const double h = median_footprint(first);
+                if (!(h > 0.0)) {
+                    throw NumericalError(name + ": the first frame has no usable pixel to choose "
+                                                "a voxel from. Hint: --voxel");
+                }
+                po.splat.voxel_size = options.auto_voxel_factor * h;
+            }
+            po.splat.crease_angle = 0.0;  // the accumulator has no crease model
+            fusion = std::make_unique<Fusion>(po, fo.depth, origin);
+        };
+        auto integrate_organized = [&](const SceneFrame& f) {
+            try {
+                const OrganizedCloud c = read_organized_cloud(f.depth_path);
+                if (!fusion) start(organized_samples(c, fo.depth), f.depth_path, c.origin);
+                detail::in_arena(po.threads, [&] { fusion->integrate(c); });
+            } catch (const Error& e) {
+                rethrow_with(f.depth_path, e);
+            }
+        };
         {
             detail::StageClock clock(timings, on_stage, "integrate");
             for (const SceneFrame* f : frames) {
+                if (f->organized) {
+                    integrate_organized(*f);
+                    continue;
+                }
                 Intrinsics K;
                 const DepthImage img = read(*f, K);
-                if (!fusion) {
-                    if (po.splat.voxel_size == 0.0) {
-                        const double h = median_footprint(img, K, f->pose, fo.depth);
-                        if (!(h > 0.0)) {
-                            throw NumericalError(f->depth_path + ": the first frame has no usable "
-                                                 "pixel to choose a voxel from. Hint: --voxel");
-                        }
-                        po.splat.voxel_size = options.auto_voxel_factor * h;
-                    }
-                    po.splat.crease_angle = 0.0;  // the accumulator has no crease model
-                    fusion = std::make_unique<Fusion>(
-                        po, fo.depth, Vec3d{f->pose[3], f->pose[7], f->pose[11]});
-                }
                 try {
+                    if (!fusion) {
+                        start(depth_samples(img, K, f->pose, fo.depth), f->depth_path,
+                              Vec3d{f->pose[3], f->pose[7], f->pose[11]});
+                    }
                     detail::in_arena(po.threads, [&] { fusion->integrate(img, K, f->pose); });
                 } catch (const Error& e) {
                     rethrow_with(f->depth_path, e);

@@ -16,6 +16,7 @@
 #include <utility>
 
 #include "detail/io_common.h"
+#include "detail/io_pcd.h"
 #include "detail/release.h"
 #include "detail/temp_files.h"
 #include "vdbrecon/error.h"
@@ -449,7 +450,7 @@ std::string format_number(double v) { return format_number_impl(v); }
 
 namespace {
 
-enum class Format { ply, xyz, obj, las };
+enum class Format { ply, xyz, obj, las, pcd };
 
 Format detect_format(const std::string& path, std::string_view content) {
     const std::string ext = file_extension(path);
@@ -459,10 +460,11 @@ Format detect_format(const std::string& path, std::string_view content) {
     }
     if (ext == "obj") return Format::obj;
     if (ext == "las" || ext == "laz") return Format::las;
+    if (ext == "pcd") return Format::pcd;
     if (content.compare(0, 3, "ply") == 0) return Format::ply;
     if (content.compare(0, 4, "LASF") == 0) return Format::las;
     throw FormatError(detail::where(
-        path, "unknown file type '." + ext + "' (supported: .ply, .xyz/.pts/.txt, .obj, .las)"));
+        path, "unknown file type '." + ext + "' (supported: .ply, .xyz/.pts/.txt, .obj, .las, .pcd)"));
 }
 
 /// Parses a whole file's bytes into raw rows; `want_faces` also reads faces (meshes).
@@ -478,6 +480,10 @@ detail::RawPoints read_raw(std::string_view content, const std::string& path, bo
             if (want_faces) throw FormatError(detail::where(path, "a LAS file holds no faces"));
             format = "las";
             return detail::read_las_raw(path, content, classes);
+        case Format::pcd:
+            if (want_faces) throw FormatError(detail::where(path, "a PCD file holds no faces"));
+            format = "pcd";
+            return detail::read_pcd(path, content).raw;
         case Format::ply:
             return detail::read_ply_raw(path, content, want_faces, format);
         case Format::xyz:

@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "detail/io_common.h"
+#include "detail/io_pcd.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/scene.h"
@@ -267,6 +268,36 @@ Scene read_tum(const std::string& depth_txt, const SceneOptions& options) {
 
 }  // namespace
 
+OrganizedCloud read_organized_cloud(const std::string& path) {
+    const std::string content = detail::read_file(path);
+    detail::PcdData pcd = detail::read_pcd(path, content);
+    if (pcd.height <= 1) {
+        throw FormatError(detail::where(path, "not an organized cloud (HEIGHT is 1): fuse needs the "
+                                              "sensor's raster; reconstruct it as a point file"));
+    }
+    OrganizedCloud c;
+    c.width = int(pcd.width);
+    c.height = int(pcd.height);
+    const std::size_t n = pcd.raw.rows();
+    // A local frame at the box centre of the finite points (georeferenced clouds keep float
+    // precision), as the point readers choose.
+    std::vector<double> finite;
+    for (std::size_t i = 0; i < n; ++i) {
+        const double* x = &pcd.raw.xyz[3 * i];
+        if (std::isfinite(x[0]) && std::isfinite(x[1]) && std::isfinite(x[2])) finite.insert(finite.end(), x, x + 3);
+    }
+    if (finite.empty()) throw FormatError(detail::where(path, "no finite point"));
+    c.origin = detail::choose_origin(finite.data(), finite.size() / 3);
+    c.points.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+        for (int a = 0; a < 3; ++a) {
+            c.points[i][std::size_t(a)] = float(pcd.raw.xyz[3 * i + std::size_t(a)] - c.origin[std::size_t(a)]);
+        }
+    }
+    if (pcd.viewpoint) c.sensor = {(*pcd.viewpoint)[0], (*pcd.viewpoint)[1], (*pcd.viewpoint)[2]};
+    return c;
+}
+
 Scene read_scene(const std::string& path, const SceneOptions& options) {
     if (options.intrinsics) {  // its size may be left to the images
         Intrinsics K = *options.intrinsics;
@@ -279,6 +310,15 @@ Scene read_scene(const std::string& path, const SceneOptions& options) {
     }
     const std::string ext = file_extension(path);
     if (ext == "json") return read_transforms(path, options);
+    if (ext == "pcd") {
+        Scene scene;
+        scene.kind = "organized pcd";
+        SceneFrame frame;
+        frame.depth_path = path;
+        frame.organized = true;
+        scene.frames.push_back(frame);
+        return scene;
+    }
     if (ext == "txt") return read_tum(path, options);
     if (!is_file(path)) throw IoError(detail::where(path, "no such file or folder"));
     throw FormatError(detail::where(path, "not a scene: expected a transforms.json, or a TUM "

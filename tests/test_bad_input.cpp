@@ -927,5 +927,5 @@ TEST_CASE("fuzz: reading a file and reading its bytes are one mechanism", "[io][
     // The name picks the reader and heads the messages, as a path does.
     REQUIRE(read_error("1 2 3\n", "scan.ply") == "scan.ply: not a PLY file (no 'ply' magic)");
     REQUIRE(read_error("1 2 3\n", "scan.stl") ==
-            "scan.stl: unknown file type '.stl' (supported: .ply, .xyz/.pts/.txt, .obj, .las)");
+            "scan.stl: unknown file type '.stl' (supported: .ply, .xyz/.pts/.txt, .obj, .las, .pcd)");
 }

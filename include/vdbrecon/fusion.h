@@ -105,6 +105,22 @@ struct DepthOptions {
 PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,
                          const DepthOptions& options, const Vec3d& origin = {0.0, 0.0, 0.0});
 
+/// An organized cloud (a depth camera's frame as points, PCL's organized PCD): width x height
+/// points in raster order, NaN where nothing was measured, relative to `origin`, seen from
+/// `sensor` (world).
+struct OrganizedCloud {
+    int width = 0, height = 0;
+    std::vector<Vec3f> points;
+    Vec3d origin{0.0, 0.0, 0.0};
+    Vec3d sensor{0.0, 0.0, 0.0};
+};
+
+/// The oriented samples of an organized cloud, by the rules of depth_samples (neighbours in
+/// the raster, normals toward the sensor, footprint, confidence). Throws InvalidArgument when
+/// the points do not fill width x height.
+PointCloud organized_samples(const OrganizedCloud& cloud, const DepthOptions& options,
+                             const Vec3d& origin = {0.0, 0.0, 0.0});
+
 /// Fuses posed depth images (and oriented clouds) into one volume, one frame at a time.
 class Fusion {
   public:
@@ -117,6 +133,8 @@ class Fusion {
     std::size_t integrate(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world);
     /// Adds an oriented cloud (normals required), e.g. one scan with normals toward its sensor.
     std::size_t integrate(const PointCloud& cloud);
+    /// Adds an organized cloud (organized_samples).
+    std::size_t integrate(const OrganizedCloud& cloud);
 
     /// The fused volume so far (NumericalError when nothing valid was integrated).
     Volume volume() const;

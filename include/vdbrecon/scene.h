@@ -16,6 +16,8 @@
 //    OpenCV axes. cx, cy count from the image's corner (pixel (0, 0) covers [0,1]^2), as
 //    NeRF's ray generators do, so our pixel-centre intrinsics are cx - 0.5, cy - 0.5.
 //    `depth_scale` or `integer_depth_scale` (metres per stored unit) applies to PNG depth.
+//  - an organized PCD file (PCL's depth camera frames): one frame of points, fused by
+//    organized_samples.
 //  - TUM RGB-D folder (or its depth.txt): `depth.txt` (timestamp path) and `groundtruth.txt`
 //    (timestamp tx ty tz qx qy qz qw, camera-to-world, OpenCV axes), associated by the nearest
 //    timestamp within 0.02 s (TUM's associate.py); the intrinsics must be given.
@@ -41,7 +43,8 @@ void write_depth_image(const std::string& path, const DepthImage& depth,
 
 /// One frame of a scene.
 struct SceneFrame {
-    std::string depth_path;
+    std::string depth_path;  ///< a depth image, or an organized cloud's file
+    bool organized = false;  ///< depth_path is an organized cloud (read_organized_cloud)
     Intrinsics intrinsics;  ///< width/height 0: taken from the image (cx, cy then its centre)
     Pose pose{};            ///< camera to world, OpenCV axes
     double units_per_metre = 1000.0;  ///< for PNG depth
@@ -59,6 +62,11 @@ struct Scene {
     std::string kind;  ///< "transforms.json" or "tum"
     std::vector<SceneFrame> frames;
 };
+
+/// Reads an organized cloud: a PCD file with HEIGHT > 1 (ascii, binary or binary_compressed);
+/// NaN points are kept as holes of the raster, the sensor is the VIEWPOINT's position (its
+/// orientation is not needed: normals face the sensor). Throws IoError / FormatError.
+OrganizedCloud read_organized_cloud(const std::string& path);
 
 /// What `vdbrecon fuse` does besides the pipeline's options.
 struct FuseOptions {

@@ -185,6 +185,9 @@ void print_help() {
         << "  --max-jump J           no normal across a depth jump > J x depth [0.05]\n"
         << "  --min-view-cos C       no sample seen more grazing than this cosine [0.1]\n"
         << "  --reference-depth D    confidence falls as (D/depth)^2 beyond D [off]\n"
+        << "  --fusion splat|tsdf    FSSR samples (default), or the classic truncated SDF along\n"
+        << "                         the rays with free-space carving (VDBFusion/KinectFusion)\n"
+        << "  --sdf-trunc T          tsdf truncation, voxels [4]; --no-carve: no carving\n"
         << "  --merge-footprint F    merge pixel blocks of frames whose footprint is below F,\n"
         << "                         world units; 0 = never [min-sigma x voxel / 2]\n"
         << "  --frame-step N, --max-frames N  every N-th frame; at most N frames [1, all]\n"
@@ -590,6 +593,14 @@ int run_fuse(Args& args, double startup_rss_mb) {
             f.depth.max_jump = parse_number(a, args.value(a));
         } else if (a == "--min-view-cos") {
             f.depth.min_view_cos = parse_number(a, args.value(a));
+        } else if (a == "--fusion") {
+            const std::string k = args.value(a);
+            if (k != "splat" && k != "tsdf") throw UsageError("--fusion: splat or tsdf, not '" + k + "'");
+            f.depth.rule = k == "tsdf" ? FusionRule::tsdf : FusionRule::splat;
+        } else if (a == "--sdf-trunc") {
+            f.depth.truncation = parse_number(a, args.value(a));
+        } else if (a == "--no-carve") {
+            f.depth.carve = false;
         } else if (a == "--merge-footprint") {
             f.depth.merge_footprint = parse_number(a, args.value(a));
         } else if (a == "--reference-depth") {

@@ -47,5 +47,7 @@ PY
 }
 run_tool "vdbrecon fuse" "$OUT/vdbrecon.ply" "$BUILD/vdbrecon" fuse "$OUT/scene/transforms.json" \
   -o "$OUT/vdbrecon.ply" --voxel "$VOXEL" --no-vdb
+run_tool "vdbrecon fuse --fusion tsdf" "$OUT/vdbrecon-tsdf.ply" "$BUILD/vdbrecon" fuse \
+  "$OUT/scene/transforms.json" -o "$OUT/vdbrecon-tsdf.ply" --voxel "$VOXEL" --no-vdb --fusion tsdf
 run_tool "Open3D ScalableTSDFVolume" "$OUT/open3d.ply" /usr/bin/python3 bench/fusion_open3d.py \
   "$OUT/scene/transforms.json" "$OUT/open3d.ply" "$VOXEL"

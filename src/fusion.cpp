@@ -9,6 +9,7 @@
 
 #include "detail/io_common.h"
 #include "detail/run.h"
+#include "detail/tsdf.h"
 #include "vdbrecon/scene.h"
 #include "vdbrecon/error.h"
 
@@ -73,6 +74,9 @@ void DepthOptions::validate() const {
     }
     if (!(min_view_cos >= 0.0 && min_view_cos < 1.0)) {
         throw InvalidArgument("depth.min_view_cos must be in [0, 1)");
+    }
+    if (!(std::isfinite(truncation) && truncation >= 1.0 && truncation <= 64.0)) {
+        throw InvalidArgument("depth.truncation must be in 1..64 voxels");
     }
     if (!(std::isfinite(reference_depth) && reference_depth >= 0.0)) {
         throw InvalidArgument("depth.reference_depth must be a non-negative number (0 = off)");
@@ -338,13 +342,27 @@ PipelineOptions checked(const PipelineOptions& options) {
 Fusion::Fusion(const PipelineOptions& options, const DepthOptions& depth, const Vec3d& origin)
     : options_(checked(options)), depth_(depth), accumulator_(options_.splat, origin) {
     depth_.validate();
+    if (depth_.rule == FusionRule::tsdf) {
+        tsdf_ = std::make_unique<detail::TsdfVolume>(options_.splat.voxel_size, depth_.truncation,
+                                                     depth_.carve, origin);
+    }
     if (depth_.merge_footprint < 0.0) {  // automatic: up to half the smallest kernel
         const SplatOptions& s = options_.splat;
         depth_.merge_footprint = 0.5 * s.min_sigma_voxels * s.voxel_size / s.scale_factor;
     }
 }
 
+Fusion::~Fusion() = default;
+Fusion::Fusion(Fusion&&) noexcept = default;
+Fusion& Fusion::operator=(Fusion&&) noexcept = default;
+
+std::size_t Fusion::samples() const { return tsdf_ ? tsdf_->pixels() : accumulator_.points(); }
+
 std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose) {
+    if (tsdf_) {
+        ++frames_;
+        return tsdf_->integrate(depth, K, pose, depth_);
+    }
     const PointCloud samples = depth_samples(depth, K, pose, depth_, accumulator_.origin());
     ++frames_;
     if (samples.empty()) return 0;
@@ -353,6 +371,7 @@ std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, cons
 }
 
 std::size_t Fusion::integrate(const PointCloud& cloud) {
+    if (tsdf_) throw InvalidArgument("fusion: the tsdf rule integrates depth images, not clouds");
     if (cloud.empty()) return 0;
     if (cloud.origin == accumulator_.origin()) {
         accumulator_.add(cloud);
@@ -372,6 +391,15 @@ std::size_t Fusion::integrate(const PointCloud& cloud) {
 }
 
 SplatResult Fusion::splat() const {
+    if (tsdf_) {
+        if (tsdf_->pixels() == 0) {
+            throw NumericalError("fusion: none of the " + std::to_string(frames_) +
+                                 " frames has a usable pixel");
+        }
+        SplatResult r = tsdf_->result();
+        r.volume.metadata["frames"] = std::to_string(frames_);
+        return r;
+    }
     if (accumulator_.clouds() == 0) {
         throw NumericalError("fusion: none of the " + std::to_string(frames_) +
                              " frames has a usable pixel (depth missing or out of range, or "
@@ -386,6 +414,7 @@ SplatResult Fusion::splat() const {
 }
 
 std::size_t Fusion::integrate(const OrganizedCloud& cloud) {
+    if (tsdf_) throw InvalidArgument("fusion: the tsdf rule integrates depth images, not clouds");
     const PointCloud samples = organized_samples(cloud, depth_, accumulator_.origin());
     ++frames_;
     if (samples.empty()) return 0;

@@ -35,6 +35,7 @@
 #include "detail/radix_sort.h"
 #include "detail/release.h"
 #include "detail/simd.h"
+#include "detail/volume_grids.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -1043,32 +1044,8 @@ void finish_volume(Grids g, const Vec3d& origin, std::size_t points, const Splat
     const double voxel = options.voxel_size;
     auto &sdf = g.sdf, &weight = g.weight;
     auto &nearest = g.nearest, &color = g.color;
-    // Inactive values take the sign of their neighbourhood (a proper narrow-band level set).
-    openvdb::tools::signedFloodFill(sdf->tree());
-
-    openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(voxel);
-    xform->postTranslate(openvdb::Vec3d(origin[0], origin[1], origin[2]));
-    sdf->setTransform(xform);
-    sdf->setName("sdf");
-    sdf->setGridClass(openvdb::GRID_LEVEL_SET);
-    weight->setTransform(xform->copy());
-    weight->setName("weight");
-    nearest->setTransform(xform->copy());
-    nearest->setName("nearest");
-    nearest->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
-    if (color) {
-        color->setTransform(xform->copy());
-        color->setName("color");
-        color->setVectorType(openvdb::VEC_INVARIANT);
-    }
-
+    result.volume = detail::make_volume(sdf, weight, nearest, color, voxel, origin);
     Volume& vol = result.volume;
-    vol.sdf = sdf;
-    vol.weight = weight;
-    vol.nearest = nearest;
-    vol.color = color;
-    vol.voxel_size = voxel;
-    vol.origin = origin;
     std::ostringstream k;
     k << "gaussian w = exp(-d^2/sigma^2), support " << options.support
       << " sigma, linear basis n.(x-p), averaged with (sigma_median/sigma)^2 w";
@@ -1084,6 +1061,36 @@ void finish_volume(Grids g, const Vec3d& origin, std::size_t points, const Splat
 }
 
 }  // namespace
+
+Volume detail::make_volume(openvdb::FloatGrid::Ptr sdf, openvdb::FloatGrid::Ptr weight,
+                           openvdb::Vec3fGrid::Ptr nearest, openvdb::Vec3fGrid::Ptr color,
+                           double voxel, const Vec3d& origin) {
+    // Inactive values take the sign of their neighbourhood (a proper narrow-band level set).
+    openvdb::tools::signedFloodFill(sdf->tree());
+    openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(voxel);
+    xform->postTranslate(openvdb::Vec3d(origin[0], origin[1], origin[2]));
+    sdf->setTransform(xform);
+    sdf->setName("sdf");
+    sdf->setGridClass(openvdb::GRID_LEVEL_SET);
+    weight->setTransform(xform->copy());
+    weight->setName("weight");
+    nearest->setTransform(xform->copy());
+    nearest->setName("nearest");
+    nearest->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+    if (color) {
+        color->setTransform(xform->copy());
+        color->setName("color");
+        color->setVectorType(openvdb::VEC_INVARIANT);
+    }
+    Volume vol;
+    vol.sdf = sdf;
+    vol.weight = weight;
+    vol.nearest = nearest;
+    vol.color = color;
+    vol.voxel_size = voxel;
+    vol.origin = origin;
+    return vol;
+}
 
 SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     options.validate();

@@ -35,6 +35,10 @@ inline const Choices<DepthKind>& depth_kind_choices() {
     static const Choices<DepthKind> c = {{"planar", DepthKind::planar}, {"ray", DepthKind::ray}};
     return c;
 }
+inline const Choices<FusionRule>& fusion_rule_choices() {
+    static const Choices<FusionRule> c = {{"splat", FusionRule::splat}, {"tsdf", FusionRule::tsdf}};
+    return c;
+}
 inline const Choices<NonFinitePolicy>& non_finite_choices() {
     static const Choices<NonFinitePolicy> c = {{"drop", NonFinitePolicy::drop},
                                                {"error", NonFinitePolicy::error}};

@@ -28,6 +28,7 @@
 
 #include <array>
 #include <cstddef>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -69,8 +70,21 @@ enum class DepthKind {
     ray,     ///< range along the pixel's ray
 };
 
+/// How frames are accumulated.
+enum class FusionRule {
+    splat,  ///< FSSR samples into the splat's grids (the default: one code path with points)
+    tsdf,   ///< truncated signed distance along the rays, with free-space carving (VDBFusion,
+            ///< KinectFusion; src/detail/tsdf.h)
+};
+
 struct DepthOptions {
     DepthKind kind = DepthKind::planar;
+    FusionRule rule = FusionRule::splat;
+    /// tsdf: the truncation distance, voxels.
+    double truncation = 4.0;
+    /// tsdf: carve free space (voxels seen in front of the surface move toward +1, so objects
+    /// that moved away disappear).
+    bool carve = true;
     /// Depths at or below this (world units) are "no measurement".
     double min_depth = 0.0;
     /// Depths beyond this are "no measurement" (world units; 0 = no limit).
@@ -122,12 +136,19 @@ PointCloud organized_samples(const OrganizedCloud& cloud, const DepthOptions& op
                              const Vec3d& origin = {0.0, 0.0, 0.0});
 
 /// Fuses posed depth images (and oriented clouds) into one volume, one frame at a time.
+namespace detail {
+class TsdfVolume;
+}
+
 class Fusion {
   public:
     /// options.splat.voxel_size must be > 0. `origin`: the world position of the local frame
     /// (pick one near the scene, e.g. the first camera, for far-away coordinates).
     explicit Fusion(const PipelineOptions& options, const DepthOptions& depth = {},
                     const Vec3d& origin = {0.0, 0.0, 0.0});
+    ~Fusion();
+    Fusion(Fusion&&) noexcept;
+    Fusion& operator=(Fusion&&) noexcept;
 
     /// Adds one frame; returns its number of samples (0: nothing usable in it, not an error).
     std::size_t integrate(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world);
@@ -145,7 +166,7 @@ class Fusion {
                                const VolumeCallback& on_volume = {}) const;
 
     std::size_t frames() const { return frames_; }
-    std::size_t samples() const { return accumulator_.points(); }
+    std::size_t samples() const;
     const PipelineOptions& options() const { return options_; }
     const DepthOptions& depth_options() const { return depth_; }
 
@@ -153,6 +174,7 @@ class Fusion {
     PipelineOptions options_;
     DepthOptions depth_;
     SplatAccumulator accumulator_;
+    std::unique_ptr<detail::TsdfVolume> tsdf_;  ///< rule == tsdf
     std::size_t frames_ = 0;
 };
 

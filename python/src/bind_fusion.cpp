@@ -31,6 +31,14 @@ void bind_fusion(py::module_& m) {
     o.choice("kind", &DepthOptions::kind, depth_kind_choices(),
              "'planar': depth along the optical axis; 'ray': range along the pixel's ray "
              "(CLI --depth-kind).")
+        .choice("rule", &DepthOptions::rule, fusion_rule_choices(),
+                "'splat': FSSR samples into the splat's grids; 'tsdf': truncated signed distance "
+                "along the rays with free-space carving (CLI --fusion).")
+        .field("truncation", &DepthOptions::truncation,
+               "tsdf: truncation distance, voxels (CLI --sdf-trunc).")
+        .field("carve", &DepthOptions::carve,
+               "tsdf: carve free space, so objects that moved away disappear (CLI --no-carve "
+               "sets False).")
         .field("min_depth", &DepthOptions::min_depth,
                "Depths at or below this are no measurement, world units (CLI --min-depth).")
         .field("max_depth", &DepthOptions::max_depth,

@@ -103,3 +103,15 @@ def test_bad_arguments_are_clear_errors():
         g = vdbrecon.Fusion(0.05)
         g.integrate(np.zeros((H, W), np.float32), K, p)
         g.mesh()
+
+
+def test_tsdf_rule_by_keyword():
+    fusion = vdbrecon.Fusion(0.02, rule="tsdf", truncation=3.0, origin=CENTRE)
+    for p in poses(12):
+        fusion.integrate(render_sphere(p), K, p)
+    mesh = fusion.mesh()
+    v = mesh.vertices.astype(np.float64) + np.asarray(mesh.origin)
+    assert np.abs(np.linalg.norm(v - CENTRE, axis=1) - RADIUS).max() < 0.5 * 0.02
+    assert vdbrecon.mesh_topology(mesh).components == 1
+    with pytest.raises(ValueError, match="rule"):
+        vdbrecon.Fusion(0.02, rule="voxels")

@@ -1,0 +1,44 @@
+// The classic truncated signed distance along the camera rays (Curless and Levoy 1996,
+// KinectFusion: Newcombe et al. 2011), the second accumulation rule of range-image fusion
+// (fusion.h, DepthOptions::rule == FusionRule::tsdf), with free-space carving.
+//
+// Per frame, every voxel in a candidate set is projected into the image (pinhole, nearest
+// pixel); with d the pixel's planar depth and z the voxel's, sdf = d - z. Voxels with
+// sdf < -truncation (behind the surface) are left alone; the others get the running weighted
+// average of clamp(sdf / truncation, -1, 1) with weight 1 per frame. Candidates are the leaves
+// within the truncation of the frame's back-projected pixels; with carving, also every leaf the
+// volume already holds that the camera sees: voxels observed in front of the measured surface
+// get +1 (free), so objects that moved away are carved out as frames accumulate.
+//
+// Each voxel is updated by one task from its own value, frame after frame, so the grids are
+// the same bit for bit for any thread count.
+#pragma once
+
+#include <openvdb/openvdb.h>
+
+#include "vdbrecon/fusion.h"
+#include "vdbrecon/splat.h"
+
+namespace vdbrecon::detail {
+
+class TsdfVolume {
+  public:
+    TsdfVolume(double voxel, double truncation_voxels, bool carve, const Vec3d& origin);
+
+    /// Adds a frame; returns its valid pixels.
+    std::size_t integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
+                          const DepthOptions& options);
+    /// The volume: sdf = value x truncation (world units) on the voxels with |value| < 1,
+    /// weight = frames that saw them, nearest = 0 (no sample positions: no trims).
+    SplatResult result() const;
+    std::size_t pixels() const { return pixels_; }
+
+  private:
+    double voxel_, truncation_;
+    bool carve_;
+    Vec3d origin_;
+    openvdb::FloatGrid::Ptr value_, weight_;
+    std::size_t pixels_ = 0;
+};
+
+}  // namespace vdbrecon::detail

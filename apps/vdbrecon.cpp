@@ -177,6 +177,8 @@ void print_help() {
         << "      _depth.exr/.png, transform_matrix in OpenGL axes) or a TUM RGB-D folder\n"
         << "      (depth.txt + groundtruth.txt); depth images .exr (channel Z, depth, R, Y or\n"
         << "      a layer's .Z) or 16-bit .png. Every reconstruction option applies.\n"
+        << "  --scan-origins FILE    SCENE is a point file of scans (PLY 'scan' property): their\n"
+        << "                         sensors, 'x y z' per scan or a Stanford .conf (directions)\n"
         << "  --depth-scale S        PNG depth units per metre [transforms.json: 1/depth_scale,\n"
         << "                         TUM 5000, else 1000]\n"
         << "  --intrinsics fx,fy,cx,cy[,w,h]  pixels, pixel centres at integers (needed for TUM)\n"
@@ -448,7 +450,7 @@ void report(const RunResult& r, const PipelineOptions& o,
     {
         std::ostringstream s;
         if (fused) {
-            s << "vdbrecon: fused " << r.read.rows << " samples from the depth images ("
+            s << "vdbrecon: fused " << r.read.rows << " samples ("
               << r.read.format << ")\n";
         } else {
             s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << "), "
@@ -593,6 +595,8 @@ int run_fuse(Args& args, double startup_rss_mb) {
             f.depth.max_jump = parse_number(a, args.value(a));
         } else if (a == "--min-view-cos") {
             f.depth.min_view_cos = parse_number(a, args.value(a));
+        } else if (a == "--scan-origins") {
+            f.scan_sensors = args.value(a);
         } else if (a == "--fusion") {
             const std::string k = args.value(a);
             if (k != "splat" && k != "tsdf") throw UsageError("--fusion: splat or tsdf, not '" + k + "'");

@@ -10,6 +10,7 @@
 #include "detail/io_common.h"
 #include "detail/run.h"
 #include "detail/tsdf.h"
+#include "vdbrecon/normals.h"
 #include "vdbrecon/scene.h"
 #include "vdbrecon/error.h"
 
@@ -306,6 +307,59 @@ PointCloud organized_samples(const OrganizedCloud& c, const DepthOptions& option
     return grid_samples(f, grid_focal(f, options.max_jump), pose, options, origin);
 }
 
+PointCloud scan_samples(const PointCloud& scan, const std::optional<Vec3d>& origin,
+                        const std::optional<Vec3d>& direction, const DepthOptions& options, int k) {
+    options.validate();
+    if (!origin && !direction) throw InvalidArgument("scan_samples: the scan needs a sensor");
+    PointCloud c = scan.view();
+    if (!c.has_normals() || !c.has_scales()) {
+        NormalOptions n;
+        n.k = std::min<int>(k, int(c.size()) - 1);
+        n.mode = c.has_normals() ? NormalMode::keep : NormalMode::estimate;
+        n.scale = ScaleMode::knn;
+        if (origin) n.viewpoint = *origin;
+        if (c.size() < 3) return PointCloud{};
+        NormalResult r = estimate_normals(c, n);
+        if (!c.has_normals()) c.normals = std::move(r.normals);
+        if (!c.has_scales()) c.scales = std::move(r.scales);
+    }
+    PointCloud out;
+    out.origin = c.origin;
+    std::vector<Vec3f> pos, nrm, col;
+    std::vector<float> scl, conf;
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        const Vec3f& p = c.positions[i];
+        V3 view;
+        if (origin) {
+            view = {(*origin)[0] - (double(p[0]) + c.origin[0]), (*origin)[1] - (double(p[1]) + c.origin[1]),
+                    (*origin)[2] - (double(p[2]) + c.origin[2])};
+        } else {
+            view = {(*direction)[0], (*direction)[1], (*direction)[2]};
+        }
+        const V3 n = {c.normals[i][0], c.normals[i][1], c.normals[i][2]};
+        const double ln = std::sqrt(dot(n, n)), lv = std::sqrt(dot(view, view));
+        if (!(ln > 0.0) || !(lv > 0.0)) continue;
+        double cosv = dot(n, view) / (ln * lv);
+        Vec3f nf = c.normals[i];
+        if (cosv < 0.0) {  // toward the sensor
+            nf = {-nf[0], -nf[1], -nf[2]};
+            cosv = -cosv;
+        }
+        if (cosv < options.min_view_cos) continue;
+        pos.push_back(p);
+        nrm.push_back(nf);
+        scl.push_back(c.scales[i]);
+        conf.push_back(float(cosv * (c.has_confidences() ? double(c.confidences[i]) : 1.0)));
+        if (c.has_colors()) col.push_back(c.colors[i]);
+    }
+    out.positions = std::move(pos);
+    out.normals = std::move(nrm);
+    out.scales = std::move(scl);
+    out.confidences = std::move(conf);
+    if (c.has_colors()) out.colors = std::move(col);
+    return out;
+}
+
 PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
                          const DepthOptions& options, const Vec3d& origin) {
     K.validate();
@@ -464,6 +518,116 @@ double median_footprint(const PointCloud& s) {
 
 }  // namespace
 
+namespace {
+
+/// The fusion of a run, made when the first frame's (or scan's) samples are known: they choose
+/// the voxel when none is given.
+class FusionStart {
+  public:
+    FusionStart(const PipelineOptions& options, const FuseOptions& fo) : po_(options), fo_(fo) {
+        po_.splat.crease_angle = 0.0;  // the accumulator has no crease model
+    }
+    Fusion& get(const PointCloud& first, const std::string& name, const Vec3d& origin) {
+        if (fusion_) return *fusion_;
+        if (po_.splat.voxel_size == 0.0) {
+            const double h = median_footprint(first);
+            if (!(h > 0.0)) {
+                throw NumericalError(name + ": the first frame has no usable pixel to choose a "
+                                            "voxel from. Hint: --voxel");
+            }
+            po_.splat.voxel_size = po_.auto_voxel_factor * h;
+        }
+        fusion_ = std::make_unique<Fusion>(po_, fo_.depth, origin);
+        return *fusion_;
+    }
+    bool started() const { return bool(fusion_); }
+    Fusion& operator*() { return *fusion_; }
+    const PipelineOptions& options() const { return po_; }
+
+  private:
+    PipelineOptions po_;
+    const FuseOptions& fo_;
+    std::unique_ptr<Fusion> fusion_;
+};
+
+/// A scene's frames (depth images, organized clouds), read and integrated one at a time.
+void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fusion) {
+    const int threads = fusion.options().threads;
+    for (std::size_t i = 0; i < scene.frames.size(); i += fo.frame_step) {
+        if (fo.max_frames > 0 && i / fo.frame_step == fo.max_frames) break;
+        const SceneFrame& f = scene.frames[i];
+        try {
+            if (f.organized) {
+                const OrganizedCloud c = read_organized_cloud(f.depth_path);
+                Fusion& fu = fusion.get(organized_samples(c, fo.depth), f.depth_path, c.origin);
+                detail::in_arena(threads, [&] { fu.integrate(c); });
+                continue;
+            }
+            const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
+            Intrinsics K = frame_intrinsics(f, img);
+            K.validate();
+            Fusion& fu = fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
+                                    Vec3d{f.pose[3], f.pose[7], f.pose[11]});
+            detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose); });
+        } catch (const Error& e) {
+            rethrow_with(f.depth_path, e);
+        }
+    }
+}
+
+/// The points of a multi-scan file, one scan at a time (scan_samples); returns the rows read.
+std::size_t integrate_scans(const std::string& path, const FuseOptions& fo, FusionStart& fusion,
+                            const PipelineOptions& options) {
+    const ScanSensors sensors = read_scan_sensors(fo.scan_sensors);
+    ReadResult read = read_points(path, options.read);
+    const PointCloud& cloud = read.cloud;
+    std::vector<std::int32_t> scans = read.scans;
+    if (scans.empty()) {
+        if (sensors.size() != 1) {
+            throw FormatError(path + ": the points have no 'scan' property to pick one of the " +
+                              std::to_string(sensors.size()) + " sensors in " + fo.scan_sensors);
+        }
+        scans.assign(cloud.size(), 0);
+    }
+    std::vector<std::vector<std::size_t>> members(sensors.size());
+    for (std::size_t i = 0; i < scans.size(); ++i) {
+        if (scans[i] < 0 || std::size_t(scans[i]) >= sensors.size()) {
+            throw FormatError(path + ": point " + std::to_string(i) + " is of scan " +
+                              std::to_string(scans[i]) + ", but " + fo.scan_sensors + " has " +
+                              std::to_string(sensors.size()) + " sensors");
+        }
+        members[std::size_t(scans[i])].push_back(i);
+    }
+    for (std::size_t s = 0; s < members.size(); ++s) {
+        if (members[s].empty()) continue;
+        PointCloud part;
+        part.origin = cloud.origin;
+        auto pick = [&](const auto& column, auto& into) {
+            if (column.empty()) return;
+            std::vector<std::decay_t<decltype(column[0])>> v;
+            for (std::size_t i : members[s]) v.push_back(column[i]);
+            into = std::move(v);
+        };
+        pick(cloud.positions, part.positions);
+        pick(cloud.normals, part.normals);
+        pick(cloud.colors, part.colors);
+        pick(cloud.scales, part.scales);
+        pick(cloud.confidences, part.confidences);
+        std::optional<Vec3d> origin, direction;
+        if (!sensors.origins.empty()) origin = sensors.origins[s];
+        else direction = sensors.directions[s];
+        const PointCloud samples = detail::in_arena(options.threads, [&] {
+            return scan_samples(part, origin, direction, fo.depth, options.normals.k);
+        });
+        if (samples.empty()) continue;
+        Fusion& fu = fusion.get(samples, path, cloud.origin);
+        detail::in_arena(options.threads, [&] { fu.integrate(samples); });
+    }
+    return read.rows;
+}
+
+}  // namespace
+
 RunResult fuse(const std::string& scene_path, const std::string& output,
                const PipelineOptions& options, const FuseOptions& fo,
                const StageCallback& on_stage) {
@@ -473,80 +637,34 @@ RunResult fuse(const std::string& scene_path, const std::string& output,
         output.empty() ? scene_path + ".recon.ply" : output;  // a folder: <folder>.recon.ply
     auto compute = [&](RunResult& out, std::vector<StageTiming>& timings,
                        const VolumeCallback& write_vdb) {
-        Scene scene;
-        {
-            detail::StageClock clock(timings, on_stage, "read scene");
-            scene = read_scene(scene_path, fo.scene);
-        }
-        std::vector<const SceneFrame*> frames;
-        for (std::size_t i = 0; i < scene.frames.size(); i += fo.frame_step) {
-            if (fo.max_frames > 0 && frames.size() == fo.max_frames) break;
-            frames.push_back(&scene.frames[i]);
-        }
-        auto read = [&](const SceneFrame& f, Intrinsics& K) {
-            try {
-                DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
-                K = frame_intrinsics(f, img);
-                K.validate();
-                return img;
-            } catch (const Error& e) {
-                rethrow_with(f.depth_path, e);
-            }
-        };
-        PipelineOptions po = options;
-        std::unique_ptr<Fusion> fusion;
-        // The first frame's samples choose the voxel when none is given.
-        auto start = [&](const PointCloud& first, const std::string& name, const Vec3d& origin) {
-            if (po.splat.voxel_size == 0.0) {
-                const double h = median_footprint(first);
-                if (!(h > 0.0)) {
-                    throw NumericalError(name + ": the first frame has no usable pixel to choose "
-                                                "a voxel from. Hint: --voxel");
-                }
-                po.splat.voxel_size = options.auto_voxel_factor * h;
-            }
-            po.splat.crease_angle = 0.0;  // the accumulator has no crease model
-            fusion = std::make_unique<Fusion>(po, fo.depth, origin);
-        };
-        auto integrate_organized = [&](const SceneFrame& f) {
-            try {
-                const OrganizedCloud c = read_organized_cloud(f.depth_path);
-                if (!fusion) start(organized_samples(c, fo.depth), f.depth_path, c.origin);
-                detail::in_arena(po.threads, [&] { fusion->integrate(c); });
-            } catch (const Error& e) {
-                rethrow_with(f.depth_path, e);
-            }
-        };
-        {
+        FusionStart fusion(options, fo);
+        if (!fo.scan_sensors.empty()) {
             detail::StageClock clock(timings, on_stage, "integrate");
-            for (const SceneFrame* f : frames) {
-                if (f->organized) {
-                    integrate_organized(*f);
-                    continue;
-                }
-                Intrinsics K;
-                const DepthImage img = read(*f, K);
-                try {
-                    if (!fusion) {
-                        start(depth_samples(img, K, f->pose, fo.depth), f->depth_path,
-                              Vec3d{f->pose[3], f->pose[7], f->pose[11]});
-                    }
-                    detail::in_arena(po.threads, [&] { fusion->integrate(img, K, f->pose); });
-                } catch (const Error& e) {
-                    rethrow_with(f->depth_path, e);
-                }
+            integrate_scans(scene_path, fo, fusion, options);
+            out.read.format = "scans";
+        } else {
+            Scene scene;
+            {
+                detail::StageClock clock(timings, on_stage, "read scene");
+                scene = read_scene(scene_path, fo.scene);
             }
+            detail::StageClock clock(timings, on_stage, "integrate");
+            integrate_frames(scene, fo, fusion);
+            out.read.format = scene.kind;
         }
-        out.read.rows = fusion->samples();
-        out.read.format = scene.kind;
+        if (!fusion.started()) {
+            throw NumericalError("fuse: no frame has a usable pixel or point");
+        }
+        out.read.rows = (*fusion).samples();
         SplatResult splat;
         {
             detail::StageClock clock(timings, on_stage, "splat");
-            splat = detail::in_arena(po.threads, [&] { return fusion->splat(); });
+            splat = detail::in_arena(fusion.options().threads, [&] { return (*fusion).splat(); });
         }
         Volume volume = std::move(splat.volume);
         splat.volume = Volume{};
-        PipelineResult r = reconstruct_volume(std::move(volume), po, on_stage, write_vdb);
+        PipelineResult r =
+            reconstruct_volume(std::move(volume), fusion.options(), on_stage, write_vdb);
         r.splat = std::move(splat);
         r.voxel_chosen = options.splat.voxel_size == 0.0;
         return r;

@@ -213,6 +213,7 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
             for (auto* v : {&raw.scales, &raw.confidences}) {
                 if (!v->empty()) (*v)[kept] = (*v)[i];
             }
+            if (!raw.scans.empty()) raw.scans[kept] = raw.scans[i];
         }
         ++kept;
     }
@@ -236,6 +237,10 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
     if (!raw.confidences.empty()) {
         raw.confidences.resize(kept);
         cloud.confidences = std::move(raw.confidences);
+    }
+    if (!raw.scans.empty()) {
+        raw.scans.resize(kept);
+        result.scans = std::move(raw.scans);
     }
     for (Vec3f& n : normals) {
         const double len = std::sqrt(double(n[0]) * n[0] + double(n[1]) * n[1] + double(n[2]) * n[2]);

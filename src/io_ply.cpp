@@ -280,7 +280,7 @@ private:
 
 // What a vertex property feeds.
 enum class Role : std::uint8_t {
-    ignore, x, y, z, nx, ny, nz, red, green, blue, scale, confidence
+    ignore, x, y, z, nx, ny, nz, red, green, blue, scale, confidence, scan
 };
 
 Role role_of(const std::string& name) {
@@ -307,7 +307,10 @@ Role role_of(const std::string& name) {
                  {"b", Role::blue},
                  {"value", Role::scale},  // MVE / FSSR writes the sample scale as "value"
                  {"scale", Role::scale},
-                 {"confidence", Role::confidence}};
+                 {"confidence", Role::confidence},
+                 {"scan", Role::scan},
+                 {"scan_id", Role::scan},
+                 {"scan_index", Role::scan}};
     for (const auto& e : table) {
         if (name == e.name) return e.role;
     }
@@ -395,7 +398,7 @@ void skip_element(const std::string& path, const Element& e, Cursor& c, Encoding
 void read_vertices(const std::string& path, const Element& e, Cursor& c, Encoding enc,
                    RawPoints& raw) {
     std::vector<Role> roles;
-    bool has[12] = {};
+    bool has[13] = {};
     PlyType colour_type = PlyType::uint8;
     for (const Property& p : e.props) {
         Role r = role_of(p.name);
@@ -426,6 +429,7 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
     if (colors) raw.colors.resize(3 * n);
     if (has[int(Role::scale)]) raw.scales.resize(n);
     if (has[int(Role::confidence)]) raw.confidences.resize(n);
+    if (has[int(Role::scan)]) raw.scans.resize(n);
 
     auto read_row = [&](Cursor& cur, std::size_t row) {
         double v;
@@ -452,6 +456,7 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
                 case Role::blue: if (colors) raw.colors[3 * row + 2] = float(v * cscale); break;
                 case Role::scale: raw.scales[row] = float(v); break;
                 case Role::confidence: raw.confidences[row] = float(v); break;
+                case Role::scan: raw.scans[row] = std::int32_t(std::clamp(v, -1.0, 2147483647.0)); break;
             }
         }
     };

@@ -268,6 +268,48 @@ Scene read_tum(const std::string& depth_txt, const SceneOptions& options) {
 
 }  // namespace
 
+ScanSensors read_scan_sensors(const std::string& path) {
+    const std::string text = detail::read_file(path);
+    const bool conf = file_extension(path) == "conf";
+    ScanSensors out;
+    std::istringstream in(text);
+    std::string line;
+    std::size_t number = 0;
+    while (std::getline(in, line)) {
+        ++number;
+        std::istringstream l(line);
+        std::string first;
+        if (!(l >> first) || first[0] == '#') continue;
+        auto bad = [&](const std::string& what) {
+            return FormatError(detail::where(path, "line " + std::to_string(number) + ": " + what));
+        };
+        if (conf) {
+            if (first != "bmesh") continue;  // camera, mesh, ... lines
+            std::string file;
+            double v[7];
+            l >> file;
+            for (double& x : v) {
+                if (!(l >> x) || !std::isfinite(x)) throw bad("expected 'bmesh FILE tx ty tz qx qy qz qw'");
+            }
+            const double n = std::sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5] + v[6] * v[6]);
+            if (!(std::fabs(n - 1.0) < 1e-2)) throw bad("the quaternion is not of unit length");
+            const double x = v[3] / n, y = v[4] / n, z = v[5] / n, w = v[6] / n;
+            // world = R(q)^T p + t, the scanner looking along +z of the scan: R(q)^T e_z, the
+            // third row of R(q).
+            out.directions.push_back({2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)});
+        } else {
+            double v[3];
+            std::istringstream row(line);
+            for (double& x : v) {
+                if (!(row >> x) || !std::isfinite(x)) throw bad("expected 'x y z' (a scan's sensor position)");
+            }
+            out.origins.push_back({v[0], v[1], v[2]});
+        }
+    }
+    if (out.size() == 0) throw FormatError(detail::where(path, "no scan sensors"));
+    return out;
+}
+
 OrganizedCloud read_organized_cloud(const std::string& path) {
     const std::string content = detail::read_file(path);
     detail::PcdData pcd = detail::read_pcd(path, content);

@@ -489,3 +489,86 @@ TEST_CASE("tsdf fusion: a sphere is one closed piece, and carving removes an obj
     CHECK(stays > 20);  // without carving the cube stays
     CHECK(carved == 0);
 }
+
+TEST_CASE("fuse: scans of a point file, each seen from its own sensor", "[fusion][scans]") {
+    // A sphere seen by six scanners on the axes: each point belongs to the scan of the scanner
+    // that sees it most squarely; the file has no normals: they are estimated per scan and
+    // turned toward its scanner.
+    const Shape sphere = make_shape("sphere");
+    const PointCloud s = sample_uniform(sphere.mesh, 60000, 5);
+    const Vec3d c = centre_of(sphere.mesh);
+    std::vector<Vec3d> sensors;
+    for (int a = 0; a < 3; ++a) {
+        for (double sign : {1.0, -1.0}) {
+            Vec3d o = c;
+            o[std::size_t(a)] += 3.0 * sign;
+            sensors.push_back(o);
+        }
+    }
+    TempDir dir;
+    std::ostringstream ply;
+    ply.precision(9);
+    ply << "ply\nformat ascii 1.0\nelement vertex " << s.size()
+        << "\nproperty float x\nproperty float y\nproperty float z\nproperty uchar scan\nend_header\n";
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        double p[3], best = -2.0;
+        int scan = 0;
+        for (int k = 0; k < 3; ++k) p[k] = double(s.positions[i][std::size_t(k)]) + s.origin[std::size_t(k)];
+        for (std::size_t j = 0; j < sensors.size(); ++j) {
+            double v[3], len = 0.0, d = 0.0;
+            for (int k = 0; k < 3; ++k) v[k] = sensors[j][std::size_t(k)] - p[k], len += v[k] * v[k];
+            for (int k = 0; k < 3; ++k) d += v[k] * double(s.normals[i][std::size_t(k)]);
+            if (d / std::sqrt(len) > best) best = d / std::sqrt(len), scan = int(j);
+        }
+        ply << p[0] << " " << p[1] << " " << p[2] << " " << scan << "\n";
+    }
+    write_bytes(dir.file("scans.ply"), ply.str());
+    std::ostringstream origins;
+    origins.precision(17);
+    for (const Vec3d& o : sensors) origins << o[0] << " " << o[1] << " " << o[2] << "\n";
+    write_bytes(dir.file("sensors.txt"), "# x y z per scan\n" + origins.str());
+    const double voxel = spacing_of(sphere.area, s.size()) * 1.5;
+    std::ostringstream args;
+    args << "fuse '" << dir.file("scans.ply") << "' --scan-origins '" << dir.file("sensors.txt")
+         << "' -o '" << dir.file("m.ply") << "' --voxel " << voxel << " -q";
+    const CliRun r = run_cli(args.str());
+    INFO(r.err);
+    REQUIRE(r.code == 0);
+    const EvalResult e = compare(read_mesh(dir.file("m.ply")), sphere.mesh, voxel);
+    INFO("F@voxel " << e.fscores[0].fscore << ", chamfer " << e.chamfer_l1 / voxel << " voxels");
+    CHECK(e.fscores[0].fscore >= 0.99);
+    CHECK(e.recon.components == 1);
+    CHECK(e.recon.watertight());
+    // A point of a scan the sensor file does not have; more sensors than a file without scans.
+    write_bytes(dir.file("one.txt"), origins.str().substr(0, origins.str().find('\n') + 1));
+    const CliRun bad = run_cli("fuse '" + dir.file("scans.ply") + "' --scan-origins '" +
+                               dir.file("one.txt") + "' -o '" + dir.file("b.ply") + "' --voxel 0.05 -q");
+    CHECK(bad.code != 0);
+    CHECK(bad.err.find("scans.ply") != std::string::npos);
+    CHECK(bad.err.find("sensors") != std::string::npos);
+    CHECK(!file_exists(dir.file("b.ply")));
+}
+
+TEST_CASE("fuse: the bunny's ten range scans with their scanners from bun.conf", "[fusion][scans][data]") {
+    const std::string scans = shared_data("stanford_bunny/bun_scans_aligned.ply");
+    const std::string conf = shared_data("stanford_bunny/bun.conf");
+    const std::string gt = shared_data("stanford_bunny/bun_zipper_gt.ply");
+    if (scans.empty() || conf.empty() || gt.empty()) return;
+    const ScanSensors s = read_scan_sensors(conf);
+    REQUIRE(s.directions.size() == 10);
+    // bun045's scanner, as bun_scans_aligned_scans.csv gives it.
+    CHECK(s.directions[1][0] == Approx(0.563056).margin(1e-5));
+    CHECK(s.directions[1][2] == Approx(0.826320).margin(1e-5));
+    TempDir dir;
+    const CliRun r = run_cli("fuse '" + scans + "' --scan-origins '" + conf + "' -o '" +
+                             dir.file("b.ply") + "' --voxel 0.0005 -q --no-vdb");
+    INFO(r.err);
+    REQUIRE(r.code == 0);
+    EvalOptions o;
+    o.taus = {0.0005};
+    o.samples = 300000;
+    const EvalResult e = evaluate(read_mesh(dir.file("b.ply")), read_mesh(gt), o);
+    INFO("F@0.5mm " << e.fscores[0].fscore << ", chamfer " << e.chamfer_l1 * 1e6 << " um");
+    CHECK(e.fscores[0].fscore >= 0.995);
+    CHECK(e.recon.components == 1);
+}

@@ -29,6 +29,7 @@
 #include <array>
 #include <cstddef>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -134,6 +135,14 @@ struct OrganizedCloud {
 /// the points do not fill width x height.
 PointCloud organized_samples(const OrganizedCloud& cloud, const DepthOptions& options,
                              const Vec3d& origin = {0.0, 0.0, 0.0});
+
+/// The oriented samples of one scan's points seen from its sensor (a position, else a unit
+/// direction toward it): normals kept from the cloud or estimated from the scan's own
+/// neighbours (k = normals.k), turned toward the sensor; scale the kNN spacing unless the cloud
+/// has scales; confidence the cosine of the viewing angle (below min_view_cos: no sample).
+PointCloud scan_samples(const PointCloud& scan, const std::optional<Vec3d>& origin,
+                        const std::optional<Vec3d>& direction, const DepthOptions& options,
+                        int k = 10);
 
 /// Fuses posed depth images (and oriented clouds) into one volume, one frame at a time.
 namespace detail {

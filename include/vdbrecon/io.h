@@ -41,6 +41,9 @@ struct ReadResult {
     std::size_t dropped_nonfinite = 0;  ///< rows dropped for NaN/inf coordinates
     std::size_t invalid_normals = 0;    ///< normals that were zero or NaN (set to 0,0,0)
     std::size_t bytes = 0;              ///< memory of the cloud as read (its arrays)
+    /// The scan each point came from (PLY property `scan`, `scan_id` or `scan_index`, as the
+    /// merged Stanford scans have it), one per point of the cloud; empty without one.
+    std::vector<std::int32_t> scans;
 };
 
 /// Reads a point cloud; the format comes from the extension (.ply .xyz .pts .txt .obj .las), or

@@ -68,8 +68,25 @@ struct Scene {
 /// orientation is not needed: normals face the sensor). Throws IoError / FormatError.
 OrganizedCloud read_organized_cloud(const std::string& path);
 
+/// The sensors of a multi-scan point file, by scan index: each a position (a scanner at a
+/// point) or a unit direction toward the scanner (an orthographic range scanner, as the
+/// Stanford scans were taken).
+struct ScanSensors {
+    std::vector<Vec3d> origins;     ///< one per scan, or empty
+    std::vector<Vec3d> directions;  ///< one per scan, or empty
+    std::size_t size() const { return origins.empty() ? directions.size() : origins.size(); }
+};
+
+/// Reads scan sensors: a Stanford .conf (`bmesh file tx ty tz qx qy qz qw` per scan, in scan
+/// order; each scan looks along +z of its frame, world = R(q)^T p + t: directions), or a text
+/// file of `x y z` per scan (origins; # comments). Throws IoError / FormatError.
+ScanSensors read_scan_sensors(const std::string& path);
+
 /// What `vdbrecon fuse` does besides the pipeline's options.
 struct FuseOptions {
+    /// A point-file scene (SCENE is .ply, .xyz, .las, ...): the sensors of its scans (the
+    /// points' `scan` property picks one; without it, the only sensor). Empty for depth scenes.
+    std::string scan_sensors;
     SceneOptions scene;
     DepthOptions depth;
     /// Integrate every step-th frame (1 = all).

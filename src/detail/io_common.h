@@ -20,6 +20,7 @@ struct RawPoints {
     std::vector<float> colors;          ///< 3 per row or empty, 0..1
     std::vector<float> scales;          ///< 1 per row or empty
     std::vector<float> confidences;     ///< 1 per row or empty
+    std::vector<std::int32_t> scans;    ///< 1 per row or empty: the scan a row came from
     std::vector<Triangle> faces;        ///< only for meshes
 
     std::size_t rows() const { return xyz.size() / 3; }

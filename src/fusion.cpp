@@ -410,7 +410,38 @@ Fusion::~Fusion() = default;
 Fusion::Fusion(Fusion&&) noexcept = default;
 Fusion& Fusion::operator=(Fusion&&) noexcept = default;
 
-std::size_t Fusion::samples() const { return tsdf_ ? tsdf_->pixels() : accumulator_.points(); }
+std::size_t Fusion::samples() const {
+    return tsdf_ ? tsdf_->pixels() : accumulator_.points() + pending_.size();
+}
+
+void Fusion::add(const PointCloud& samples) {
+    if (depth_.batch_samples == 0) {
+        accumulator_.add(samples);
+        return;
+    }
+    auto append = [](auto& into, const auto& from) {
+        if (from.empty()) return;
+        into.edit().insert(into.edit().end(), from.begin(), from.end());
+    };
+    if (!pending_.empty() && (samples.has_colors() != pending_.has_colors() ||
+                              samples.has_scales() != pending_.has_scales() ||
+                              samples.has_confidences() != pending_.has_confidences())) {
+        flush();  // a batch holds one kind of sample
+    }
+    pending_.origin = samples.origin;
+    append(pending_.positions, samples.positions);
+    append(pending_.normals, samples.normals);
+    append(pending_.colors, samples.colors);
+    append(pending_.scales, samples.scales);
+    append(pending_.confidences, samples.confidences);
+    if (pending_.size() >= depth_.batch_samples) flush();
+}
+
+void Fusion::flush() const {
+    if (pending_.empty()) return;
+    accumulator_.add(pending_);
+    pending_ = PointCloud{};
+}
 
 std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose) {
     if (tsdf_) {
@@ -420,7 +451,7 @@ std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, cons
     const PointCloud samples = depth_samples(depth, K, pose, depth_, accumulator_.origin());
     ++frames_;
     if (samples.empty()) return 0;
-    accumulator_.add(samples);
+    add(samples);
     return samples.size();
 }
 
@@ -428,7 +459,7 @@ std::size_t Fusion::integrate(const PointCloud& cloud) {
     if (tsdf_) throw InvalidArgument("fusion: the tsdf rule integrates depth images, not clouds");
     if (cloud.empty()) return 0;
     if (cloud.origin == accumulator_.origin()) {
-        accumulator_.add(cloud);
+        add(cloud);
     } else {  // the same points in the fusion's frame
         PointCloud moved = cloud.view();
         std::vector<Vec3f> p(cloud.positions.begin(), cloud.positions.end());
@@ -438,7 +469,7 @@ std::size_t Fusion::integrate(const PointCloud& cloud) {
         }
         moved.positions = std::move(p);
         moved.origin = o;
-        accumulator_.add(moved);
+        add(moved);
     }
     ++frames_;
     return cloud.size();
@@ -454,6 +485,7 @@ SplatResult Fusion::splat() const {
         r.volume.metadata["frames"] = std::to_string(frames_);
         return r;
     }
+    flush();
     if (accumulator_.clouds() == 0) {
         throw NumericalError("fusion: none of the " + std::to_string(frames_) +
                              " frames has a usable pixel (depth missing or out of range, or "
@@ -472,7 +504,7 @@ std::size_t Fusion::integrate(const OrganizedCloud& cloud) {
     const PointCloud samples = organized_samples(cloud, depth_, accumulator_.origin());
     ++frames_;
     if (samples.empty()) return 0;
-    accumulator_.add(samples);
+    add(samples);
     return samples.size();
 }
 

@@ -398,7 +398,7 @@ void skip_element(const std::string& path, const Element& e, Cursor& c, Encoding
 void read_vertices(const std::string& path, const Element& e, Cursor& c, Encoding enc,
                    RawPoints& raw) {
     std::vector<Role> roles;
-    bool has[13] = {};
+    bool has[int(Role::scan) + 1] = {};  // one per role (scan is the last)
     PlyType colour_type = PlyType::uint8;
     for (const Property& p : e.props) {
         Role r = role_of(p.name);

@@ -105,6 +105,10 @@ struct DepthOptions {
     /// stay at most sigma/2 apart; bunny frames at 0.58 mm footprint: no merging at voxel 1 mm,
     /// 3 x 3 blocks at 4 mm, integration 4x faster, F@4mm 0.9983 either way).
     double merge_footprint = -1.0;
+    /// Samples gathered before they are splatted together (0: every frame on its own). Only
+    /// time and memory depend on it (and the last bits of the sums: a batch sums in double):
+    /// the same options give the same grids for any thread count.
+    std::size_t batch_samples = std::size_t(1) << 21;
     /// Depth up to which pixels have full confidence; beyond it the confidence falls as
     /// (reference / d)^2 (world units; 0 = no fall-off).
     double reference_depth = 0.0;
@@ -182,7 +186,14 @@ class Fusion {
   private:
     PipelineOptions options_;
     DepthOptions depth_;
-    SplatAccumulator accumulator_;
+    void add(const PointCloud& samples);
+    void flush() const;
+
+    // Samples are gathered into batches of depth.batch_samples before they are splatted (a
+    // batch sums in double and touches each block's stored sums once). Flushing a batch does
+    // not change what the fusion holds, so the const accessors may do it.
+    mutable SplatAccumulator accumulator_;
+    mutable PointCloud pending_;
     std::unique_ptr<detail::TsdfVolume> tsdf_;  ///< rule == tsdf
     std::size_t frames_ = 0;
 };

@@ -53,6 +53,9 @@ void bind_fusion(py::module_& m) {
         .field("merge_footprint", &DepthOptions::merge_footprint,
                "Frames whose pixel footprint is below this are merged into pixel blocks, world "
                "units; 0 = never, < 0 = half the smallest kernel (CLI --merge-footprint).")
+        .field("batch_samples", &DepthOptions::batch_samples,
+               "Samples gathered before they are splatted together, count; 0 = every frame on "
+               "its own. Only time and memory depend on it.")
         .field("reference_depth", &DepthOptions::reference_depth,
                "Beyond this depth the confidence falls as (reference/depth)^2, world units; 0 = "
                "off (CLI --reference-depth).");

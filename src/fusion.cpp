@@ -2,8 +2,11 @@
 // a SplatAccumulator.
 #include "vdbrecon/fusion.h"
 
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
+#include <exception>
 #include <memory>
 #include <sstream>
 
@@ -582,28 +585,77 @@ class FusionStart {
     std::unique_ptr<Fusion> fusion_;
 };
 
-/// A scene's frames (depth images, organized clouds), read and integrated one at a time.
+/// One depth frame read and turned into samples by the fusion's rules (or its error).
+struct FrameSamples {
+    PointCloud samples;
+    std::exception_ptr error;
+};
+
+FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion) {
+    FrameSamples out;
+    try {
+        const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
+        Intrinsics K = frame_intrinsics(f, img);
+        K.validate();
+        out.samples = depth_samples(img, K, f.pose, fusion.depth_options(), fusion.origin());
+    } catch (...) {
+        out.error = std::current_exception();
+    }
+    return out;
+}
+
+/// A scene's frames (depth images, organized clouds), read and integrated in order. With the
+/// splat rule, groups of frames are read and turned into samples in parallel, then added one
+/// after another in frame order (an error is the first bad frame's, whatever the threads).
 void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fusion) {
     const int threads = fusion.options().threads;
+    std::vector<const SceneFrame*> frames;
     for (std::size_t i = 0; i < scene.frames.size(); i += fo.frame_step) {
-        if (fo.max_frames > 0 && i / fo.frame_step == fo.max_frames) break;
-        const SceneFrame& f = scene.frames[i];
+        if (fo.max_frames > 0 && frames.size() == fo.max_frames) break;
+        frames.push_back(&scene.frames[i]);
+    }
+    constexpr std::size_t kGroup = 8;  // frames read at once: a few MB of samples each
+    for (std::size_t g = 0; g < frames.size();) {
+        const SceneFrame& f = *frames[g];
         try {
             if (f.organized) {
                 const OrganizedCloud c = read_organized_cloud(f.depth_path);
                 Fusion& fu = fusion.get(organized_samples(c, fo.depth), f.depth_path, c.origin);
                 detail::in_arena(threads, [&] { fu.integrate(c); });
+                ++g;
                 continue;
             }
-            const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
-            Intrinsics K = frame_intrinsics(f, img);
-            K.validate();
-            Fusion& fu = fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
-                                    Vec3d{f.pose[3], f.pose[7], f.pose[11]});
-            detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose); });
+            if (!fusion.started() || (*fusion).tsdf()) {  // the first frame, or the tsdf rule
+                const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
+                Intrinsics K = frame_intrinsics(f, img);
+                K.validate();
+                Fusion& fu = fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
+                                        Vec3d{f.pose[3], f.pose[7], f.pose[11]});
+                detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose); });
+                ++g;
+                continue;
+            }
         } catch (const Error& e) {
             rethrow_with(f.depth_path, e);
         }
+        std::size_t end = g;
+        while (end < frames.size() && end - g < kGroup && !frames[end]->organized) ++end;
+        std::vector<FrameSamples> group(end - g);
+        Fusion& fu = *fusion;
+        detail::in_arena(threads, [&] {
+            tbb::parallel_for(std::size_t(0), group.size(),
+                              [&](std::size_t j) { group[j] = frame_samples(*frames[g + j], fu); });
+        });
+        for (std::size_t j = 0; j < group.size(); ++j) {
+            try {
+                if (group[j].error) std::rethrow_exception(group[j].error);
+                detail::in_arena(threads, [&] { fu.integrate(group[j].samples); });
+            } catch (const Error& e) {
+                rethrow_with(frames[g + j]->depth_path, e);
+            }
+            group[j].samples = PointCloud{};
+        }
+        g = end;
     }
 }
 

@@ -182,6 +182,8 @@ class Fusion {
     std::size_t samples() const;
     const PipelineOptions& options() const { return options_; }
     const DepthOptions& depth_options() const { return depth_; }
+    const Vec3d& origin() const { return accumulator_.origin(); }
+    bool tsdf() const { return bool(tsdf_); }
 
   private:
     PipelineOptions options_;

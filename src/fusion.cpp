@@ -97,6 +97,14 @@ inline V3 cross(const V3& a, const V3& b) {
     return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
 }
 
+/// The element of rank n / 2 (the upper median) of v, which it reorders; 0 for none.
+template <typename T>
+double median_of(std::vector<T>& v) {
+    if (v.empty()) return 0.0;
+    std::nth_element(v.begin(), v.begin() + std::ptrdiff_t(v.size() / 2), v.end());
+    return double(v[v.size() / 2]);
+}
+
 /// A grid of sensor-centred points (an image's pixels, or blocks of them, or an organized
 /// cloud's points less the sensor position): valid[i] false where nothing was measured; r[i]
 /// the range (distance from the sensor), which the depth-jump tests compare; count[i] the
@@ -153,8 +161,7 @@ int merge_factor(const FramePoints& f, double focal, double merge_footprint) {
         if (f.valid[i]) z.push_back(f.r[i]);
     }
     if (z.empty()) return 1;
-    std::nth_element(z.begin(), z.begin() + std::ptrdiff_t(z.size() / 2), z.end());
-    const double footprint = z[z.size() / 2] / focal;
+    const double footprint = median_of(z) / focal;
     return std::clamp(int(std::floor(merge_footprint / footprint)), 1, 4);
 }
 
@@ -176,8 +183,7 @@ FramePoints merge_blocks(const FramePoints& f, int b, double max_jump) {
                 }
             }
             if (z.empty()) continue;
-            std::nth_element(z.begin(), z.begin() + std::ptrdiff_t(z.size() / 2), z.end());
-            const double ref = z[z.size() / 2];
+            const double ref = median_of(z);
             V3 sum{0, 0, 0};
             int n = 0;
             for (int v = bv * b; v < v1; ++v) {
@@ -280,9 +286,7 @@ double grid_focal(const FramePoints& f, double max_jump) {
             if (d > 0.0) q.push_back(f.r[i] / d);
         }
     }
-    if (q.empty()) return 1.0;
-    std::nth_element(q.begin(), q.begin() + std::ptrdiff_t(q.size() / 2), q.end());
-    return q[q.size() / 2];
+    return q.empty() ? 1.0 : median_of(q);
 }
 
 }  // namespace
@@ -534,21 +538,10 @@ Intrinsics frame_intrinsics(const SceneFrame& frame, const DepthImage& img) {
     return K;
 }
 
-/// The same error with `name: ` in front.
-[[noreturn]] void rethrow_with(const std::string& name, const Error& e) {
-    const std::string m = name + ": " + e.what();
-    if (dynamic_cast<const IoError*>(&e)) throw IoError(m);
-    if (dynamic_cast<const FormatError*>(&e)) throw FormatError(m);
-    if (dynamic_cast<const InvalidArgument*>(&e)) throw InvalidArgument(m);
-    throw NumericalError(m);
-}
-
 /// The median footprint of a frame's samples (world units), for the automatic voxel.
 double median_footprint(const PointCloud& s) {
     std::vector<float> f = s.scales.to_vector();
-    if (f.empty()) return 0.0;
-    std::nth_element(f.begin(), f.begin() + std::ptrdiff_t(f.size() / 2), f.end());
-    return double(f[f.size() / 2]);
+    return median_of(f);
 }
 
 }  // namespace
@@ -636,7 +629,7 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
                 continue;
             }
         } catch (const Error& e) {
-            rethrow_with(f.depth_path, e);
+            detail::rethrow_naming(f.depth_path, e);
         }
         std::size_t end = g;
         while (end < frames.size() && end - g < kGroup && !frames[end]->organized) ++end;
@@ -651,7 +644,7 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
                 if (group[j].error) std::rethrow_exception(group[j].error);
                 detail::in_arena(threads, [&] { fu.integrate(group[j].samples); });
             } catch (const Error& e) {
-                rethrow_with(frames[g + j]->depth_path, e);
+                detail::rethrow_naming(frames[g + j]->depth_path, e);
             }
             group[j].samples = PointCloud{};
         }

@@ -71,6 +71,17 @@ std::string stage_volume_path(const std::string& mesh_path, const std::string& s
     return stem + "." + stage + ".vdb";
 }
 
+[[noreturn]] void detail::rethrow_naming(const std::string& input, const Error& e) {
+    const std::string what = e.what();
+    if (what.rfind(input + ": ", 0) == 0) throw;
+    const std::string m = input + ": " + what;
+    if (dynamic_cast<const IoError*>(&e)) throw IoError(m);
+    if (dynamic_cast<const FormatError*>(&e)) throw FormatError(m);
+    if (dynamic_cast<const InvalidArgument*>(&e)) throw InvalidArgument(m);
+    if (dynamic_cast<const NumericalError*>(&e)) throw NumericalError(m);
+    throw Error(m);
+}
+
 double detail::peak_rss_mb() {
     struct rusage ru {};
     ::getrusage(RUSAGE_SELF, &ru);
@@ -89,19 +100,6 @@ std::string basename_stem(const std::string& path) {
     const std::size_t dot = base.find_last_of('.');
     if (dot != std::string::npos && dot > 0) base = base.substr(0, dot);
     return base;
-}
-
-/// Rethrows `e` as the same kind of error with "input: " in front, unless it names it already
-/// (the readers' errors do).
-[[noreturn]] void rethrow_naming(const std::string& input, const Error& e) {
-    const std::string what = e.what();
-    if (what.rfind(input + ": ", 0) == 0) throw;
-    const std::string m = input + ": " + what;
-    if (dynamic_cast<const IoError*>(&e)) throw IoError(m);
-    if (dynamic_cast<const FormatError*>(&e)) throw FormatError(m);
-    if (dynamic_cast<const InvalidArgument*>(&e)) throw InvalidArgument(m);
-    if (dynamic_cast<const NumericalError*>(&e)) throw NumericalError(m);
-    throw Error(m);
 }
 
 bool same_file(const std::string& a, const std::string& b) {
@@ -364,7 +362,7 @@ RunResult run_to_files(const std::string& input, const std::string& output,
             throw NumericalError(s.str());
         }
     } catch (const Error& e) {
-        rethrow_naming(input, e);
+        detail::rethrow_naming(input, e);
     } catch (const std::bad_alloc&) {
         throw NumericalError(input + ": out of memory. Hint: a larger --voxel, or a smaller "
                                      "--max-memory so that the estimate refuses such runs");

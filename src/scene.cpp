@@ -197,6 +197,13 @@ std::vector<std::pair<double, std::string>> tum_lines(const std::string& path) {
     return out;
 }
 
+/// The rotation matrix (row-major) of a unit quaternion.
+std::array<double, 9> quaternion_rotation(double x, double y, double z, double w) {
+    return {1 - 2 * (y * y + z * z), 2 * (x * y - z * w),     2 * (x * z + y * w),
+            2 * (x * y + z * w),     1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w),     2 * (y * z + x * w),     1 - 2 * (x * x + y * y)};
+}
+
 /// Camera-to-world from TUM's tx ty tz qx qy qz qw.
 Pose tum_pose(const std::string& values, const std::string& path, double t) {
     std::istringstream in(values);
@@ -209,7 +216,7 @@ Pose tum_pose(const std::string& values, const std::string& path, double t) {
             throw FormatError(detail::where(path, s.str()));
         }
     }
-    double x = v[3], y = v[4], z = v[5], w = v[6];
+    const double x = v[3], y = v[4], z = v[5], w = v[6];
     const double n = std::sqrt(x * x + y * y + z * z + w * w);
     if (!(std::fabs(n - 1.0) < 1e-2)) {
         std::ostringstream s;
@@ -217,11 +224,8 @@ Pose tum_pose(const std::string& values, const std::string& path, double t) {
         s << "pose at " << t << ": the quaternion has length " << n << ", not 1";
         throw FormatError(detail::where(path, s.str()));
     }
-    x /= n, y /= n, z /= n, w /= n;
-    return {1 - 2 * (y * y + z * z), 2 * (x * y - z * w),     2 * (x * z + y * w),     v[0],
-            2 * (x * y + z * w),     1 - 2 * (x * x + z * z), 2 * (y * z - x * w),     v[1],
-            2 * (x * z - y * w),     2 * (y * z + x * w),     1 - 2 * (x * x + y * y), v[2],
-            0, 0, 0, 1};
+    const std::array<double, 9> r = quaternion_rotation(x / n, y / n, z / n, w / n);
+    return {r[0], r[1], r[2], v[0], r[3], r[4], r[5], v[1], r[6], r[7], r[8], v[2], 0, 0, 0, 1};
 }
 
 Scene read_tum(const std::string& depth_txt, const SceneOptions& options) {
@@ -293,10 +297,10 @@ ScanSensors read_scan_sensors(const std::string& path) {
             }
             const double n = std::sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5] + v[6] * v[6]);
             if (!(std::fabs(n - 1.0) < 1e-2)) throw bad("the quaternion is not of unit length");
-            const double x = v[3] / n, y = v[4] / n, z = v[5] / n, w = v[6] / n;
             // world = R(q)^T p + t, the scanner looking along +z of the scan: R(q)^T e_z, the
             // third row of R(q).
-            out.directions.push_back({2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)});
+            const std::array<double, 9> r = quaternion_rotation(v[3] / n, v[4] / n, v[5] / n, v[6] / n);
+            out.directions.push_back({r[6], r[7], r[8]});
         } else {
             double v[3];
             std::istringstream row(line);

@@ -12,9 +12,14 @@
 #include <utility>
 #include <vector>
 
+#include "vdbrecon/error.h"
 #include "vdbrecon/pipeline.h"
 
 namespace vdbrecon::detail {
+
+/// Rethrows `e` as the same kind of error with "input: " in front, unless it names it already
+/// (the readers' errors do).
+[[noreturn]] void rethrow_naming(const std::string& input, const Error& e);
 
 /// The process's peak resident memory so far, MB.
 double peak_rss_mb();

@@ -2,7 +2,9 @@
 // fields stored one after another). Fields x y z, normal_x normal_y normal_z, rgb / rgba
 // (packed in a float or uint32), any others skipped; WIDTH x HEIGHT (organized when HEIGHT >
 // 1) and the VIEWPOINT (sensor position and orientation) are kept for fusion.
+#include <array>
 #include <cmath>
+#include <optional>
 #include <cstring>
 #include <sstream>
 
@@ -81,13 +83,19 @@ std::array<float, 3> unpack_rgb(const unsigned char* p) {
             float(bits & 255u) / 255.0f};
 }
 
-}  // namespace
-
-PcdData read_pcd(const std::string& path, std::string_view content) {
-    PcdData out;
+/// A PCD header: its fields (with offsets), counts, DATA kind; `pos` is where the data starts.
+struct Header {
     std::vector<Field> fields;
-    std::size_t points = 0, pos = 0, width = 0, height = 1;
+    std::size_t points = 0, width = 0, height = 1, record = 0, elements = 0, pos = 0;
     std::string data;
+    std::optional<std::array<double, 7>> viewpoint;
+};
+
+Header read_header(const std::string& path, std::string_view content) {
+    Header hd;
+    std::vector<Field>& fields = hd.fields;
+    std::size_t &points = hd.points, &pos = hd.pos, &width = hd.width, &height = hd.height;
+    std::string& data = hd.data;
     auto fail = [&](const std::string& m) { return FormatError(where(path, m)); };
     // Header: one keyword per line until DATA.
     while (data.empty()) {
@@ -121,7 +129,7 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
         } else if (key == "VIEWPOINT") {
             std::array<double, 7> v{};
             numbers(v);
-            out.viewpoint = v;
+            hd.viewpoint = v;
         } else if (key == "POINTS") {
             if (!(line >> points)) throw fail("bad PCD POINTS line");
         } else if (key == "DATA") {
@@ -136,7 +144,8 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
         throw fail("PCD WIDTH x HEIGHT (" + std::to_string(width) + " x " + std::to_string(height) +
                    ") does not match POINTS " + std::to_string(points));
     }
-    std::size_t record = 0, elements = 0;
+    std::size_t& record = hd.record;
+    std::size_t& elements = hd.elements;
     for (Field& f : fields) {
         const bool ok = f.count >= 1 && f.count <= 1024 &&
                         ((f.type == 'F' && (f.size == 4 || f.size == 8)) ||
@@ -147,6 +156,19 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
         record += std::size_t(f.size) * std::size_t(f.count);
         elements += std::size_t(f.count);
     }
+    return hd;
+}
+
+}  // namespace
+
+PcdData read_pcd(const std::string& path, std::string_view content) {
+    PcdData out;
+    const Header hd = read_header(path, content);
+    const std::vector<Field>& fields = hd.fields;
+    const std::size_t points = hd.points, record = hd.record, elements = hd.elements, pos = hd.pos;
+    const std::string& data = hd.data;
+    out.viewpoint = hd.viewpoint;
+    auto fail = [&](const std::string& m) { return FormatError(where(path, m)); };
     auto find = [&](const char* n) -> const Field* {
         for (const Field& f : fields) {
             if (f.name == n) return &f;
@@ -158,8 +180,8 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
     const Field *nx = find("normal_x"), *ny = find("normal_y"), *nz = find("normal_z");
     const Field* rgb = find("rgb") ? find("rgb") : find("rgba");
     const bool normals = nx && ny && nz, colors = rgb && rgb->size == 4;
-    out.width = width;
-    out.height = height;
+    out.width = hd.width;
+    out.height = hd.height;
     out.raw.xyz.resize(points * 3);
     if (normals) out.raw.normals.resize(points * 3);
     if (colors) out.raw.colors.resize(points * 3);

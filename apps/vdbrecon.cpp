@@ -152,6 +152,10 @@ void print_help() {
         << "                         watertight surface [" << d.close.solid_radius << ": off]\n"
         << "  --fill-holes N         fill the mesh's boundary loops of at most N edges with a\n"
         << "                         fair patch (Liepa 2003) [" << d.fill_holes << ": off]\n"
+        << "  --decimate R           keep at most R of the faces (QEM edge collapses, Garland &\n"
+        << "                         Heckbert 1997; topology, borders and colours kept) [1: off]\n"
+        << "  --max-error E          stop decimating before a collapse moves the surface more\n"
+        << "                         than E, world units [0: no limit]\n"
         << "  --watertight           a closed, manifold, one-piece mesh: keep the largest piece,\n"
         << "                         fill every hole; its volume goes to <out>.closed.vdb [off]\n"
         << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
@@ -386,6 +390,10 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.fill_holes = std::size_t(n);
     } else if (a == "--watertight") {
         o.watertight = true;
+    } else if (a == "--decimate") {
+        o.decimate.ratio = parse_number(a, args.value(a));
+    } else if (a == "--max-error") {
+        o.decimate.max_error = parse_number(a, args.value(a));
     } else if (a == "--mesher") {
         o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
     } else if (a == "--adaptivity") {
@@ -513,6 +521,11 @@ void report(const RunResult& r, const PipelineOptions& o,
             s << ", " << p.clean_stats.smoothed_iterations << " Taubin iterations";
         }
         s << "\n";
+        if (p.decimation.faces_before > 0) {
+            s << "vdbrecon: decimate: " << p.decimation.faces_before << " -> "
+              << p.decimation.faces_after << " faces (" << p.decimation.collapses
+              << " collapses, largest error " << p.decimation.max_error << ")\n";
+        }
         if (p.holes.loops > 0) {
             s << "vdbrecon: fill: " << p.holes.filled << " of " << p.holes.loops
               << " holes filled (" << p.holes.added_faces << " faces; largest " << p.holes.largest_filled

@@ -13,6 +13,7 @@
 #include <numeric>
 
 #include "detail/mesh_graph.h"
+#include "detail/vec3.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
 
@@ -37,7 +38,12 @@ void EvalOptions::validate() const {
 
 namespace {
 
-using V3 = std::array<double, 3>;
+using detail::V3;
+using detail::add;
+using detail::cross;
+using detail::dot;
+using detail::mul;
+using detail::sub;
 
 /// A number as JSON and messages print it (9 significant digits).
 std::string num(double v) {
@@ -46,13 +52,6 @@ std::string num(double v) {
     return buf;
 }
 
-inline V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-inline V3 add(const V3& a, const V3& b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
-inline V3 mul(const V3& a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
-inline double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-inline V3 cross(const V3& a, const V3& b) {
-    return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
 
 /// Closest point on triangle abc to p (C. Ericson, "Real-Time Collision Detection", 5.1.5).
 V3 closest_on_triangle(const V3& p, const V3& a, const V3& b, const V3& c) {

@@ -15,6 +15,7 @@
 #include "detail/tsdf.h"
 #include "vdbrecon/normals.h"
 #include "vdbrecon/scene.h"
+#include "detail/vec3.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -89,13 +90,10 @@ void DepthOptions::validate() const {
 
 namespace {
 
-using V3 = std::array<double, 3>;
-
-inline V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-inline double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-inline V3 cross(const V3& a, const V3& b) {
-    return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
+using detail::V3;
+using detail::cross;
+using detail::dot;
+using detail::sub;
 
 /// The element of rank n / 2 (the upper median) of v, which it reorders; 0 for none.
 template <typename T>

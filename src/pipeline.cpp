@@ -39,6 +39,7 @@ void PipelineOptions::validate() const {
     mesh.validate();
     clean.validate();
     preview.validate();
+    if (decimate.ratio != 1.0 || decimate.max_error != 0.0) decimate.validate();
     if (threads < 0 || threads > 1024) {
         throw InvalidArgument("threads = " + std::to_string(threads) + ": must be in 0..1024");
     }
@@ -209,6 +210,12 @@ void mesh_stages(PipelineResult& r, const PipelineOptions& options, const StageC
         r.clean_stats.mesh = Mesh{};
     }
     fill_and_close(r, options, frame, on_stage, on_volume);
+    if (options.decimate.ratio != 1.0 || options.decimate.max_error != 0.0) {
+        StageClock clock(r.timings, on_stage, "decimate");
+        r.decimation = vdbrecon::decimate(r.mesh, options.decimate);
+        r.mesh = std::move(r.decimation.mesh);
+        r.decimation.mesh = Mesh{};
+    }
 }
 
 /// reconstruct(); `consume`: free the cloud after the splat.

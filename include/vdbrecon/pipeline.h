@@ -11,6 +11,7 @@
 
 #include "vdbrecon/clean.h"
 #include "vdbrecon/close.h"
+#include "vdbrecon/decimate.h"
 #include "vdbrecon/holes.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/mesh.h"
@@ -48,6 +49,8 @@ struct PipelineOptions {
     /// loop is filled (whatever fill_holes says); the result's closed_volume (run():
     /// <out>.closed.vdb) is the signed distance field of that mesh.
     bool watertight = false;
+    /// QEM decimation of the final mesh (decimate.h); off while ratio is 1 and max_error 0.
+    DecimateOptions decimate;
     /// Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh.
     bool write_vdb = true;
     /// Return the splatted (and closed) volumes in the result. false frees them as soon as the
@@ -89,6 +92,7 @@ struct PipelineResult {
     MeshResult mesh_stats;      ///< mesh moved out; statistics kept
     CleanResult clean_stats;    ///< mesh moved into `mesh`; statistics kept
     HoleFillResult holes;       ///< mesh moved into `mesh`; statistics kept
+    DecimateResult decimation;  ///< mesh moved into `mesh`; statistics kept (none: 0 faces)
     double voxel_size = 0.0;    ///< the voxel used, world units
     bool voxel_chosen = false;  ///< true when it was picked automatically
     double spacing = 0.0;       ///< the median sample spacing it was picked from, world units

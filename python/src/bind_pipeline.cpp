@@ -29,6 +29,8 @@ void bind_pipeline(py::module_& m) {
         .nested("close", &PipelineOptions::close, "CloseOptions; off by default.")
         .nested("mesh", &PipelineOptions::mesh, "MeshOptions.")
         .nested("clean", &PipelineOptions::clean, "CleanOptions.")
+        .nested("decimate", &PipelineOptions::decimate,
+                "DecimateOptions; off while ratio is 1 and max_error 0.")
         .nested("write", &PipelineOptions::write, "WriteOptions (run() only).")
         .field("fill_holes", &PipelineOptions::fill_holes,
                "Fill the mesh's boundary loops of at most this many edges (Liepa 03), count; "

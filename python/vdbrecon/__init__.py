@@ -48,6 +48,8 @@ from ._vdbrecon import (  # noqa: F401  (re-exported)
     CloseOptions,
     DepthOptions,
     CloseResult,
+    DecimateOptions,
+    DecimateResult,
     Error,
     EvalOptions,
     EvalResult,
@@ -86,7 +88,7 @@ __version__ = _v.__version__
 __all__ = [
     "reconstruct", "run", "Fusion", "DepthOptions", "read_points", "read_mesh", "write_mesh", "write_points",
     "remove_outliers", "estimate_normals", "splat", "close", "extract_mesh", "clean_mesh",
-    "fill_holes", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
+    "fill_holes", "decimate", "DecimateOptions", "DecimateResult", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
     "version", "stage_volume_path",
     "PointCloud", "Mesh", "Volume", "PipelineOptions", "ReadOptions", "WriteOptions",
     "OutlierOptions", "NormalOptions", "SplatOptions", "CloseOptions", "MeshOptions",
@@ -584,6 +586,19 @@ mesh: Mesh or mesh path.
 Returns a HoleFillResult: .mesh, .loops, .filled, .added_faces, .added_vertices,
 .largest_filled, .largest_open.""",
           _struct_entries(HoleFillOptions), [_pos("mesh")])
+
+
+def decimate(mesh, **options):
+    return _v.decimate(_mesh(mesh, "mesh"), _fill(DecimateOptions, options, "decimate"))
+
+
+_document(decimate, """Decimates a mesh by quadric error metric edge collapses (Garland and
+Heckbert 1997), as reconstruct(ratio=..., max_error=...) does last: no collapse flips a face,
+makes the mesh non-manifold or changes its topology; open borders stay put; colours follow.
+
+mesh: Mesh or mesh path.
+Returns a DecimateResult: .mesh, .faces_before, .faces_after, .collapses, .max_error.""",
+          _struct_entries(DecimateOptions), [_pos("mesh")])
 
 
 def evaluate(recon, reference, **options):

@@ -1,0 +1,143 @@
+// QEM decimation: face counts, topology (closed stays closed, genus and pieces kept), borders
+// that stay put, colours carried, the error bound, on generated shapes with known answers.
+#include <catch2/catch.hpp>
+
+#include <cmath>
+
+#include "shapes.h"
+#include "support.h"
+#include "vdbrecon/decimate.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
+#include "vdbrecon/io.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+/// An n x n grid of squares on z = 0.1 sin(x) cos(y) over [0, 1]^2, two triangles each.
+Mesh wavy_sheet(int n) {
+    Mesh m;
+    std::vector<Vec3f> v;
+    std::vector<Vec3f> c;
+    for (int j = 0; j <= n; ++j) {
+        for (int i = 0; i <= n; ++i) {
+            const double x = double(i) / n, y = double(j) / n;
+            v.push_back({float(x), float(y), float(0.1 * std::sin(3 * x) * std::cos(3 * y))});
+            c.push_back({float(x), float(y), 0.5f});  // colour = position: checkable after
+        }
+    }
+    std::vector<Triangle> f;
+    for (int j = 0; j < n; ++j) {
+        for (int i = 0; i < n; ++i) {
+            const int a = j * (n + 1) + i, b = a + 1, d = a + n + 1, e = d + 1;
+            f.push_back({a, b, e});
+            f.push_back({a, e, d});
+        }
+    }
+    m.vertices = std::move(v);
+    m.colors = std::move(c);
+    m.faces = std::move(f);
+    return m;
+}
+
+}  // namespace
+
+TEST_CASE("decimation keeps closed shapes closed, their genus and pieces", "[decimate]") {
+    for (const char* name : {"sphere", "torus", "drilled", "blob"}) {
+        const Shape s = make_shape(name);
+        const TopologyStats before = mesh_topology(s.mesh);
+        DecimateOptions o;
+        o.ratio = 0.1;
+        const DecimateResult r = decimate(s.mesh, o);
+        const TopologyStats after = mesh_topology(r.mesh);
+        INFO(name << ": " << before.faces << " -> " << after.faces << " faces, largest error "
+                  << r.max_error);
+        if (s.cad) {
+            // A CAD part's coarse tessellation runs out of collapses that keep its faces from
+            // flipping before 10 %: fewer faces, not the target.
+            CHECK(after.faces < before.faces / 4);
+        } else {
+            CHECK(after.faces <= std::size_t(std::ceil(0.1 * double(before.faces))) + 1);
+        }
+        CHECK(after.faces == r.faces_after);
+        CHECK(after.watertight());
+        CHECK(after.components == before.components);
+        CHECK(after.euler == before.euler);
+        CHECK(after.degenerate_faces == 0);
+        // The surface stays near the original: within 2 % of the part's size everywhere.
+        EvalOptions e;
+        e.taus = {0.01};
+        e.samples = 100000;
+        const EvalResult d = evaluate(r.mesh, s.mesh, e);
+        CHECK(d.hausdorff <= 0.02 * bounding_box(s.mesh.vertices).diagonal());
+        CHECK(d.normal_consistency >= 0.95);
+    }
+}
+
+TEST_CASE("decimation leaves the open border in place and carries the colours", "[decimate]") {
+    const Mesh sheet = wavy_sheet(60);
+    DecimateOptions o;
+    o.ratio = 0.05;
+    const DecimateResult r = decimate(sheet, o);
+    const TopologyStats t = mesh_topology(r.mesh);
+    CHECK(t.faces <= std::size_t(std::ceil(0.05 * double(sheet.faces.size()))) + 1);
+    CHECK(t.components == 1);
+    CHECK(t.nonmanifold_edges == 0);
+    CHECK(boundary_loops(r.mesh) == 1);
+    // Every vertex on the new border is on the square's border (x or y is 0 or 1).
+    const std::vector<double> loops = boundary_loop_lengths(r.mesh);
+    REQUIRE(loops.size() == 1);
+    CHECK(loops[0] == Approx(boundary_loop_lengths(sheet)[0]).epsilon(0.01));
+    // Colours follow the vertices: colour = (x, y) to within the length of a collapsed edge.
+    REQUIRE(r.mesh.colors.size() == r.mesh.vertices.size());
+    double worst = 0.0;
+    for (std::size_t i = 0; i < r.mesh.vertices.size(); ++i) {
+        worst = std::max({worst, std::fabs(double(r.mesh.colors[i][0] - r.mesh.vertices[i][0])),
+                          std::fabs(double(r.mesh.colors[i][1] - r.mesh.vertices[i][1]))});
+    }
+    CHECK(worst < 0.1);
+}
+
+TEST_CASE("max_error stops the decimation at a distance", "[decimate]") {
+    const Shape s = make_shape("torus");
+    DecimateOptions loose, tight;
+    loose.max_error = 1e-2;
+    tight.max_error = 1e-4;
+    const DecimateResult a = decimate(s.mesh, loose), b = decimate(s.mesh, tight);
+    CHECK(a.max_error <= 1e-2);
+    CHECK(b.max_error <= 1e-4);
+    CHECK(a.faces_after < b.faces_after);
+    CHECK(b.faces_after < s.mesh.faces.size());
+    CHECK(mesh_topology(a.mesh).watertight());
+    DecimateOptions none;
+    CHECK_THROWS_AS(decimate(s.mesh, none), InvalidArgument);
+    none.ratio = 1.5;
+    CHECK_THROWS_WITH(decimate(s.mesh, none), Catch::Contains("ratio"));
+}
+
+TEST_CASE("the bunny at 0.5 mm decimated to a tenth keeps its topology and its fit", "[decimate][data]") {
+    const std::string scans = shared_data("stanford_bunny/bun_scans_aligned.ply");
+    const std::string gt = shared_data("stanford_bunny/bun_zipper_gt.ply");
+    if (scans.empty() || gt.empty()) return;
+    TempDir dir;
+    const CliRun full = run_cli("'" + scans + "' -o '" + dir.file("full.ply") + "' --voxel 0.0005 -q --no-vdb");
+    const CliRun tenth = run_cli("'" + scans + "' -o '" + dir.file("tenth.ply") +
+                                 "' --voxel 0.0005 --decimate 0.1 -q --no-vdb");
+    REQUIRE(full.code == 0);
+    REQUIRE(tenth.code == 0);
+    const Mesh a = read_mesh(dir.file("full.ply")), b = read_mesh(dir.file("tenth.ply"));
+    const TopologyStats ta = mesh_topology(a), tb = mesh_topology(b);
+    CHECK(double(tb.faces) <= 0.105 * double(ta.faces));
+    CHECK(tb.boundary_edges <= ta.boundary_edges);
+    CHECK(tb.nonmanifold_edges == 0);
+    CHECK(tb.components == 1);
+    CHECK(tb.euler == ta.euler);
+    EvalOptions o;
+    o.taus = {0.0005};
+    o.samples = 300000;
+    const EvalResult e = evaluate(b, read_mesh(gt), o);
+    INFO("F@0.5mm " << e.fscores[0].fscore << ", chamfer " << e.chamfer_l1 * 1e6 << " um");
+    CHECK(e.fscores[0].fscore >= 0.995);
+}

@@ -63,6 +63,16 @@ struct Quadric {
         return a2 * x * x + 2 * ab * x * y + 2 * ac * x * z + 2 * ad * x + b2 * y * y +
                2 * bc * y * z + 2 * bd * y + c2 * z * z + 2 * cd * z + d2;
     }
+    /// A v + b: half the gradient of Q at v.
+    V3 gradient(const V3& v) const {
+        return {a2 * v[0] + ab * v[1] + ac * v[2] + ad, ab * v[0] + b2 * v[1] + bc * v[2] + bd,
+                ac * v[0] + bc * v[1] + c2 * v[2] + cd};
+    }
+    /// d^T A d: Q's curvature along d.
+    double along(const V3& d) const {
+        return a2 * d[0] * d[0] + 2 * ab * d[0] * d[1] + 2 * ac * d[0] * d[2] + b2 * d[1] * d[1] +
+               2 * bc * d[1] * d[2] + c2 * d[2] * d[2];
+    }
     /// The point minimising the quadric, when its 3x3 part is well conditioned.
     bool minimum(V3& v) const {
         const double det = a2 * (b2 * c2 - bc * bc) - ab * (ab * c2 - bc * ac) + ac * (ab * bc - b2 * ac);
@@ -209,14 +219,19 @@ class Decimator {
         Quadric q = q_[std::size_t(a)];
         q += q_[std::size_t(b)];
         Candidate c{0.0, 0.0, a, b, version_[std::size_t(a)], version_[std::size_t(b)], {}};
-        if (!q.minimum(c.target)) {  // degenerate: the best of the ends and the midpoint
-            const V3& pa = p_[std::size_t(a)];
-            const V3& pb = p_[std::size_t(b)];
-            const V3 mid = {0.5 * (pa[0] + pb[0]), 0.5 * (pa[1] + pb[1]), 0.5 * (pa[2] + pb[2])};
-            c.target = pa;
-            for (const V3& x : {pb, mid}) {
-                if (q(x) < q(c.target)) c.target = x;
-            }
+        const V3& pa = p_[std::size_t(a)];
+        const V3& pb = p_[std::size_t(b)];
+        const V3 d = sub(pb, pa);
+        const V3 mid = {pa[0] + 0.5 * d[0], pa[1] + 0.5 * d[1], pa[2] + 0.5 * d[2]};
+        // The optimum, unless the quadric is (nearly) singular and it slides away along a flat
+        // region (farther from the edge's midpoint than the edge is long): then the best point
+        // of the edge, Q(a + t d) being a parabola in t.
+        const bool optimum = q.minimum(c.target) && dot(sub(c.target, mid), sub(c.target, mid)) <= dot(d, d);
+        if (!optimum) {
+            const V3 g = q.gradient(pa);
+            const double curv = q.along(d);
+            const double t = curv > 0.0 ? std::clamp(-dot(g, d) / curv, 0.0, 1.0) : 0.5;
+            c.target = {pa[0] + t * d[0], pa[1] + t * d[1], pa[2] + t * d[2]};
         }
         c.cost = q(c.target);
         c.error = std::sqrt(std::max(0.0, c.cost) / std::max(q.w, 1e-300));

@@ -156,6 +156,8 @@ void print_help() {
         << "                         Heckbert 1997; topology, borders and colours kept) [1: off]\n"
         << "  --max-error E          stop decimating before a collapse moves the surface more\n"
         << "                         than E, world units [0: no limit]\n"
+        << "  --placement P          decimated vertex: edge (the quadric's minimum on the edge)\n"
+        << "                         or free (its unconstrained minimum) [edge]\n"
         << "  --watertight           a closed, manifold, one-piece mesh: keep the largest piece,\n"
         << "                         fill every hole; its volume goes to <out>.closed.vdb [off]\n"
         << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
@@ -394,6 +396,8 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.decimate.ratio = parse_number(a, args.value(a));
     } else if (a == "--max-error") {
         o.decimate.max_error = parse_number(a, args.value(a));
+    } else if (a == "--placement") {
+        o.decimate.placement = parse_choice(a, args.value(a), placement_choices());
     } else if (a == "--mesher") {
         o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
     } else if (a == "--adaptivity") {

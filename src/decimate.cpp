@@ -223,10 +223,11 @@ class Decimator {
         const V3& pb = p_[std::size_t(b)];
         const V3 d = sub(pb, pa);
         const V3 mid = {pa[0] + 0.5 * d[0], pa[1] + 0.5 * d[1], pa[2] + 0.5 * d[2]};
-        // The optimum, unless the quadric is (nearly) singular and it slides away along a flat
-        // region (farther from the edge's midpoint than the edge is long): then the best point
-        // of the edge, Q(a + t d) being a parabola in t.
-        const bool optimum = q.minimum(c.target) && dot(sub(c.target, mid), sub(c.target, mid)) <= dot(d, d);
+        // Placement::free: the optimum, unless the quadric is (nearly) singular and it slides
+        // away along a flat region (farther from the edge's midpoint than the edge is long).
+        // Otherwise the best point of the edge, Q(a + t d) being a parabola in t.
+        const bool optimum = o_.placement == Placement::free && q.minimum(c.target) &&
+                             dot(sub(c.target, mid), sub(c.target, mid)) <= dot(d, d);
         if (!optimum) {
             const V3 g = q.gradient(pa);
             const double curv = q.along(d);
@@ -308,7 +309,17 @@ class Decimator {
         p_[std::size_t(a)] = c.target;
         q_[std::size_t(a)] += q_[std::size_t(b)];
         border_[std::size_t(a)] = border_[std::size_t(a)] || border_[std::size_t(b)];
-        for (std::int32_t f : shared) alive_face_[std::size_t(f)] = 0;
+        // The shared faces go, also from the lists of their third vertices (a dead face left
+        // there made later collapses at those vertices see a third face on an edge, or
+        // neighbours that are not, and refuse).
+        for (std::int32_t f : shared) {
+            alive_face_[std::size_t(f)] = 0;
+            for (std::int32_t w : faces_[std::size_t(f)]) {
+                if (w == a || w == b) continue;
+                auto& list = around_[std::size_t(w)];
+                list.erase(std::remove(list.begin(), list.end(), f), list.end());
+            }
+        }
         std::vector<std::int32_t> merged;
         for (std::int32_t f : around_[std::size_t(a)]) {
             if (alive_face_[std::size_t(f)]) merged.push_back(f);

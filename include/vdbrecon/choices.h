@@ -6,6 +6,7 @@
 #include <utility>
 #include <vector>
 
+#include "vdbrecon/decimate.h"
 #include "vdbrecon/fusion.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/mesh.h"
@@ -33,6 +34,10 @@ inline const Choices<Mesher>& mesher_choices() {
 }
 inline const Choices<DepthKind>& depth_kind_choices() {
     static const Choices<DepthKind> c = {{"planar", DepthKind::planar}, {"ray", DepthKind::ray}};
+    return c;
+}
+inline const Choices<Placement>& placement_choices() {
+    static const Choices<Placement> c = {{"edge", Placement::edge}, {"free", Placement::free}};
     return c;
 }
 inline const Choices<FusionRule>& fusion_rule_choices() {

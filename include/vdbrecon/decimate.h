@@ -18,12 +18,23 @@
 
 namespace vdbrecon {
 
+/// Where a collapsed edge's vertex goes.
+enum class Placement {
+    edge,  ///< the quadric's minimum on the edge (a parabola in the edge parameter): the new
+           ///< vertex stays on the surface's chords; on scans the lower distance to the truth
+    free,  ///< the quadric's unconstrained minimum (Garland and Heckbert's optimal position;
+           ///< the best point of the edge where it is ill-conditioned)
+};
+
 struct DecimateOptions {
     /// Keep at most this fraction of the faces (0 < ratio <= 1; 1 = no face-count target).
     double ratio = 1.0;
     /// Stop before a collapse whose error (the root of its quadric error: a distance, world
     /// units) exceeds this; 0 = no limit.
     double max_error = 0.0;
+    /// Where the merged vertex goes. Bunny at 0.5 mm, ratio 0.1: edge Chamfer 51.3 um,
+    /// free 55.6 um (Open3D's simplify_quadric_decimation 52.3 um) against the reference.
+    Placement placement = Placement::edge;
     /// Border quadrics' weight against the faces' (dimensionless).
     double border_weight = 1000.0;
     /// A collapse may turn a face's normal by at most this (degrees).

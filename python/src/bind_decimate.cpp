@@ -1,5 +1,6 @@
 // QEM decimation (vdbrecon/decimate.h).
 #include "bind.h"
+#include "vdbrecon/choices.h"
 #include "vdbrecon/decimate.h"
 
 namespace vdbrecon::python {
@@ -14,6 +15,9 @@ void bind_decimate(py::module_& m) {
         .field("max_error", &DecimateOptions::max_error,
                "No collapse whose error (RMS distance to the original planes) exceeds this, "
                "world units; 0 = no limit (CLI --max-error).")
+        .choice("placement", &DecimateOptions::placement, placement_choices(),
+                "'edge': the quadric's minimum on the collapsed edge (closer to the scanned "
+                "surface); 'free': its unconstrained minimum (CLI --placement).")
         .field("border_weight", &DecimateOptions::border_weight,
                "Weight of the open border's planes against the faces' (dimensionless).")
         .field("max_normal_turn", &DecimateOptions::max_normal_turn,

@@ -601,9 +601,7 @@ int run_fuse(Args& args, double startup_rss_mb) {
             if (v.size() == 6) K.width = int(v[4]), K.height = int(v[5]);
             f.scene.intrinsics = K;
         } else if (a == "--depth-kind") {
-            const std::string k = args.value(a);
-            if (k != "planar" && k != "ray") throw UsageError("--depth-kind: planar or ray, not '" + k + "'");
-            f.depth.kind = k == "ray" ? DepthKind::ray : DepthKind::planar;
+            f.depth.kind = parse_choice(a, args.value(a), depth_kind_choices());
         } else if (a == "--min-depth") {
             f.depth.min_depth = parse_number(a, args.value(a));
         } else if (a == "--max-depth") {
@@ -615,9 +613,7 @@ int run_fuse(Args& args, double startup_rss_mb) {
         } else if (a == "--scan-origins") {
             f.scan_sensors = args.value(a);
         } else if (a == "--fusion") {
-            const std::string k = args.value(a);
-            if (k != "splat" && k != "tsdf") throw UsageError("--fusion: splat or tsdf, not '" + k + "'");
-            f.depth.rule = k == "tsdf" ? FusionRule::tsdf : FusionRule::splat;
+            f.depth.rule = parse_choice(a, args.value(a), fusion_rule_choices());
         } else if (a == "--sdf-trunc") {
             f.depth.truncation = parse_number(a, args.value(a));
         } else if (a == "--no-carve") {

@@ -365,8 +365,11 @@ PointCloud scan_samples(const PointCloud& scan, const std::optional<Vec3d>& orig
     return out;
 }
 
-PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
-                         const DepthOptions& options, const Vec3d& origin) {
+namespace {
+
+/// Refuses a frame whose image, intrinsics, pose or options do not fit together.
+void check_frame(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
+                 const DepthOptions& options) {
     K.validate();
     options.validate();
     validate_pose(pose);
@@ -379,6 +382,13 @@ PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pos
     if (depth.depth.size() != std::size_t(depth.width) * std::size_t(depth.height)) {
         throw InvalidArgument("depth image: its values do not fill width x height");
     }
+}
+
+}  // namespace
+
+PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
+                         const DepthOptions& options, const Vec3d& origin) {
+    check_frame(depth, K, pose, options);
     const double focal = 0.5 * (K.fx + K.fy);
     FramePoints f = back_project(depth, K, options);
     const int b = merge_factor(f, focal, options.merge_footprint);
@@ -450,10 +460,15 @@ void Fusion::flush() const {
 
 std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose) {
     if (tsdf_) {
+        check_frame(depth, K, pose, depth_);
+        const FramePoints f = back_project(depth, K, depth_);
         ++frames_;
-        return tsdf_->integrate(depth, K, pose, depth_);
+        return tsdf_->integrate(f.p, f.valid, K, pose);
     }
-    const PointCloud samples = depth_samples(depth, K, pose, depth_, accumulator_.origin());
+    return add_frame(depth_samples(depth, K, pose, depth_, accumulator_.origin()));
+}
+
+std::size_t Fusion::add_frame(const PointCloud& samples) {
     ++frames_;
     if (samples.empty()) return 0;
     add(samples);
@@ -462,22 +477,17 @@ std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, cons
 
 std::size_t Fusion::integrate(const PointCloud& cloud) {
     if (tsdf_) throw InvalidArgument("fusion: the tsdf rule integrates depth images, not clouds");
-    if (cloud.empty()) return 0;
-    if (cloud.origin == accumulator_.origin()) {
-        add(cloud);
-    } else {  // the same points in the fusion's frame
-        PointCloud moved = cloud.view();
-        std::vector<Vec3f> p(cloud.positions.begin(), cloud.positions.end());
-        const Vec3d& o = accumulator_.origin();
-        for (Vec3f& x : p) {
-            for (int a = 0; a < 3; ++a) x[a] = float(double(x[a]) + cloud.origin[a] - o[a]);
-        }
-        moved.positions = std::move(p);
-        moved.origin = o;
-        add(moved);
+    if (cloud.empty() || cloud.origin == accumulator_.origin()) return add_frame(cloud);
+    // The same points in the fusion's frame.
+    PointCloud moved = cloud.view();
+    std::vector<Vec3f> p(cloud.positions.begin(), cloud.positions.end());
+    const Vec3d& o = accumulator_.origin();
+    for (Vec3f& x : p) {
+        for (int a = 0; a < 3; ++a) x[a] = float(double(x[a]) + cloud.origin[a] - o[a]);
     }
-    ++frames_;
-    return cloud.size();
+    moved.positions = std::move(p);
+    moved.origin = o;
+    return add_frame(moved);
 }
 
 SplatResult Fusion::splat() const {
@@ -506,11 +516,7 @@ SplatResult Fusion::splat() const {
 
 std::size_t Fusion::integrate(const OrganizedCloud& cloud) {
     if (tsdf_) throw InvalidArgument("fusion: the tsdf rule integrates depth images, not clouds");
-    const PointCloud samples = organized_samples(cloud, depth_, accumulator_.origin());
-    ++frames_;
-    if (samples.empty()) return 0;
-    add(samples);
-    return samples.size();
+    return add_frame(organized_samples(cloud, depth_, accumulator_.origin()));
 }
 
 Volume Fusion::volume() const { return splat().volume; }
@@ -586,8 +592,7 @@ FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion) {
     FrameSamples out;
     try {
         const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
-        Intrinsics K = frame_intrinsics(f, img);
-        K.validate();
+        const Intrinsics K = frame_intrinsics(f, img);  // checked with the frame
         out.samples = depth_samples(img, K, f.pose, fusion.depth_options(), fusion.origin());
     } catch (...) {
         out.error = std::current_exception();
@@ -618,10 +623,12 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
             }
             if (!fusion.started() || (*fusion).tsdf()) {  // the first frame, or the tsdf rule
                 const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
-                Intrinsics K = frame_intrinsics(f, img);
-                K.validate();
-                Fusion& fu = fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
-                                        Vec3d{f.pose[3], f.pose[7], f.pose[11]});
+                const Intrinsics K = frame_intrinsics(f, img);
+                if (!fusion.started()) {  // its samples choose the voxel
+                    fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
+                               Vec3d{f.pose[3], f.pose[7], f.pose[11]});
+                }
+                Fusion& fu = *fusion;
                 detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose); });
                 ++g;
                 continue;

@@ -18,33 +18,22 @@ TsdfVolume::TsdfVolume(double voxel, double truncation_voxels, bool carve, const
     : voxel_(voxel), truncation_(truncation_voxels * voxel), carve_(carve), origin_(origin),
       value_(openvdb::FloatGrid::create(1.0f)), weight_(openvdb::FloatGrid::create(0.0f)) {}
 
-std::size_t TsdfVolume::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& m,
-                                  const DepthOptions& options) {
-    K.validate();
-    validate_pose(m);
-    if (depth.width != K.width || depth.height != K.height) {
-        throw InvalidArgument("depth image is " + std::to_string(depth.width) + " x " +
-                              std::to_string(depth.height) + " pixels, the intrinsics say " +
-                              std::to_string(K.width) + " x " + std::to_string(K.height));
-    }
-    const int w = depth.width, h = depth.height;
-    const double max_depth = options.max_depth > 0.0 ? options.max_depth : HUGE_VAL;
+std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& points,
+                                  const std::vector<char>& measured, const Intrinsics& K,
+                                  const Pose& m) {
+    const int w = K.width, h = K.height;
     // Planar depth per pixel (0: none).
     std::vector<double> z(std::size_t(w) * std::size_t(h), 0.0);
     std::vector<openvdb::Coord> leaves;
     const int reach = int(std::ceil(truncation_ / voxel_));
     std::size_t valid = 0;
-    for (int v = 0; v < h; ++v) {
-        for (int u = 0; u < w; ++u) {
-            const std::size_t i = std::size_t(v) * std::size_t(w) + std::size_t(u);
-            double d = double(depth.depth[i]);
-            if (!(std::isfinite(d) && d > options.min_depth && d > 0.0 && d <= max_depth)) continue;
-            const double x = (u - K.cx) / K.fx, y = (v - K.cy) / K.fy;
-            if (options.kind == DepthKind::ray) d /= std::sqrt(x * x + y * y + 1.0);
-            z[i] = d;
-            ++valid;
+    for (std::size_t i = 0; i < z.size(); ++i) {
+        if (!measured[i]) continue;
+        const std::array<double, 3>& c = points[i];
+        z[i] = c[2];
+        ++valid;
+        {
             // The leaves within the truncation of the pixel's point.
-            const double c[3] = {x * d, y * d, d};
             openvdb::Coord lo, hi;
             for (int a = 0; a < 3; ++a) {
                 const double wpt = m[std::size_t(4 * a)] * c[0] + m[std::size_t(4 * a + 1)] * c[1] +

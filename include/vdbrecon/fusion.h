@@ -188,6 +188,8 @@ class Fusion {
   private:
     PipelineOptions options_;
     DepthOptions depth_;
+    /// Counts a frame and adds its samples; returns their count.
+    std::size_t add_frame(const PointCloud& samples);
     void add(const PointCloud& samples);
     void flush() const;
 

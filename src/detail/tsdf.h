@@ -16,6 +16,9 @@
 
 #include <openvdb/openvdb.h>
 
+#include <array>
+#include <vector>
+
 #include "vdbrecon/fusion.h"
 #include "vdbrecon/splat.h"
 
@@ -25,9 +28,11 @@ class TsdfVolume {
   public:
     TsdfVolume(double voxel, double truncation_voxels, bool carve, const Vec3d& origin);
 
-    /// Adds a frame; returns its valid pixels.
-    std::size_t integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
-                          const DepthOptions& options);
+    /// Adds a frame, given as its pixels' camera-frame points (planar depth in [2]; the
+    /// back-projection and the measurement rules of depth_samples) and whether each was
+    /// measured; returns the measured pixels.
+    std::size_t integrate(const std::vector<std::array<double, 3>>& points,
+                          const std::vector<char>& measured, const Intrinsics& K, const Pose& pose);
     /// The volume: sdf = value x truncation (world units) on the voxels with |value| < 1,
     /// weight = frames that saw them, nearest = 0 (no sample positions: no trims).
     SplatResult result() const;

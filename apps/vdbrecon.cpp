@@ -198,6 +198,9 @@ void print_help() {
         << "  --sdf-trunc T          tsdf truncation, voxels [4]; --no-carve: no carving\n"
         << "  --merge-footprint F    merge pixel blocks of frames whose footprint is below F,\n"
         << "                         world units; 0 = never [min-sigma x voxel / 2]\n"
+        << "  --aggregate C          presum samples of one cell of C sigmas, one normal\n"
+        << "                         direction and sigma level into one kernel; 0 = off ["
+        << fmt(DepthOptions{}.aggregate) << "]\n"
         << "  --frame-step N, --max-frames N  every N-th frame; at most N frames [1, all]\n"
         << "  the voxel defaults to 1.4 x the first frame's median pixel footprint\n"
         << "\n"
@@ -620,6 +623,8 @@ int run_fuse(Args& args, double startup_rss_mb) {
             f.depth.carve = false;
         } else if (a == "--merge-footprint") {
             f.depth.merge_footprint = parse_number(a, args.value(a));
+        } else if (a == "--aggregate") {
+            f.depth.aggregate = parse_number(a, args.value(a));
         } else if (a == "--reference-depth") {
             f.depth.reference_depth = parse_number(a, args.value(a));
         } else if (a == "--frame-step" || a == "--max-frames") {

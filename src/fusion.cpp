@@ -83,6 +83,9 @@ void DepthOptions::validate() const {
     if (!(std::isfinite(truncation) && truncation >= 1.0 && truncation <= 64.0)) {
         throw InvalidArgument("depth.truncation must be in 1..64 voxels");
     }
+    if (!(std::isfinite(aggregate) && aggregate >= 0.0 && aggregate <= 4.0)) {
+        throw InvalidArgument("depth.aggregate must be in 0..4 (sigmas; 0 = off)");
+    }
     if (!(std::isfinite(reference_depth) && reference_depth >= 0.0)) {
         throw InvalidArgument("depth.reference_depth must be a non-negative number (0 = off)");
     }
@@ -426,10 +429,25 @@ Fusion::Fusion(Fusion&&) noexcept = default;
 Fusion& Fusion::operator=(Fusion&&) noexcept = default;
 
 std::size_t Fusion::samples() const {
-    return tsdf_ ? tsdf_->pixels() : accumulator_.points() + pending_.size();
+    return tsdf_ ? tsdf_->pixels() : samples_;
 }
 
-void Fusion::add(const PointCloud& samples) {
+PointCloud Fusion::presum(const PointCloud& samples) const {
+    return aggregate_samples(samples.view(), options_.splat, depth_.aggregate);
+}
+
+std::size_t Fusion::integrate_presummed(const PointCloud& groups, std::size_t samples) {
+    if (tsdf_) throw InvalidArgument("fusion: the tsdf rule integrates depth images, not clouds");
+    ++frames_;
+    add(groups, samples);
+    return samples;
+}
+
+// A frame's samples are presummed on their own (they fit the caches), the batch's groups once
+// more when it is flushed (the frames' groups of one cell become one).
+void Fusion::add(const PointCloud& samples, std::size_t count) {
+    samples_ += count;
+    if (samples.empty()) return;
     if (depth_.batch_samples == 0) {
         accumulator_.add(samples);
         return;
@@ -454,7 +472,7 @@ void Fusion::add(const PointCloud& samples) {
 
 void Fusion::flush() const {
     if (pending_.empty()) return;
-    accumulator_.add(pending_);
+    accumulator_.add(aggregate_samples(std::move(pending_), options_.splat, depth_.aggregate));
     pending_ = PointCloud{};
 }
 
@@ -471,7 +489,7 @@ std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, cons
 std::size_t Fusion::add_frame(const PointCloud& samples) {
     ++frames_;
     if (samples.empty()) return 0;
-    add(samples);
+    add(presum(samples), samples.size());
     return samples.size();
 }
 
@@ -582,9 +600,11 @@ class FusionStart {
     std::unique_ptr<Fusion> fusion_;
 };
 
-/// One depth frame read and turned into samples by the fusion's rules (or its error).
+/// One depth frame read, turned into samples by the fusion's rules and presummed (or its
+/// error).
 struct FrameSamples {
-    PointCloud samples;
+    PointCloud groups;
+    std::size_t count = 0;  ///< samples
     std::exception_ptr error;
 };
 
@@ -593,7 +613,10 @@ FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion) {
     try {
         const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
         const Intrinsics K = frame_intrinsics(f, img);  // checked with the frame
-        out.samples = depth_samples(img, K, f.pose, fusion.depth_options(), fusion.origin());
+        const PointCloud samples =
+            depth_samples(img, K, f.pose, fusion.depth_options(), fusion.origin());
+        out.count = samples.size();
+        out.groups = fusion.presum(samples);
     } catch (...) {
         out.error = std::current_exception();
     }
@@ -647,11 +670,12 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
         for (std::size_t j = 0; j < group.size(); ++j) {
             try {
                 if (group[j].error) std::rethrow_exception(group[j].error);
-                detail::in_arena(threads, [&] { fu.integrate(group[j].samples); });
+                detail::in_arena(threads,
+                                 [&] { fu.integrate_presummed(group[j].groups, group[j].count); });
             } catch (const Error& e) {
                 detail::rethrow_naming(frames[g + j]->depth_path, e);
             }
-            group[j].samples = PointCloud{};
+            group[j].groups = PointCloud{};
         }
         g = end;
     }

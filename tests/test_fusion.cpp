@@ -572,3 +572,30 @@ TEST_CASE("fuse: the bunny's ten range scans with their scanners from bun.conf",
     CHECK(e.fscores[0].fscore >= 0.995);
     CHECK(e.recon.components == 1);
 }
+
+TEST_CASE("presummed frames fuse the same surface with a fraction of the kernels", "[fusion][aggregate]") {
+    for (const char* name : {"sphere", "boss"}) {
+        const Shape shape = make_shape(name);
+        const double voxel = bounding_box(shape.mesh.vertices).diagonal() / 80.0;
+        const Views v = views_of(shape.mesh, 24, 320, 240);
+        auto fuse_with = [&](double aggregate, std::size_t& updates) {
+            DepthOptions d;
+            d.aggregate = aggregate;
+            Fusion f(fusion_options(voxel), d);
+            for (std::size_t i = 0; i < v.depths.size(); ++i) f.integrate(v.depths[i], v.K, v.poses[i]);
+            updates = f.splat().updates;
+            return compare(f.reconstruct().mesh, shape.mesh, voxel);
+        };
+        std::size_t raw_updates = 0, sum_updates = 0;
+        const EvalResult raw = fuse_with(0.0, raw_updates);
+        const EvalResult sum = fuse_with(DepthOptions{}.aggregate, sum_updates);
+        INFO(name << ": chamfer " << sum.chamfer_l1 / voxel << " voxel presummed, "
+                  << raw.chamfer_l1 / voxel << " raw; kernel updates " << sum_updates << " vs "
+                  << raw_updates);
+        CHECK(sum_updates * 3 < raw_updates);
+        CHECK(sum.fscores[0].fscore >= 0.99);
+        CHECK(sum.chamfer_l1 <= raw.chamfer_l1 + 0.02 * voxel);
+        CHECK(sum.recon.components == 1);
+        CHECK(sum.recon.boundary_edges == 0);
+    }
+}

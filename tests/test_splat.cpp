@@ -268,3 +268,145 @@ TEST_CASE("splat rejects bad input clearly", "[splat]") {
     for (std::size_t i = 0; i < half.size(); i += 2) half.normals.edit()[i] = {0, 0, 0};
     REQUIRE(splat(half, o).skipped_points == 50);
 }
+
+namespace {
+
+/// n points uniformly at random on a sphere of radius r about the origin, exact normals.
+PointCloud random_sphere(std::size_t n, double r, unsigned seed) {
+    PointCloud c;
+    std::mt19937 rng(seed);
+    std::normal_distribution<double> g(0.0, 1.0);
+    for (std::size_t i = 0; i < n; ++i) {
+        double v[3] = {g(rng), g(rng), g(rng)};
+        const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        c.positions.push_back({float(r * v[0] / len), float(r * v[1] / len), float(r * v[2] / len)});
+        c.normals.push_back({float(v[0] / len), float(v[1] / len), float(v[2] / len)});
+    }
+    return c;
+}
+
+double total_confidence(const PointCloud& c) {
+    double s = 0.0;
+    for (float x : c.confidences) s += double(x);
+    return s;
+}
+
+}  // namespace
+
+TEST_CASE("presummed samples splat the same sphere with a fraction of the kernels", "[splat][aggregate]") {
+    const double radius = 0.5;
+    const PointCloud s = random_sphere(200000, radius, 11);  // spacing ~ 0.002
+    for (double voxel : {0.01, 0.02}) {
+        SplatOptions o;
+        o.voxel_size = voxel;
+        o.crease_angle = 0.0;
+        const PointCloud g = aggregate_samples(s.view(), o, 1.5);
+        INFO("voxel " << voxel << ": " << g.size() << " groups of " << s.size() << " samples");
+        CHECK(g.size() * 10 < s.size());
+        CHECK(total_confidence(g) == Approx(double(s.size())).epsilon(1e-6));
+        const SplatResult raw = splat(s, o), sum = splat(g, o);
+        CHECK(sum.updates * 10 < raw.updates);
+        const auto& a = *raw.volume.sdf;
+        auto b = sum.volume.sdf->getConstAccessor();
+        double worst = 0.0, worst_raw = 0.0, diff = 0.0;
+        std::size_t near = 0;
+        for (auto it = a.cbeginValueOn(); it; ++it) {
+            const double d = a.indexToWorld(it.getCoord()).length() - radius;
+            if (std::fabs(d) > 1.5 * voxel || !b.isValueOn(it.getCoord())) continue;
+            const double v = b.getValue(it.getCoord());
+            worst = std::max(worst, std::fabs(v - d));
+            worst_raw = std::max(worst_raw, std::fabs(*it - d));
+            diff += std::fabs(v - *it);
+            ++near;
+        }
+        INFO("worst |sdf - d|: " << worst / voxel << " voxel presummed, " << worst_raw / voxel
+                                 << " raw; mean |presummed - raw| " << diff / near / voxel);
+        CHECK(near > 5000);
+        CHECK(worst < 0.05 * voxel);
+        CHECK(diff / double(near) < 0.01 * voxel);
+    }
+}
+
+TEST_CASE("presumming presummed parts sums what their samples would", "[splat][aggregate]") {
+    SplatOptions o;
+    o.voxel_size = 0.02;
+    PointCloud all = random_sphere(60000, 0.5, 5);
+    all.confidences.assign(all.size(), 1.0f);
+    std::mt19937 rng(2);
+    std::uniform_real_distribution<float> u(0.5f, 2.0f);
+    for (float& c : all.confidences.edit()) c = u(rng);
+    PointCloud first, second;  // every other sample
+    for (std::size_t i = 0; i < all.size(); ++i) {
+        PointCloud& part = i % 2 ? second : first;
+        part.positions.push_back(all.positions[i]);
+        part.normals.push_back(all.normals[i]);
+        part.confidences.push_back(all.confidences[i]);
+    }
+    const PointCloud a = aggregate_samples(first.view(), o, 1.5), b = aggregate_samples(second.view(), o, 1.5);
+    PointCloud parts = a;
+    for (std::size_t i = 0; i < b.size(); ++i) {
+        parts.positions.push_back(b.positions[i]);
+        parts.normals.push_back(b.normals[i]);
+        parts.scales.push_back(b.scales[i]);
+        parts.confidences.push_back(b.confidences[i]);
+    }
+    const PointCloud direct = aggregate_samples(all.view(), o, 1.5);
+    const PointCloud twice = aggregate_samples(parts.view(), o, 1.5);
+    REQUIRE(twice.size() == direct.size());
+    for (std::size_t i = 0; i < direct.size(); ++i) {
+        for (int k = 0; k < 3; ++k) {
+            REQUIRE(twice.positions[i][k] == Approx(direct.positions[i][k]).margin(1e-6));
+            REQUIRE(twice.normals[i][k] == Approx(direct.normals[i][k]).margin(1e-5));
+        }
+        REQUIRE(twice.confidences[i] == Approx(direct.confidences[i]).epsilon(1e-5));
+        REQUIRE(twice.scales[i] == Approx(direct.scales[i]).epsilon(1e-5));
+    }
+}
+
+TEST_CASE("presumming keeps the two sides of a thin wall apart", "[splat][aggregate]") {
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    std::mt19937 rng(9);
+    std::uniform_real_distribution<float> u(-0.2f, 0.2f);
+    PointCloud wall;  // two faces 0.3 voxel apart, normals facing away from each other
+    for (int i = 0; i < 40000; ++i) {
+        const bool top = i % 2;
+        wall.positions.push_back({u(rng), u(rng), top ? 0.003f : 0.0f});
+        wall.normals.push_back({0.0f, 0.0f, top ? 1.0f : -1.0f});
+    }
+    const PointCloud g = aggregate_samples(wall.view(), o, 1.5);
+    double up = 0.0, down = 0.0;
+    for (std::size_t i = 0; i < g.size(); ++i) {
+        REQUIRE(std::fabs(g.normals[i][2]) == Approx(1.0f).margin(1e-6));
+        REQUIRE(g.positions[i][2] == (g.normals[i][2] > 0 ? 0.003f : 0.0f));
+        (g.normals[i][2] > 0 ? up : down) += double(g.confidences[i]);
+    }
+    CHECK(up == Approx(20000.0));
+    CHECK(down == Approx(20000.0));
+    CHECK(g.size() < 20000);
+}
+
+TEST_CASE("presumming leaves out what the splat would skip, the same for any thread count", "[splat][aggregate]") {
+    SplatOptions o;
+    o.voxel_size = 0.02;
+    PointCloud c = random_sphere(50000, 0.5, 3);
+    c.confidences.assign(c.size(), 1.0f);
+    c.colors.assign(c.size(), Vec3f{0.25f, 0.5f, 1.0f});
+    c.positions.edit()[10][1] = std::nanf("");
+    c.normals.edit()[20] = {0.0f, 0.0f, 0.0f};
+    c.confidences.edit()[30] = 0.0f;
+    c.normals.edit()[40][0] = INFINITY;
+    PointCloud one;
+    {
+        tbb::global_control g(tbb::global_control::max_allowed_parallelism, 1);
+        one = aggregate_samples(c.view(), o, 1.0);
+    }
+    const PointCloud many = aggregate_samples(c.view(), o, 1.0);
+    CHECK(total_confidence(many) == Approx(double(c.size() - 4)).epsilon(1e-7));
+    REQUIRE(one.size() == many.size());
+    REQUIRE(std::equal(one.positions.begin(), one.positions.end(), many.positions.begin()));
+    REQUIRE(std::equal(one.normals.begin(), one.normals.end(), many.normals.begin()));
+    REQUIRE(std::equal(one.confidences.begin(), one.confidences.end(), many.confidences.begin()));
+    for (const Vec3f& rgb : many.colors) REQUIRE(rgb[1] == Approx(0.5f));
+    CHECK(aggregate_samples(c.view(), o, 0.0).size() == c.size());  // off: the cloud as it is
+}

@@ -105,6 +105,14 @@ struct DepthOptions {
     /// stay at most sigma/2 apart; bunny frames at 0.58 mm footprint: no merging at voxel 1 mm,
     /// 3 x 3 blocks at 4 mm, integration 4x faster, F@4mm 0.9983 either way).
     double merge_footprint = -1.0;
+    /// Samples presummed before the splat (aggregate_samples, splat.h): those of one sigma
+    /// level in one cell of this edge (in sigmas) whose normals agree within 90 degrees become
+    /// one kernel at their mean. Frames see each patch many times with several pixels per
+    /// voxel, so the kernels drop tenfold or more (bunny sequence, 30 frames at 1 mm: 1.19 M
+    /// samples, 84 k kernels at 1.5; F@1mm 0.99969 vs 0.99988 and Chamfer 36.2 vs 36.5 um
+    /// against none; 1.0: 0.99978 / 35.6 um at 184 k kernels; 2.0: 0.99966 / 40.0 um).
+    /// 0 = every sample its own kernel.
+    double aggregate = 1.5;
     /// Samples gathered before they are splatted together (0: every frame on its own). Only
     /// time and memory depend on it (and the last bits of the sums: a batch sums in double):
     /// the same options give the same grids for any thread count.
@@ -167,6 +175,12 @@ class Fusion {
     std::size_t integrate(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world);
     /// Adds an oriented cloud (normals required), e.g. one scan with normals toward its sensor.
     std::size_t integrate(const PointCloud& cloud);
+    /// A frame's samples (relative to origin()) presummed as integrate() does
+    /// (DepthOptions::aggregate); safe to call from several threads at once.
+    PointCloud presum(const PointCloud& samples) const;
+    /// Adds a frame presummed by presum() (e.g. frames prepared in parallel) that stood for
+    /// `samples` samples: the same volume as integrate() of those samples; returns `samples`.
+    std::size_t integrate_presummed(const PointCloud& groups, std::size_t samples);
     /// Adds an organized cloud (organized_samples).
     std::size_t integrate(const OrganizedCloud& cloud);
 
@@ -190,7 +204,8 @@ class Fusion {
     DepthOptions depth_;
     /// Counts a frame and adds its samples; returns their count.
     std::size_t add_frame(const PointCloud& samples);
-    void add(const PointCloud& samples);
+    /// Adds presummed groups that stand for `samples` samples.
+    void add(const PointCloud& groups, std::size_t samples);
     void flush() const;
 
     // Samples are gathered into batches of depth.batch_samples before they are splatted (a
@@ -198,6 +213,7 @@ class Fusion {
     // not change what the fusion holds, so the const accessors may do it.
     mutable SplatAccumulator accumulator_;
     mutable PointCloud pending_;
+    std::size_t samples_ = 0;  ///< samples added (before aggregation)
     std::unique_ptr<detail::TsdfVolume> tsdf_;  ///< rule == tsdf
     std::size_t frames_ = 0;
 };

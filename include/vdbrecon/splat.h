@@ -95,6 +95,24 @@ struct SplatResult {
     std::size_t crease_voxels = 0;   ///< voxels next to creases whose value the crease model set
 };
 
+/// A sample's sigma in voxels by the rule above: scale_factor * scale / voxel for a scale > 0,
+/// else sigma_voxels; clamped to [min_sigma_voxels, max_sigma_voxels].
+double kernel_sigma_voxels(const SplatOptions& options, float scale);
+
+/// Samples summed into fewer before a splat ("presumming"): the samples of one sigma level
+/// (half octaves of kernel_sigma_voxels) and one cell (`cell` x the level's sigma, on a grid
+/// fixed in the cloud's frame) whose normals lie within 90 degrees of the group's become one
+/// sample at their confidence-weighted mean position, with their confidence-weighted mean
+/// normal (not unit length: shorter where the normals disagree; the splat uses its
+/// direction), confidence sum c_i, the scale of their mean sigma and their mean colour. The
+/// splat's numerator is linear in the samples' planes, so what changes is only that a group's
+/// Gaussians share one centre (an error of second order in cell/sigma); aggregating aggregates
+/// sums what their samples would (src/aggregate.cpp). Samples the splat would skip (no normal,
+/// confidence <= 0, not finite) are left out. `cell` <= 0 returns the cloud as it is (likewise
+/// a cloud reaching more than 2^19 cells from its origin). Deterministic: each group sums its
+/// samples in increasing order, in double.
+PointCloud aggregate_samples(PointCloud cloud, const SplatOptions& options, double cell);
+
 /// Splats an oriented cloud (normals required) into a Volume. Throws InvalidArgument when the
 /// cloud has no normals or the options are out of range.
 SplatResult splat(const PointCloud& cloud, const SplatOptions& options);

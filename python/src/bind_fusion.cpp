@@ -53,6 +53,9 @@ void bind_fusion(py::module_& m) {
         .field("merge_footprint", &DepthOptions::merge_footprint,
                "Frames whose pixel footprint is below this are merged into pixel blocks, world "
                "units; 0 = never, < 0 = half the smallest kernel (CLI --merge-footprint).")
+        .field("aggregate", &DepthOptions::aggregate,
+               "Samples of one sigma level and normal direction in one cell of this edge, in "
+               "sigmas, are presummed into one kernel; 0 = off (CLI --aggregate).")
         .field("batch_samples", &DepthOptions::batch_samples,
                "Samples gathered before they are splatted together, count; 0 = every frame on "
                "its own. Only time and memory depend on it.")

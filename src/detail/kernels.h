@@ -49,7 +49,6 @@ class Kernels {
     /// summation uses.
     Kernel operator()(std::size_t i, bool full = true) const {
         Kernel k;
-        const double voxel = options_.voxel_size;
         const Vec3f& nr = cloud_.normals[i];
         const double len =
             std::sqrt(double(nr[0]) * nr[0] + double(nr[1]) * nr[1] + double(nr[2]) * nr[2]);
@@ -57,11 +56,7 @@ class Kernels {
         k.cx = c[0];
         k.cy = c[1];
         k.cz = c[2];
-        double s = options_.sigma_voxels;
-        if (use_scale_ && cloud_.scales[i] > 0.0f) {
-            s = options_.scale_factor * double(cloud_.scales[i]) / voxel;
-        }
-        s = std::clamp(s, options_.min_sigma_voxels, options_.max_sigma_voxels);
+        const double s = kernel_sigma_voxels(options_, use_scale_ ? cloud_.scales[i] : 0.0f);
         k.s = float(s);
         // FSSR's weight carries the sample's confidence; a sample of confidence <= 0 (or NaN)
         // weighs nothing and is skipped like one without a normal.

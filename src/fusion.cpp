@@ -432,8 +432,8 @@ std::size_t Fusion::samples() const {
     return tsdf_ ? tsdf_->pixels() : samples_;
 }
 
-PointCloud Fusion::presum(const PointCloud& samples) const {
-    return aggregate_samples(samples.view(), options_.splat, depth_.aggregate);
+PointCloud Fusion::presum(PointCloud samples) const {
+    return aggregate_samples(std::move(samples), options_.splat, depth_.aggregate);
 }
 
 std::size_t Fusion::integrate_presummed(const PointCloud& groups, std::size_t samples) {
@@ -489,7 +489,7 @@ std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, cons
 std::size_t Fusion::add_frame(const PointCloud& samples) {
     ++frames_;
     if (samples.empty()) return 0;
-    add(presum(samples), samples.size());
+    add(presum(samples.view()), samples.size());
     return samples.size();
 }
 
@@ -613,10 +613,9 @@ FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion) {
     try {
         const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
         const Intrinsics K = frame_intrinsics(f, img);  // checked with the frame
-        const PointCloud samples =
-            depth_samples(img, K, f.pose, fusion.depth_options(), fusion.origin());
+        PointCloud samples = depth_samples(img, K, f.pose, fusion.depth_options(), fusion.origin());
         out.count = samples.size();
-        out.groups = fusion.presum(samples);
+        out.groups = fusion.presum(std::move(samples));  // owned: the samples die here
     } catch (...) {
         out.error = std::current_exception();
     }

@@ -177,7 +177,7 @@ class Fusion {
     std::size_t integrate(const PointCloud& cloud);
     /// A frame's samples (relative to origin()) presummed as integrate() does
     /// (DepthOptions::aggregate); safe to call from several threads at once.
-    PointCloud presum(const PointCloud& samples) const;
+    PointCloud presum(PointCloud samples) const;
     /// Adds a frame presummed by presum() (e.g. frames prepared in parallel) that stood for
     /// `samples` samples: the same volume as integrate() of those samples; returns `samples`.
     std::size_t integrate_presummed(const PointCloud& groups, std::size_t samples);

@@ -643,6 +643,10 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
                 ++g;
                 continue;
             }
+            if (!fusion.started() && fusion.options().splat.voxel_size > 0.0) {
+                // The voxel is known: the first frame joins the parallel groups below.
+                fusion.get(PointCloud{}, f.depth_path, Vec3d{f.pose[3], f.pose[7], f.pose[11]});
+            }
             if (!fusion.started() || (*fusion).tsdf()) {  // the first frame, or the tsdf rule
                 const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
                 const Intrinsics K = frame_intrinsics(f, img);

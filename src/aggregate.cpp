@@ -33,8 +33,7 @@ namespace vdbrecon {
 namespace {
 
 constexpr std::uint64_t kNoGroup = std::numeric_limits<std::uint64_t>::max();
-constexpr int kLevels = 15;  ///< sigma levels, half octaves above min_sigma_voxels (< 15:
-                             ///< kNoGroup is no cell's key)
+constexpr int kLevels = 15;  ///< sigma levels, half octaves above min_sigma_voxels
 constexpr int kCellBits = 20;
 constexpr std::int64_t kCellBias = std::int64_t(1) << (kCellBits - 1);
 
@@ -55,19 +54,31 @@ int bits_for(std::uint64_t n) {
     return b;
 }
 
-/// The cell keys (sigma level, cell on a grid fixed in the cloud's frame, so that groups of
-/// groups fall into the same cells) of the samples, kNoGroup for a sample the splat would skip;
-/// an empty vector when some sample lies more than 2^19 cells from the origin.
-std::vector<Keyed> cell_keys(const PointCloud& cloud, const SplatOptions& o, double cell) {
+/// A sample's sigma level and cell (on a grid fixed in the cloud's frame, so that groups of
+/// groups fall into the same cells); level < 0 for a sample the splat would skip.
+struct SampleCell {
+    std::int32_t c[3];
+    std::int32_t level;
+};
+
+/// Sorting keys of the samples' cells: (level, z, y, x) packed with the bits their ranges in
+/// this cloud need (sorts of a frame take 3 radix passes, not 6), kNoGroup for a sample the
+/// splat would skip; an empty vector when some sample lies more than 2^19 cells from the
+/// origin or the key needs more than 62 bits. `bits`: the key bits used.
+std::vector<Keyed> cell_keys(const PointCloud& cloud, const SplatOptions& o, double cell, int& bits) {
     const std::size_t n = cloud.size();
-    const double edge0 = cell * o.min_sigma_voxels * o.voxel_size;  // level 0's cell
+    double inv_edge[kLevels];  // 1 / the cell edge of each level, world units
+    for (int l = 0; l < kLevels; ++l) {
+        inv_edge[l] = 1.0 / (cell * o.min_sigma_voxels * o.voxel_size * std::exp2(0.5 * l));
+    }
+    std::vector<SampleCell> cells(n);
     std::vector<Keyed> keys(n);
     const bool use_conf = cloud.has_confidences(), use_scale = cloud.has_scales();
     std::atomic<bool> outside{false};
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1 << 14),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+    detail::for_each_chunk(n, [&](std::size_t, std::size_t begin, std::size_t end) {
+        for (std::size_t i = begin; i < end; ++i) {
             keys[i] = {kNoGroup, std::uint32_t(i), 0.0f};
+            cells[i].level = -1;
             const Vec3f& p = cloud.positions[i];
             const double len = length(cloud.normals[i]);
             const float c = use_conf ? cloud.confidences[i] : 1.0f;
@@ -80,21 +91,46 @@ std::vector<Keyed> cell_keys(const PointCloud& cloud, const SplatOptions& o, dou
                 s <= o.min_sigma_voxels
                     ? 0
                     : std::min(int(std::lround(2.0 * std::log2(s / o.min_sigma_voxels))), kLevels - 1);
-            const double edge = edge0 * std::exp2(0.5 * level);
-            std::uint64_t key = std::uint64_t(level);
-            for (int a = 2; a >= 0; --a) {
-                double q = std::floor(double(p[a]) / edge) + double(kCellBias);
-                if (!(q >= 0.0 && q < double(2 * kCellBias))) {
+            for (int a = 0; a < 3; ++a) {
+                double q = std::floor(double(p[a]) * inv_edge[level]);
+                if (!(std::fabs(q) < double(kCellBias))) {
                     outside = true;
                     q = 0.0;
                 }
-                key = key << kCellBits | std::uint64_t(q);
+                cells[i].c[a] = std::int32_t(q);
             }
-            keys[i].key = key;
+            cells[i].level = level;
             keys[i].sigma = float(s);
         }
     });
     if (outside) return {};
+    std::int32_t lo[4] = {INT32_MAX, INT32_MAX, INT32_MAX, INT32_MAX}, hi[4] = {0, 0, 0, 0};
+    bool any = false;
+    for (const SampleCell& c : cells) {
+        if (c.level < 0) continue;
+        const std::int32_t v[4] = {c.c[0], c.c[1], c.c[2], c.level};
+        for (int a = 0; a < 4; ++a) {
+            lo[a] = any ? std::min(lo[a], v[a]) : v[a];
+            hi[a] = any ? std::max(hi[a], v[a]) : v[a];
+        }
+        any = true;
+    }
+    int width[4];
+    bits = 0;
+    for (int a = 0; a < 4; ++a) {
+        width[a] = any ? bits_for(std::uint64_t(std::int64_t(hi[a]) - lo[a])) : 0;
+        bits += width[a];
+    }
+    if (bits > 62) return {};  // a cloud ~2^20 cells wide every way: not presummed
+    detail::for_each_chunk(n, [&](std::size_t, std::size_t begin, std::size_t end) {
+        for (std::size_t i = begin; i < end; ++i) {
+            const SampleCell& c = cells[i];
+            if (c.level < 0) continue;
+            std::uint64_t key = std::uint64_t(c.level - lo[3]);
+            for (int a = 2; a >= 0; --a) key = key << width[a] | std::uint64_t(c.c[a] - lo[a]);
+            keys[i].key = key;
+        }
+    });
     return keys;
 }
 
@@ -140,20 +176,13 @@ PointCloud aggregate_samples(PointCloud cloud, const SplatOptions& options, doub
     if (!(cell > 0.0) || cloud.size() < 2 || !cloud.has_normals()) return cloud;
     options.validate();
     if (cloud.size() > std::numeric_limits<std::uint32_t>::max()) return cloud;
-    std::vector<Keyed> keys = cell_keys(cloud, options, cell);
+    int bits = 0;
+    std::vector<Keyed> keys = cell_keys(cloud, options, cell, bits);
     if (keys.empty()) return cloud;
-    // Sorted on the bits in which the keys differ (kNoGroup last).
-    std::uint64_t lo = kNoGroup, hi = 0;
-    for (const Keyed& k : keys) {
-        if (k.key == kNoGroup) continue;
-        lo = std::min(lo, k.key);
-        hi = std::max(hi, k.key);
-    }
-    if (lo == kNoGroup) return PointCloud{};  // nothing the splat would use
-    const int bits = bits_for(hi - lo) + 1;
-    const std::uint64_t last = (std::uint64_t(1) << bits) - 1;
-    detail::radix_sort(keys, bits,
-                       [&](const Keyed& k) { return k.key == kNoGroup ? last : k.key - lo; });
+    // kNoGroup sorts last: the sort sees one bit more than the keys use (bits <= 4 + 3 * 20).
+    const std::uint64_t last = std::uint64_t(1) << bits;
+    detail::radix_sort(keys, bits + 1,
+                       [&](const Keyed& k) { return k.key == kNoGroup ? last : k.key; });
     std::size_t end = keys.size();
     while (end > 0 && keys[end - 1].key == kNoGroup) --end;
 

@@ -401,7 +401,9 @@ TEST_CASE("the Kinect frame: its compressed PCD is its PLY twin, and fuses as an
     REQUIRE(frame.height == 480);
     const double voxel = 0.013;  // MANIFEST's suggestion
     Fusion f(fusion_options(voxel), DepthOptions{}, frame.origin);
-    CHECK(f.integrate(frame) > 240000);
+    // 249,647 measured points; those seen more grazing than min_view_cos (78 degrees: ~1.5 %)
+    // or without a neighbour on their surface give none.
+    CHECK(f.integrate(frame) > 235000);
     const Mesh m = f.reconstruct().mesh;
     REQUIRE(m.vertices.size() > 10000);
     // Precision: the mesh's vertices lie on the scan (within a voxel of a point), at least as

@@ -94,8 +94,12 @@ struct DepthOptions {
     /// across a depth jump: not used for its normal (dimensionless).
     double max_jump = 0.05;
     /// Pixels seen at a grazing angle, cos(angle between the ray and the normal) below this,
-    /// give no sample.
-    double min_view_cos = 0.1;
+    /// give no sample. 0.2 (78 degrees): the samples between 0.1 and 0.2 are the noisiest and,
+    /// with footprints up to 10x a pixel's, did half the splat's work; without them the bunny
+    /// sequence at 1 mm scores F@1mm 0.99999 / Chamfer 35.7 um (0.99969 / 36.2 um with them),
+    /// the Kinect frame at 1.3 cm has 99.5 % of its mesh within a voxel of the scan (98.6 %) from
+    /// 98.5 % of the samples, the bunny's range scans F@0.5mm 0.99714 (0.99711).
+    double min_view_cos = 0.2;
     /// Frames whose median pixel footprint is below this (world units) are merged into b x b
     /// pixel blocks, b = floor(merge_footprint / footprint) <= 4: each block's pixels on one
     /// surface become one sample at their mean, standing for (confidence x) their count. Samples

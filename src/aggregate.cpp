@@ -73,31 +73,36 @@ std::vector<Keyed> cell_keys(const PointCloud& cloud, const SplatOptions& o, dou
     }
     std::vector<SampleCell> cells(n);
     std::vector<Keyed> keys(n);
-    const bool use_conf = cloud.has_confidences(), use_scale = cloud.has_scales();
+    const Vec3f* pos = cloud.positions.data();
+    const Vec3f* nrm = cloud.normals.data();
+    const float* conf = cloud.has_confidences() ? cloud.confidences.data() : nullptr;
+    const float* scale = cloud.has_scales() ? cloud.scales.data() : nullptr;
     std::atomic<bool> outside{false};
     detail::for_each_chunk(n, [&](std::size_t, std::size_t begin, std::size_t end) {
         for (std::size_t i = begin; i < end; ++i) {
             keys[i] = {kNoGroup, std::uint32_t(i), 0.0f};
             cells[i].level = -1;
-            const Vec3f& p = cloud.positions[i];
-            const double len = length(cloud.normals[i]);
-            const float c = use_conf ? cloud.confidences[i] : 1.0f;
+            const Vec3f& p = pos[i];
+            const double len = length(nrm[i]);
+            const float c = conf ? conf[i] : 1.0f;
             if (!(std::isfinite(len) && len > 1e-12 && c > 0.0f && std::isfinite(c)) ||
                 !(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) {
                 continue;
             }
-            const double s = kernel_sigma_voxels(o, use_scale ? cloud.scales[i] : 0.0f);
+            const double s = kernel_sigma_voxels(o, scale ? scale[i] : 0.0f);
             const int level =
                 s <= o.min_sigma_voxels
                     ? 0
                     : std::min(int(std::lround(2.0 * std::log2(s / o.min_sigma_voxels))), kLevels - 1);
             for (int a = 0; a < 3; ++a) {
-                double q = std::floor(double(p[a]) * inv_edge[level]);
-                if (!(std::fabs(q) < double(kCellBias))) {
+                // floor(x) for |x| < 2^19 as a truncation of the positive x + 2^20 (no libm
+                // call where the target lacks SSE4.1's rounding instruction).
+                const double x = double(p[a]) * inv_edge[level];
+                if (!(std::fabs(x) < double(kCellBias))) {
                     outside = true;
-                    q = 0.0;
+                    break;
                 }
-                cells[i].c[a] = std::int32_t(q);
+                cells[i].c[a] = std::int32_t(std::int64_t(x + double(2 * kCellBias)) - 2 * kCellBias);
             }
             cells[i].level = level;
             keys[i].sigma = float(s);

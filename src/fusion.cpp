@@ -228,6 +228,11 @@ PointCloud grid_samples(const FramePoints& f, double focal, const Pose& pose,
     cloud.origin = origin;
     std::vector<Vec3f> positions, normals;
     std::vector<float> scales, confidences;
+    const std::size_t measured = std::size_t(std::count(f.valid.begin(), f.valid.end(), 1));
+    positions.reserve(measured);
+    normals.reserve(measured);
+    scales.reserve(measured);
+    confidences.reserve(measured);
     const V3 t = {pose[3], pose[7], pose[11]};
     auto rotate = [&](const V3& x) {
         return V3{pose[0] * x[0] + pose[1] * x[1] + pose[2] * x[2],

@@ -40,12 +40,6 @@
 
 namespace vdbrecon {
 
-double kernel_sigma_voxels(const SplatOptions& options, float scale) {
-    const double s = scale > 0.0f ? options.scale_factor * double(scale) / options.voxel_size
-                                  : options.sigma_voxels;
-    return std::clamp(s, options.min_sigma_voxels, options.max_sigma_voxels);
-}
-
 std::size_t memory_budget(const SplatOptions& options) {
     if (options.max_memory > 0) return options.max_memory;
     const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGE_SIZE);

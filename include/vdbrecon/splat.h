@@ -97,7 +97,12 @@ struct SplatResult {
 
 /// A sample's sigma in voxels by the rule above: scale_factor * scale / voxel for a scale > 0,
 /// else sigma_voxels; clamped to [min_sigma_voxels, max_sigma_voxels].
-double kernel_sigma_voxels(const SplatOptions& options, float scale);
+inline double kernel_sigma_voxels(const SplatOptions& options, float scale) {
+    const double s = scale > 0.0f ? options.scale_factor * double(scale) / options.voxel_size
+                                  : options.sigma_voxels;
+    return s < options.min_sigma_voxels ? options.min_sigma_voxels
+                                        : (s > options.max_sigma_voxels ? options.max_sigma_voxels : s);
+}
 
 /// Samples summed into fewer before a splat ("presumming"): the samples of one sigma level
 /// (half octaves of kernel_sigma_voxels) and one cell (`cell` x the level's sigma, on a grid

@@ -466,8 +466,9 @@ void report(const RunResult& r, const PipelineOptions& o,
     {
         std::ostringstream s;
         if (fused) {
-            s << "vdbrecon: fused " << r.read.rows << " samples ("
-              << r.read.format << ")\n";
+            s << "vdbrecon: fused " << r.read.rows << " samples (" << r.read.format << ")";
+            if (p.splat.points > 0) s << " as " << p.splat.points << " kernels";
+            s << "\n";
         } else {
             s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << "), "
               << fmt_megabytes(r.read.bytes) << " in memory";

@@ -1041,6 +1041,7 @@ Grids assemble(std::vector<BlockOut>& blocks, bool colors, float background,
 /// The volume of finished grids: signs flood-filled, transforms, names and metadata.
 void finish_volume(Grids g, const Vec3d& origin, std::size_t points, const SplatOptions& options,
                    SplatResult& result) {
+    result.points = points;
     const double voxel = options.voxel_size;
     auto &sdf = g.sdf, &weight = g.weight;
     auto &nearest = g.nearest, &color = g.color;

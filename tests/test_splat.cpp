@@ -305,6 +305,8 @@ TEST_CASE("presummed samples splat the same sphere with a fraction of the kernel
         CHECK(g.size() * 10 < s.size());
         CHECK(total_confidence(g) == Approx(double(s.size())).epsilon(1e-6));
         const SplatResult raw = splat(s, o), sum = splat(g, o);
+        CHECK(raw.points == s.size());
+        CHECK(sum.points == g.size());
         CHECK(sum.updates * 10 < raw.updates);
         const auto& a = *raw.volume.sdf;
         auto b = sum.volume.sdf->getConstAccessor();

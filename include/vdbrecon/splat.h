@@ -89,6 +89,7 @@ struct SplatResult {
     std::size_t touched_voxels = 0;  ///< voxels with any weight (valid or not)
     std::size_t leaves = 0;          ///< 8^3 leaves allocated
     std::size_t memory_bytes = 0;    ///< memory of the grids (Volume::memory_bytes)
+    std::size_t points = 0;          ///< kernels splatted (samples, or their presummed groups)
     std::size_t updates = 0;         ///< point-voxel kernel evaluations inside the support
     double sigma_min = 0, sigma_median = 0, sigma_max = 0;  ///< world units
     std::size_t skipped_points = 0;  ///< points without a usable normal (zero/NaN), not splatted

@@ -139,6 +139,12 @@ void print_help() {
         << "  --k K                  neighbours for normals and spacing [" << d.normals.k << "]\n"
         << "  --scale MODE           per-point scale: " << choice_list(scale_mode_choices(), "|") << " ["
         << choice_name(scale_mode_choices(), d.normals.scale) << "]\n"
+        << "  --knn NAME             neighbour search: " << choice_list(knn_backend_choices(), "|")
+        << " (FLANN's kd-tree) ["
+        << choice_name(knn_backend_choices(), d.normals.knn.backend) << "]\n"
+        << "  --knn-eps E            flann: eps-approximate search (no neighbour farther than\n"
+        << "                         sqrt(1+E) x the true k-th; huge clouds); 0 = exact ["
+        << fmt(d.normals.knn.eps) << "]\n"
         << "  --classes C,C,...      LAS input: keep the points of these classes (e.g. 2,6:\n"
         << "                         ground, buildings) [all]\n"
         << "  --viewpoint x,y,z      sensor position; estimated normals face it [none: MST]\n"
@@ -371,6 +377,12 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.normals.k = parse_int(a, args.value(a));
     } else if (a == "--scale") {
         o.normals.scale = parse_choice(a, args.value(a), scale_mode_choices());
+    } else if (a == "--knn") {
+        o.normals.knn.backend = parse_choice(a, args.value(a), knn_backend_choices());
+        o.outliers.knn.backend = o.normals.knn.backend;
+    } else if (a == "--knn-eps") {
+        o.normals.knn.eps = parse_number(a, args.value(a));
+        o.outliers.knn.eps = o.normals.knn.eps;
     } else if (a == "--classes") {
         for (double c : parse_list(a, args.value(a))) {
             if (!(c >= 0 && c <= 255 && c == std::floor(c))) {

@@ -1,26 +1,27 @@
 #!/usr/bin/env bash
-# kNN benchmark (bench/knn.cpp): vdbrecon's Morton-grid kNN against FLANN's kd-tree, exactness
-# and time, on 1 and 2 threads. Installs FLANN's headers (libflann-dev, liblz4-dev) if missing:
-# vdbrecon itself no longer needs them.
-#   bench/knn.sh [build-dir]        (needs ../shared/data; run scripts/setup.sh first)
+# kNN benchmark (bench/knn.cpp): KnnIndex's backends -- our Morton grid, FLANN's exact kd-tree,
+# FLANN's eps-approximate search -- on the bunny scans, the room scan,
+# synthetic clouds and a large synthetic terrain; time and exactness against brute force, on 1
+# and 2 threads.
+#   bench/knn.sh [build-dir] [large-millions=20]   (needs ../shared/data; run scripts/setup.sh)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD=${1:-build}
-BIN=$BUILD/vdbrecon
+LARGE=${2:-20}
 OUT=bench/out
 source bench/common.sh
-for p in libflann-dev liblz4-dev; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || {
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$p" >/dev/null; }
-done
 mkdir -p bench/out
 g++ -O3 -DNDEBUG -std=c++17 -DOPENVDB_ABI_VERSION_NUMBER=10 -Iinclude -isystem /usr/include/Imath \
-  bench/knn.cpp "$BUILD/libvdbrecon.a" -lopenvdb -ltbb -llz4 -lImath-3_1 -lOpenEXR-3_1 -lz \
+  bench/knn.cpp "$BUILD/libvdbrecon.a" -lopenvdb -ltbb -llz4 -lImath-3_1 -lOpenEXR-3_1 -lpng -lz \
   -lpthread -o bench/out/knn
 machine_line
-for t in 1 2; do
+for t in 2 1; do
   echo
   echo "threads: $t"
   echo
-  bench/out/knn "$BUNNY" "$t"
+  if [ "$t" = 2 ]; then
+    bench/out/knn "$BUNNY" "$DATA/pcl_laser/room_scan1.ply" "$t" "$LARGE"
+  else
+    bench/out/knn "$BUNNY" "$DATA/pcl_laser/room_scan1.ply" "$t"
+  fi
 done

@@ -35,6 +35,7 @@
 #include <immintrin.h>
 #endif
 
+#include "detail/knn_flann.h"
 #include "detail/radix_sort.h"
 #include "detail/simd.h"
 #include "vdbrecon/error.h"
@@ -186,6 +187,8 @@ __attribute__((target("avx2"))) std::size_t keep_within_avx2(const float* bx, co
 struct KnnIndex::Impl {
     Span<Vec3f> points;                  ///< the input (not copied)
     std::size_t n = 0;
+    KnnBackend backend = KnnBackend::grid;
+    std::unique_ptr<detail::FlannKnn> flann;  ///< backend == flann
     double lo[3] = {0, 0, 0};
     double extent = 1.0;                 ///< edge of the bounding cube, world units
     double to_grid = 1.0;                ///< finest cells per world unit
@@ -366,7 +369,12 @@ struct KnnIndex::Impl {
     void search(Span<Vec3f> q, Self self, int k, int* idx, float* dist) const;
 };
 
-KnnIndex::KnnIndex(Span<Vec3f> points) : impl_(std::make_unique<Impl>()) {
+void KnnOptions::validate() const {
+    if (!(std::isfinite(eps) && eps >= 0.0)) throw InvalidArgument("knn.eps must be >= 0 (0 = exact)");
+}
+
+KnnIndex::KnnIndex(Span<Vec3f> points, const KnnOptions& options) : impl_(std::make_unique<Impl>()) {
+    options.validate();
     if (points.empty()) throw InvalidArgument("kNN index: no points");
     Impl& m = *impl_;
     const std::size_t n = points.size();
@@ -393,6 +401,11 @@ KnnIndex::KnnIndex(Span<Vec3f> points) : impl_(std::make_unique<Impl>()) {
         extent = std::max(extent, hi[a] - lo[a]);
     }
     m.extent = extent > 0.0 ? extent * (1.0 + 1e-6) : 1.0;
+    if (options.backend == KnnBackend::flann) {
+        m.backend = KnnBackend::flann;
+        m.flann = std::make_unique<detail::FlannKnn>(points, options.eps);
+        return;  // no grid
+    }
 
     m.to_grid = double(1u << kBits) / m.extent;
 
@@ -474,6 +487,8 @@ KnnIndex::~KnnIndex() = default;
 
 std::size_t KnnIndex::size() const { return impl_->n; }
 
+KnnBackend KnnIndex::backend() const { return impl_->backend; }
+
 void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
                             const std::uint32_t* first, const std::uint64_t* keys, std::size_t g0,
                             std::size_t g1, int k, int* idx, float* dist,
@@ -514,6 +529,10 @@ void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
 }
 
 void KnnIndex::Impl::search(Span<Vec3f> q, Self self, int k, int* idx, float* dist) const {
+    if (flann) {
+        flann->search(q, self.is_query ? nullptr : self.ids, self.is_query ? 0 : -1, k, idx, dist);
+        return;
+    }
     std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(q.size());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, q.size(), 8192),
                       [&](const tbb::blocked_range<std::size_t>& r) {
@@ -543,6 +562,11 @@ KnnResult KnnIndex::self_neighbours(int k, bool distances) const {
     if (out.k == 0) return out;
     out.indices.resize(m.n * std::size_t(out.k));
     if (distances) out.sq_distances.resize(out.indices.size());
+    if (m.flann) {
+        m.flann->search(m.points, nullptr, 0, out.k, out.indices.data(),
+                        distances ? out.sq_distances.data() : nullptr);
+        return out;
+    }
     // The queries are the points themselves, taken in the index's order, whose runs are its
     // cells; each answer goes straight to the point's row.
     m.search(m.points, Impl::Self{nullptr, true}, m.id.data(), m.cell_first.data(),
@@ -557,6 +581,19 @@ void KnnIndex::visit_self_neighbours(int k, const BatchVisitor& visit, std::size
     if (k == 0) return;
     if (batch == 0) batch = std::max<std::size_t>(std::size_t(1) << 16, m.n / 32);
     std::vector<int> idx;
+    if (m.flann) {  // batches of points in index order
+        std::vector<int> rows;
+        for (std::size_t p0 = 0; p0 < m.n; p0 += batch) {
+            const std::size_t count = std::min(batch, m.n - p0);
+            rows.resize(count);
+            for (std::size_t j = 0; j < count; ++j) rows[j] = int(p0 + j);
+            idx.resize(count * std::size_t(k));
+            m.flann->search(Span<Vec3f>(m.points.data() + p0, count), nullptr, long(p0), k,
+                            idx.data(), nullptr);
+            visit(rows.data(), count, k, idx.data());
+        }
+        return;
+    }
     for (std::size_t g0 = 0; g0 < m.cell_key.size();) {
         // Whole cells, at least `batch` points (or the rest).
         const std::size_t p0 = m.cell_first[g0];

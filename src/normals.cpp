@@ -17,6 +17,7 @@
 namespace vdbrecon {
 
 void NormalOptions::validate() const {
+    knn.validate();
     if (k < 3 || k > 1000) {
         throw InvalidArgument("normals.k = " + std::to_string(k) + ": must be in 3..1000");
     }
@@ -319,7 +320,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     if (spacing && spacing->size() != n) spacing = nullptr;
     const bool search = !given && (needed > 0 || !spacing);
     const std::unique_ptr<KnnIndex> index =
-        search ? std::make_unique<KnnIndex>(cloud.positions) : nullptr;
+        search ? std::make_unique<KnnIndex>(cloud.positions, options.knn) : nullptr;
     KnnResult own;
     if (!given && needed > 0) own = index->self_neighbours(options.k);
     if (!given) known = &own;

@@ -19,6 +19,7 @@
 namespace vdbrecon {
 
 void OutlierOptions::validate() const {
+    knn.validate();
     if (k < 3 || k > 1000) {
         throw InvalidArgument("outliers.k = " + std::to_string(k) + ": must be in 3..1000");
     }
@@ -162,7 +163,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
               const OutlierHandOver& hand_over, OutlierResult& r) {
     const std::size_t n = cloud.size();
     const Span<Vec3f> pts = cloud.positions;
-    const KnnIndex index(pts);
+    const KnnIndex index(pts, options.knn);
     const int k = options.k;  // < n (checked by the caller)
     const std::size_t ku = std::size_t(k);
     const int ks = hand_over.spacing_k <= k ? hand_over.spacing_k : 0;  // 0: none to hand over

@@ -29,9 +29,18 @@ PointCloud bare_sphere(std::size_t n, double r, const Vec3d& c) {
 
 }  // namespace
 
+/// The index options of one backend.
+KnnOptions backend(KnnBackend b) {
+    KnnOptions o;
+    o.backend = b;
+    return o;
+}
+
 TEST_CASE("kNN: exact neighbours, self excluded even among duplicates", "[normals]") {
+  for (KnnBackend b : {KnnBackend::grid, KnnBackend::flann}) {
     std::vector<Vec3f> pts = {{0, 0, 0}, {1, 0, 0}, {0, 2, 0}, {0, 0, 3}, {0, 0, 0}};
-    KnnIndex index(pts);
+    KnnIndex index(pts, backend(b));
+    REQUIRE(index.backend() == b);
     const KnnResult r = index.self_neighbours(2);
     REQUIRE(r.k == 2);
     // Point 0's nearest others: its duplicate (4) at 0, then point 1 at 1.
@@ -42,6 +51,7 @@ TEST_CASE("kNN: exact neighbours, self excluded even among duplicates", "[normal
     REQUIRE(r.neighbours(3)[0] != 3);
     const KnnResult q = index.query(std::vector<Vec3f>{{0.9f, 0, 0}}, 1);
     REQUIRE(q.neighbours(0)[0] == 1);
+  }
 }
 
 TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count", "[normals]") {
@@ -71,18 +81,20 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
     };
     std::vector<Vec3f> queries = {{0.0f, 0.0f, 0.0f}, {50.0f, 50.0f, 50.0f}, {-1e4f, 3.0f, 0.0f},
                                   {0.05f, -0.02f, 0.3f}};
+  for (KnnBackend b : {KnnBackend::grid, KnnBackend::flann}) {
+    INFO("backend " << int(b));
     KnnResult one, two;
     {
         tbb::global_control c(tbb::global_control::max_allowed_parallelism, 1);
-        one = KnnIndex(pts).self_neighbours(k);
+        one = KnnIndex(pts, backend(b)).self_neighbours(k);
     }
     {
         tbb::global_control c(tbb::global_control::max_allowed_parallelism, 2);
-        two = KnnIndex(pts).self_neighbours(k);
+        two = KnnIndex(pts, backend(b)).self_neighbours(k);
     }
     REQUIRE(one.indices == two.indices);
     ::setenv("VDBRECON_SCALAR", "1", 1);  // the scalar distance loop, not the AVX2 one
-    const KnnResult scalar = KnnIndex(pts).self_neighbours(k);
+    const KnnResult scalar = KnnIndex(pts, backend(b)).self_neighbours(k);
     ::unsetenv("VDBRECON_SCALAR");
     REQUIRE(one.indices == scalar.indices);
     REQUIRE(one.sq_distances == scalar.sq_distances);
@@ -95,7 +107,7 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
         }
     }
     REQUIRE(wrong == 0);
-    const KnnResult q = KnnIndex(pts).query(queries, k);
+    const KnnResult q = KnnIndex(pts, backend(b)).query(queries, k);
     for (std::size_t i = 0; i < queries.size(); ++i) {
         const auto expect = brute(queries[i], -1);
         for (int j = 0; j < k; ++j) {
@@ -103,6 +115,7 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
             REQUIRE(q.sq_dists(i)[j] == expect[std::size_t(j)].first);
         }
     }
+  }
 }
 
 TEST_CASE("kNN: the batched self-neighbours are the full lists, each row once", "[normals]") {
@@ -115,7 +128,9 @@ TEST_CASE("kNN: the batched self-neighbours are the full lists, each row once", 
     for (int i = 0; i < 20000; ++i) pts.push_back({u(rng), u(rng), 0.01f * u(rng)});
     for (int i = 0; i < 200; ++i) pts.push_back({40.0f * u(rng), 40.0f * u(rng), 40.0f * u(rng)});
     const int k = 9;
-    const KnnIndex index(pts);
+  for (KnnBackend b : {KnnBackend::grid, KnnBackend::flann}) {
+    INFO("backend " << int(b));
+    const KnnIndex index(pts, backend(b));
     const KnnResult full = index.self_neighbours(k);
     for (int threads : {1, 2}) {
         tbb::global_control c(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
@@ -143,6 +158,52 @@ TEST_CASE("kNN: the batched self-neighbours are the full lists, each row once", 
             REQUIRE(some.sq_dists(j)[m] == full.sq_dists(rows[j])[m]);
         }
     }
+  }
+}
+
+TEST_CASE("kNN: FLANN on stacks of exact copies, and approximate", "[normals]") {
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    std::vector<Vec3f> spread, stacked;
+    for (int i = 0; i < 30000; ++i) spread.push_back({u(rng), u(rng), u(rng)});
+    for (int i = 0; i < 30000; ++i) stacked.push_back(spread[std::size_t(i % 1500)]);  // 20 copies
+    CHECK(KnnIndex(spread).backend() == KnnBackend::grid);
+    KnnOptions bad = backend(KnnBackend::flann);
+    bad.eps = -1.0;
+    CHECK_THROWS_AS(KnnIndex(stacked, bad), InvalidArgument);
+    // On the stacks both searches give the same lists: the first 19 neighbours are the point's
+    // copies, at 0, the lowest indices first where a tie goes past k.
+    const KnnResult g = KnnIndex(stacked).self_neighbours(24);
+    const KnnResult f = KnnIndex(stacked, backend(KnnBackend::flann)).self_neighbours(24);
+    REQUIRE(g.sq_distances == f.sq_distances);
+    REQUIRE(g.indices == f.indices);
+    CHECK(f.sq_dists(7)[18] == 0.0f);
+    CHECK(f.sq_dists(7)[19] > 0.0f);
+    const KnnResult g8 = KnnIndex(stacked).self_neighbours(8);
+    const KnnResult f8 = KnnIndex(stacked, backend(KnnBackend::flann)).self_neighbours(8);
+    REQUIRE(g8.indices == f8.indices);
+    // eps-approximate: most neighbours right, none farther than (1 + eps) x the true k-th, the
+    // same for any thread count.
+    KnnOptions approx = backend(KnnBackend::flann);
+    approx.eps = 1.0;
+    const KnnResult exact = KnnIndex(spread, backend(KnnBackend::grid)).self_neighbours(10);
+    KnnResult a1, a2;
+    {
+        tbb::global_control c(tbb::global_control::max_allowed_parallelism, 1);
+        a1 = KnnIndex(spread, approx).self_neighbours(10);
+    }
+    a2 = KnnIndex(spread, approx).self_neighbours(10);
+    REQUIRE(a1.indices == a2.indices);
+    std::size_t right = 0;
+    for (std::size_t i = 0; i < spread.size(); ++i) {
+        const int* e = exact.neighbours(i);
+        for (int j = 0; j < 10; ++j) right += std::find(e, e + 10, a1.neighbours(i)[j]) != e + 10;
+        // FLANN applies eps to the squared distances it compares.
+        REQUIRE(a1.sq_dists(i)[9] <= 2.0f * exact.sq_dists(i)[9] * 1.0001f);
+    }
+    const double recall = double(right) / double(spread.size() * 10);
+    INFO("recall at eps 1: " << recall);
+    CHECK(recall > 0.5);
 }
 
 TEST_CASE("kNN: the neighbours of a subset come from those of the whole set", "[normals]") {

@@ -28,6 +28,10 @@ inline const Choices<ScaleMode>& scale_mode_choices() {
         {"auto", ScaleMode::automatic}, {"knn", ScaleMode::knn}, {"none", ScaleMode::none}};
     return c;
 }
+inline const Choices<KnnBackend>& knn_backend_choices() {
+    static const Choices<KnnBackend> c = {{"grid", KnnBackend::grid}, {"flann", KnnBackend::flann}};
+    return c;
+}
 inline const Choices<Mesher>& mesher_choices() {
     static const Choices<Mesher> c = {{"vdb", Mesher::vdb}, {"mc", Mesher::mc}, {"dc", Mesher::dc}};
     return c;

@@ -1,5 +1,5 @@
 // k-nearest-neighbour queries over a fixed point set: an exact search on a Morton-ordered cell
-// grid (knn.cpp), hidden behind this class so it can be swapped without an API change.
+// grid (knn.cpp), or FLANN's kd-trees (knn_flann.cpp), hidden behind one class.
 #pragma once
 
 #include <functional>
@@ -46,11 +46,37 @@ struct KnnResult {
                      int k_sub, std::size_t* requeried = nullptr) &&;
 };
 
-/// An exact kd-tree over points; build once, query many times from any number of threads.
+/// The search behind KnnIndex. FLANN is the library the design first named; bench/knn.sh
+/// measures it 1.3-6.8x slower than the grid on every cloud tried (k = 16, 2 threads), exact
+/// copies included (the room scan, half its points doubled: 0.115 vs 0.225 s; 20 copies of
+/// every point: 0.053 vs 0.070 s; a 20M-point terrain: 10.3 vs 69.8 s), so the grid is the
+/// default everywhere.
+enum class KnnBackend {
+    grid,   ///< our exact search on a Morton-ordered cell grid (knn.cpp)
+    flann,  ///< FLANN's kd-tree (knn_flann.cpp): exact, or approximate with KnnOptions::eps
+};
+
+struct KnnOptions {
+    KnnBackend backend = KnnBackend::grid;
+    /// flann: 0 = exact; > 0 = eps-approximate search (FLANN skips a branch that cannot hold a
+    /// point closer than the k-th found by more than the factor 1 + eps on squared distances:
+    /// a few neighbours may be missed, none returned is farther than sqrt(1 + eps) times the
+    /// true k-th). Deterministic, unlike FLANN's randomized kd-trees (src/detail/knn_flann.h
+    /// says why they are not offered).
+    double eps = 0.0;
+
+    /// Throws InvalidArgument naming the field when out of range.
+    void validate() const;
+};
+
+/// Exact (or, with FLANN's eps, approximate) k-nearest-neighbour search over fixed
+/// points; build once, query many times from any number of threads.
 class KnnIndex {
 public:
-    /// Builds the tree over `points`, which are not copied: they must outlive the index.
-    explicit KnnIndex(Span<Vec3f> points);
+    /// Builds the index over `points`, which are not copied: they must outlive the index.
+    explicit KnnIndex(Span<Vec3f> points, const KnnOptions& options = {});
+    /// The search in use.
+    KnnBackend backend() const;
     ~KnnIndex();
     KnnIndex(const KnnIndex&) = delete;
     KnnIndex& operator=(const KnnIndex&) = delete;

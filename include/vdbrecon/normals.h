@@ -40,6 +40,8 @@ struct NormalOptions {
     std::optional<Vec3d> viewpoint;
     /// Where the per-point scale comes from.
     ScaleMode scale = ScaleMode::automatic;
+    /// The neighbour search (when the outlier stage hands over no lists).
+    KnnOptions knn;
 
     /// Throws InvalidArgument naming the field when out of range.
     void validate() const;

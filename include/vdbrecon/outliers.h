@@ -40,6 +40,8 @@ struct OutlierOptions {
     double planarity_ratio = 0.3;
     /// ... and d_i above this times the cloud's median d (dimensionless).
     double planarity_spacing = 1.5;
+    /// The neighbour search (the normal stage reuses its lists: give both the same).
+    KnnOptions knn;
 
     /// Throws InvalidArgument naming the field when out of range.
     void validate() const;

@@ -22,7 +22,9 @@ void bind_normals(py::module_& m) {
             "scale", &NormalOptions::scale,
             scale_mode_choices(),
             "Per-point scale: 'auto' the file's when present else the mean kNN distance, "
-            "'knn' always the kNN distance, 'none' no scale (CLI --scale).");
+            "'knn' always the kNN distance, 'none' no scale (CLI --scale).")
+        .nested("knn", &NormalOptions::knn,
+                "The neighbour search when the outlier stage hands over no lists (KnnOptions).");
     o.finish();
 
     py::class_<NormalResult>(m, "NormalResult", "What estimate_normals produced.")

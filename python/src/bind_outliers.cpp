@@ -18,6 +18,15 @@ py::array view_flags(const std::vector<char>& flags, py::handle owner) {
 }  // namespace
 
 void bind_outliers(py::module_& m) {
+    OptionsClass<KnnOptions> knn(m, "KnnOptions",
+                                 "The neighbour search of the outlier and normal stages.");
+    knn.choice("backend", &KnnOptions::backend, knn_backend_choices(),
+               "'grid' (our exact cell-grid search) or 'flann' (FLANN's kd-tree; CLI --knn).")
+        .field("eps", &KnnOptions::eps,
+               "flann: eps-approximate search, no neighbour farther than sqrt(1 + eps) x the "
+               "true k-th; 0 = exact (CLI --knn-eps).");
+    knn.finish();
+
     OptionsClass<OutlierOptions> o(
         m, "OutlierOptions",
         "Point outlier removal before splatting, over each point's k nearest neighbours: a "
@@ -33,7 +42,8 @@ void bind_outliers(py::module_& m) {
                "Planarity rule: lambda_0 / lambda_1 of the neighbourhood covariance above this, "
                "dimensionless in [0, 1) (0 disables the rule) ...")
         .field("planarity_spacing", &OutlierOptions::planarity_spacing,
-               "... and d_i above this times the cloud's median d, dimensionless.");
+               "... and d_i above this times the cloud's median d, dimensionless.")
+        .nested("knn", &OutlierOptions::knn, "The neighbour search (KnnOptions).");
     o.finish();
 
     py::class_<OutlierResult>(m, "OutlierResult", "The kept points and what was removed.")

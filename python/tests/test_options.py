@@ -5,6 +5,7 @@ import pydoc
 import re
 import subprocess
 
+import numpy as np
 import pytest
 
 import vdbrecon
@@ -162,3 +163,20 @@ def test_options_structs_are_plain_values():
     p = vdbrecon.PipelineOptions()
     p.splat.support = 2.0  # nested structs are references, not copies
     assert p.splat.support == 2.0
+
+
+def test_knn_backend_for_both_neighbour_stages():
+    # Estimated normals on a sphere with copies of a tenth of its points: FLANN's kd-tree gives
+    # the grid's lists (ties by index), so the same mesh; the choice reaches both stages.
+    points, _ = sphere(8000, 1.0)
+    points = np.concatenate([points, points[::10]])
+    meshes = [vdbrecon.reconstruct(points, voxel=0.08, knn=b) for b in ("grid", "flann")]
+    assert len(meshes[0].faces) > 1000
+    assert np.array_equal(meshes[0].vertices, meshes[1].vertices)
+    assert np.array_equal(meshes[0].faces, meshes[1].faces)
+    o = vdbrecon.NormalOptions()
+    o.knn.backend = "flann"
+    o.knn.eps = 0.5
+    assert (o.knn.backend, o.knn.eps) == ("flann", 0.5)
+    with pytest.raises(ValueError, match="'kdtree' is not one of 'grid', 'flann'"):
+        vdbrecon.reconstruct(points, voxel=0.08, knn="kdtree")

@@ -260,7 +260,13 @@ def _fill_keywords(names, kwargs, func, structs):
 
 def _fill_pipeline(names, kwargs, func):
     o = PipelineOptions()
+    # The neighbour search (CLI --knn, --knn-eps) is one choice for the outlier and normal stages.
+    kwargs = dict(kwargs)
+    knn = {f: kwargs.pop(k) for k, f in (("knn", "backend"), ("knn_eps", "eps")) if k in kwargs}
     _fill_keywords(names, kwargs, func, {None: o, **{s: getattr(o, s) for s in o._stages}})
+    for field, value in knn.items():
+        for stage in (o.outliers, o.normals):
+            _set_field(stage.knn, field, value, func, "knn" if field == "backend" else "knn_eps")
     return o
 
 

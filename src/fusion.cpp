@@ -477,7 +477,7 @@ void Fusion::add(const PointCloud& samples, std::size_t count) {
 
 void Fusion::flush() const {
     if (pending_.empty()) return;
-    accumulator_.add(aggregate_samples(std::move(pending_), options_.splat, depth_.aggregate));
+    accumulator_.add(presum(std::move(pending_)));
     pending_ = PointCloud{};
 }
 

@@ -406,8 +406,9 @@ TEST_CASE("the Kinect frame: its compressed PCD is its PLY twin, and fuses as an
     CHECK(f.integrate(frame) > 235000);
     const Mesh m = f.reconstruct().mesh;
     REQUIRE(m.vertices.size() > 10000);
-    // Precision: the mesh's vertices lie on the scan (within a voxel of a point), at least as
-    // well as the point pipeline's 92.6 % (PLY, --voxel 0.013).
+    // Precision: the mesh's vertices lie on the scan (within a voxel of a point), better than
+    // the point pipeline's 92.6 % (PLY, --voxel 0.013): 99.5 % with presumming and no samples
+    // more grazing than min_view_cos (98.6 % with them, 95.4 % before presumming).
     KnnIndex index(b.cloud.positions);
     std::vector<Vec3f> q(m.vertices.begin(), m.vertices.end());
     for (Vec3f& x : q) {
@@ -417,7 +418,7 @@ TEST_CASE("the Kinect frame: its compressed PCD is its PLY twin, and fuses as an
     std::size_t near = 0;
     for (std::size_t i = 0; i < q.size(); ++i) near += nn.sq_dists(i)[0] <= voxel * voxel;
     INFO("within a voxel: " << double(near) / double(q.size()));
-    CHECK(double(near) / double(q.size()) >= 0.94);
+    CHECK(double(near) / double(q.size()) >= 0.98);
 }
 
 TEST_CASE("tsdf fusion: a sphere is one closed piece, and carving removes an object that moved", "[fusion][tsdf]") {

@@ -213,7 +213,14 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
             for (auto* v : {&raw.scales, &raw.confidences}) {
                 if (!v->empty()) (*v)[kept] = (*v)[i];
             }
-            if (!raw.scans.empty()) raw.scans[kept] = raw.scans[i];
+            auto keep = [&](auto& v) {
+                if (!v.empty()) v[kept] = v[i];
+            };
+            keep(raw.scans);
+            keep(raw.las.classification);
+            keep(raw.las.intensity);
+            keep(raw.las.return_number);
+            keep(raw.las.number_of_returns);
         }
         ++kept;
     }
@@ -238,10 +245,16 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         raw.confidences.resize(kept);
         cloud.confidences = std::move(raw.confidences);
     }
-    if (!raw.scans.empty()) {
-        raw.scans.resize(kept);
-        result.scans = std::move(raw.scans);
-    }
+    auto take = [&](auto& from, auto& to) {
+        if (from.empty()) return;
+        from.resize(kept);
+        to = std::move(from);
+    };
+    take(raw.scans, result.scans);
+    take(raw.las.classification, result.las.classification);
+    take(raw.las.intensity, result.las.intensity);
+    take(raw.las.return_number, result.las.return_number);
+    take(raw.las.number_of_returns, result.las.number_of_returns);
     for (Vec3f& n : normals) {
         const double len = std::sqrt(double(n[0]) * n[0] + double(n[1]) * n[1] + double(n[2]) * n[2]);
         if (!std::isfinite(len) || len < 1e-12) {

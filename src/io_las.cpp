@@ -1,6 +1,7 @@
 // ASPRS LAS 1.0-1.4 point clouds (point data record formats 0-10), the format of airborne and
 // terrestrial LiDAR. Coordinates are X * scale + offset in double (then the reader's local
-// frame); RGB (formats 2, 3, 5, 7, 8, 10) becomes colours; ReadOptions::classes keeps the
+// frame); RGB (formats 2, 3, 5, 7, 8, 10) becomes colours; classification, intensity and
+// returns go to ReadResult::las; ReadOptions::classes keeps the
 // points of some classes. LAZ (compressed LAS) is refused with a hint. Layout per the LAS 1.4
 // specification (R15): public header block, then point records of `record length` bytes at
 // `offset to point data`.
@@ -106,14 +107,28 @@ RawPoints read_las_raw(const std::string& path, std::string_view b, const std::v
     const std::size_t class_at = format >= 6 ? 16 : 15;
     const std::uint8_t class_mask = format >= 6 ? 0xFF : 0x1F;
     const std::size_t rgb = rgb_offset(format);
+    // Returns: bits 0-2 and 3-5 of byte 14 in formats 0-5, its two nibbles in 6-10.
+    const int return_bits = format >= 6 ? 4 : 3;
+    const std::uint8_t return_mask = std::uint8_t((1 << return_bits) - 1);
     RawPoints raw;
     raw.xyz.reserve(3 * count);
     if (rgb) raw.colors.reserve(3 * count);
+    LasAttributes& las = raw.las;
+    las.classification.reserve(count);
+    las.intensity.reserve(count);
+    las.return_number.reserve(count);
+    las.number_of_returns.reserve(count);
     // 16-bit colours, unless every value fits in 8 bits (some writers store 0-255).
     std::uint16_t max_rgb = 0;
     for (std::uint64_t i = 0; i < count; ++i) {
         const std::size_t at = data_offset + std::size_t(i) * record;
-        if (!classes.empty() && !keep_class[std::uint8_t(b[at + class_at]) & class_mask]) continue;
+        const std::uint8_t cls = std::uint8_t(b[at + class_at]) & class_mask;
+        if (!classes.empty() && !keep_class[cls]) continue;
+        const std::uint8_t returns = std::uint8_t(b[at + 14]);
+        las.classification.push_back(cls);
+        las.intensity.push_back(get<std::uint16_t>(b, at + 12));
+        las.return_number.push_back(returns & return_mask);
+        las.number_of_returns.push_back(std::uint8_t(returns >> return_bits) & return_mask);
         for (int a = 0; a < 3; ++a) {
             raw.xyz.push_back(double(get<std::int32_t>(b, at + 4 * std::size_t(a))) * scale[a] +
                               offset[a]);

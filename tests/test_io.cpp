@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cstring>
 
 #include "support.h"
@@ -430,6 +431,28 @@ TEST_CASE("LAS: the Autzen tile reads as its PLY twin; classes filter; LAZ is re
     CHECK(read_points(las, ground).cloud.size() == 26107);
     ground.classes = {1, 2};
     CHECK(read_points(las, ground).cloud.size() == 110000);
+    // Per-point attributes: classification, intensity, returns (up to 4 in this tile).
+    const LasAttributes& at = a.las;
+    REQUIRE(at.classification.size() == a.cloud.size());
+    REQUIRE(at.intensity.size() == a.cloud.size());
+    REQUIRE(at.return_number.size() == a.cloud.size());
+    REQUIRE(at.number_of_returns.size() == a.cloud.size());
+    CHECK(std::count(at.classification.begin(), at.classification.end(), 1) == 83893);
+    CHECK(std::count(at.classification.begin(), at.classification.end(), 2) == 26107);
+    std::size_t bad_returns = 0, multiple = 0;
+    for (std::size_t i = 0; i < a.cloud.size(); ++i) {
+        bad_returns += at.return_number[i] < 1 || at.return_number[i] > at.number_of_returns[i] ||
+                       at.number_of_returns[i] > 4;
+        multiple += at.number_of_returns[i] > 1;
+    }
+    CHECK(bad_returns == 0);
+    CHECK(multiple > 1000);
+    CHECK(*std::max_element(at.intensity.begin(), at.intensity.end()) > 0);
+    ground.classes = {2};
+    const ReadResult g = read_points(las, ground);
+    REQUIRE(g.las.classification.size() == 26107);
+    CHECK(std::count(g.las.classification.begin(), g.las.classification.end(), 2) == 26107);
+    CHECK(b.las.empty());  // other formats have none
     // Classes on a non-LAS file, a LAZ file and a truncated LAS: one-line errors naming the file.
     REQUIRE_THROWS_WITH(read_points(ply, ground), Catch::Contains("autzen_trim.ply") &&
                                                       Catch::Contains("LAS"));

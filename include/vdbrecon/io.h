@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -33,6 +34,17 @@ struct ReadOptions {
     std::vector<int> classes;
 };
 
+/// The per-point attributes of a LAS file (empty for other formats), one entry per point of the
+/// cloud.
+struct LasAttributes {
+    std::vector<std::uint8_t> classification;     ///< ASPRS class (2 ground, 6 building, ...)
+    std::vector<std::uint16_t> intensity;         ///< return pulse magnitude, sensor units
+    std::vector<std::uint8_t> return_number;      ///< 1-based, of number_of_returns
+    std::vector<std::uint8_t> number_of_returns;  ///< returns of the pulse
+
+    bool empty() const { return classification.empty(); }
+};
+
 /// What a point reader found.
 struct ReadResult {
     PointCloud cloud;
@@ -44,6 +56,8 @@ struct ReadResult {
     /// The scan each point came from (PLY property `scan`, `scan_id` or `scan_index`, as the
     /// merged Stanford scans have it), one per point of the cloud; empty without one.
     std::vector<std::int32_t> scans;
+    /// LAS input: classification, intensity and returns of every point kept.
+    LasAttributes las;
 };
 
 /// Reads a point cloud; the format comes from the extension (.ply .xyz .pts .txt .obj .las), or

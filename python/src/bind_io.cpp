@@ -4,6 +4,16 @@
 
 namespace vdbrecon::python {
 
+namespace {
+
+/// A numpy copy of a vector of integers.
+template <typename T>
+py::array_t<T> copy_array(const std::vector<T>& v) {
+    return py::array_t<T>(py::ssize_t(v.size()), v.data());
+}
+
+}  // namespace
+
 void bind_io(py::module_& m) {
     OptionsClass<ReadOptions> read(m, "ReadOptions", "How point files are read.");
     read.choice("non_finite", &ReadOptions::non_finite,
@@ -35,6 +45,23 @@ void bind_io(py::module_& m) {
                       "Rows dropped for NaN/inf coordinates.")
         .def_readonly("invalid_normals", &ReadResult::invalid_normals,
                       "Normals that were zero or NaN (set to 0, 0, 0).")
+        .def_property_readonly(
+            "classification",
+            [](const ReadResult& r) { return copy_array(r.las.classification); },
+            "LAS: (N,) uint8 ASPRS class of every point (2 ground, 6 building, ...); empty "
+            "for other formats.")
+        .def_property_readonly(
+            "intensity",
+            [](const ReadResult& r) { return copy_array(r.las.intensity); },
+            "LAS: (N,) uint16 return intensity, sensor units; empty for other formats.")
+        .def_property_readonly(
+            "return_number",
+            [](const ReadResult& r) { return copy_array(r.las.return_number); },
+            "LAS: (N,) uint8 return number, 1-based; empty for other formats.")
+        .def_property_readonly(
+            "number_of_returns",
+            [](const ReadResult& r) { return copy_array(r.las.number_of_returns); },
+            "LAS: (N,) uint8 returns of the point's pulse; empty for other formats.")
         .def("__repr__", [](const ReadResult& r) {
             return "ReadResult(" + std::to_string(r.cloud.size()) + " points, format='" + r.format +
                    "', rows=" + std::to_string(r.rows) + ")";

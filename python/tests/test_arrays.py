@@ -189,3 +189,16 @@ def test_library_errors_map_to_python_exceptions(tmp_path):
         vdbrecon.reconstruct(np.zeros((100, 3), np.float32), normals)
     with pytest.raises(vdbrecon.InvalidArgument, match="no normals"):
         vdbrecon.splat(points, voxel=0.1)
+
+
+def test_las_attributes_come_with_the_points(shared_data):
+    path = shared_data / "pdal_autzen" / "autzen_trim.las"
+    r = vdbrecon.read_points(path)
+    assert r.classification.dtype == np.uint8 and r.intensity.dtype == np.uint16
+    assert len(r.classification) == len(r.cloud.positions) == 110000
+    assert np.count_nonzero(r.classification == 2) == 26107  # ground (the MANIFEST's count)
+    assert np.all((r.return_number >= 1) & (r.return_number <= r.number_of_returns))
+    ground = vdbrecon.read_points(path, classes=[2])
+    assert np.all(ground.classification == 2) and len(ground.intensity) == 26107
+    ply = vdbrecon.read_points(shared_data / "pdal_autzen" / "autzen_trim.ply")
+    assert len(ply.classification) == 0

@@ -343,10 +343,12 @@ def read_points(path, **options):
     return _v.read_points(_path(path), _fill(ReadOptions, options, "read_points"))
 
 
-_document(read_points, """Reads a point cloud: PLY (ascii/binary), XYZ/PTS text, OBJ (v/vn).
+_document(read_points, """Reads a point cloud: PLY (ascii/binary), XYZ/PTS text, OBJ (v/vn),
+PCD, LAS.
 
 Returns a ReadResult: .cloud (PointCloud with positions, normals, colors, scales,
-confidences as numpy views), .format, .rows, .dropped_nonfinite, .invalid_normals.
+confidences as numpy views), .format, .rows, .dropped_nonfinite, .invalid_normals; for LAS
+also .classification, .intensity, .return_number, .number_of_returns (numpy, one per point).
 Raises IoError / FormatError (OSError) naming the file.""",
           _struct_entries(ReadOptions), [_pos("path")])
 

@@ -21,6 +21,7 @@ struct RawPoints {
     std::vector<float> scales;          ///< 1 per row or empty
     std::vector<float> confidences;     ///< 1 per row or empty
     std::vector<std::int32_t> scans;    ///< 1 per row or empty: the scan a row came from
+    LasAttributes las;                  ///< LAS rows: 1 per row each, else empty
     std::vector<Triangle> faces;        ///< only for meshes
 
     std::size_t rows() const { return xyz.size() / 3; }

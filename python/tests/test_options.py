@@ -174,6 +174,8 @@ def test_knn_backend_for_both_neighbour_stages():
     assert len(meshes[0].faces) > 1000
     assert np.array_equal(meshes[0].vertices, meshes[1].vertices)
     assert np.array_equal(meshes[0].faces, meshes[1].faces)
+    assert "knn_eps" in vdbrecon.reconstruct.__doc__ and "knn" in vdbrecon.run.__doc__
+    assert vdbrecon.KnnOptions().backend == "grid"
     o = vdbrecon.NormalOptions()
     o.knn.backend = "flann"
     o.knn.eps = 0.5

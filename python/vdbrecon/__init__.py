@@ -59,6 +59,7 @@ from ._vdbrecon import (  # noqa: F401  (re-exported)
     HoleFillResult,
     InvalidArgument,
     IoError,
+    KnnOptions,
     Mesh,
     MeshOptions,
     MeshResult,
@@ -91,7 +92,7 @@ __all__ = [
     "fill_holes", "decimate", "DecimateOptions", "DecimateResult", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
     "version", "stage_volume_path",
     "PointCloud", "Mesh", "Volume", "PipelineOptions", "ReadOptions", "WriteOptions",
-    "OutlierOptions", "NormalOptions", "SplatOptions", "CloseOptions", "MeshOptions",
+    "OutlierOptions", "NormalOptions", "KnnOptions", "SplatOptions", "CloseOptions", "MeshOptions",
     "CleanOptions", "HoleFillOptions", "HoleFillResult", "EvalOptions", "ReadResult", "OutlierResult", "NormalResult", "SplatResult",
     "CloseResult", "MeshResult", "CleanResult", "EvalResult", "PipelineResult", "RunResult",
     "TopologyStats", "FScore", "StageTiming", "Error", "IoError", "FormatError",
@@ -256,6 +257,10 @@ def _fill_keywords(names, kwargs, func, structs):
         seen[place, field] = name
         _set_field(structs[place], field, value, func, name)
     return structs
+
+
+# knn= and knn_eps= of reconstruct() and run() (set on both neighbour stages; _fill_pipeline).
+_KNN_ENTRIES = [("knn", KnnOptions, "backend"), ("knn_eps", KnnOptions, "eps")]
 
 
 def _fill_pipeline(names, kwargs, func):
@@ -676,7 +681,7 @@ Returns a Mesh: .vertices (V, 3) float32, .faces (F, 3) int32 (counter-clockwise
 outside), .normals (V, 3) or None, .colors or None, .origin.
 Raises InvalidArgument (ValueError) for options out of range, NumericalError when nothing can
 be reconstructed, TypeError for unknown options.""",
-          _keyword_entries(_RECONSTRUCT_NAMES, _RECONSTRUCT_PLACES),
+          _keyword_entries(_RECONSTRUCT_NAMES, _RECONSTRUCT_PLACES) + _KNN_ENTRIES,
           [_pos("points"), _pos("normals", None), _pos("colors", None), _kw("voxel", None),
            _kw("return_result", False)])
 
@@ -694,7 +699,7 @@ write_* included; keywords as in reconstruct()).
 
 Returns a RunResult: .result (PipelineResult), .read (ReadResult counts), .mesh_path,
 .vdb_path, .closed_vdb_path.""",
-          _keyword_entries(_RUN_NAMES, _RUN_PLACES), [_pos("input"), _pos("output", None),
+          _keyword_entries(_RUN_NAMES, _RUN_PLACES) + _KNN_ENTRIES, [_pos("input"), _pos("output", None),
                                                       _kw("voxel", None)])
 
 

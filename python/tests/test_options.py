@@ -175,6 +175,13 @@ def test_knn_backend_for_both_neighbour_stages():
     assert np.array_equal(meshes[0].vertices, meshes[1].vertices)
     assert np.array_equal(meshes[0].faces, meshes[1].faces)
     assert "knn_eps" in vdbrecon.reconstruct.__doc__ and "knn" in vdbrecon.run.__doc__
+    # The stages alone take it too.
+    kept = [vdbrecon.remove_outliers(points, knn=b).removed for b in ("grid", "flann")]
+    assert np.array_equal(kept[0], kept[1])
+    normals = [vdbrecon.estimate_normals(points, knn=b).normals for b in ("grid", "flann")]
+    assert np.array_equal(normals[0], normals[1])
+    with pytest.raises(TypeError, match="knn_eps"):
+        vdbrecon.remove_outliers(points, knn_epsilon=0.5)
     assert vdbrecon.KnnOptions().backend == "grid"
     o = vdbrecon.NormalOptions()
     o.knn.backend = "flann"

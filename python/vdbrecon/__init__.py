@@ -191,13 +191,24 @@ def _unknown(func, name, valid):
                      + ", ".join(sorted(valid)))
 
 
+# knn= and knn_eps=: KnnOptions' fields, for the structs that nest one (_fill) and for both
+# neighbour stages at once in reconstruct() and run() (_fill_pipeline).
+_KNN_FIELDS = {"knn": "backend", "knn_eps": "eps"}
+_KNN_ENTRIES = [(k, KnnOptions, f) for k, f in _KNN_FIELDS.items()]
+
+
 def _fill(cls, kwargs, func):
-    """A `cls` options struct with `kwargs` set (its field names)."""
+    """A `cls` options struct with `kwargs` set (its field names; knn= and knn_eps= on the
+    neighbour search of the structs that have one)."""
     struct = cls()
     fields = [f for f, _ in cls._fields]
+    has_knn = "knn" in getattr(cls, "_stages", ())
     for name, value in kwargs.items():
+        if has_knn and name in _KNN_FIELDS:
+            _set_field(struct.knn, _KNN_FIELDS[name], value, func, name)
+            continue
         if name not in fields:
-            raise _unknown(func, name, fields)
+            raise _unknown(func, name, fields + (list(_KNN_FIELDS) if has_knn else []))
         _set_field(struct, name, value, func, name)
     return struct
 
@@ -259,19 +270,16 @@ def _fill_keywords(names, kwargs, func, structs):
     return structs
 
 
-# knn= and knn_eps= of reconstruct() and run() (set on both neighbour stages; _fill_pipeline).
-_KNN_ENTRIES = [("knn", KnnOptions, "backend"), ("knn_eps", KnnOptions, "eps")]
 
 
 def _fill_pipeline(names, kwargs, func):
     o = PipelineOptions()
-    # The neighbour search (CLI --knn, --knn-eps) is one choice for the outlier and normal stages.
     kwargs = dict(kwargs)
-    knn = {f: kwargs.pop(k) for k, f in (("knn", "backend"), ("knn_eps", "eps")) if k in kwargs}
+    knn = {keyword: kwargs.pop(keyword) for keyword in _KNN_FIELDS if keyword in kwargs}
     _fill_keywords(names, kwargs, func, {None: o, **{s: getattr(o, s) for s in o._stages}})
-    for field, value in knn.items():
+    for keyword, value in knn.items():  # one neighbour search for the outlier and normal stages
         for stage in (o.outliers, o.normals):
-            _set_field(stage.knn, field, value, func, "knn" if field == "backend" else "knn_eps")
+            _set_field(stage.knn, _KNN_FIELDS[keyword], value, func, keyword)
     return o
 
 
@@ -487,7 +495,7 @@ enabled is True here whatever OutlierOptions' default: calling this function run
 (enabled=False returns every point). Nothing is removed with fewer than k + 1 points.
 Returns an OutlierResult: .cloud (PointCloud of the kept points, input order), .removed (N,)
 bool, True for each removed input point, .statistical and .planarity (counts per rule).""",
-          _struct_entries(OutlierOptions),
+          _struct_entries(OutlierOptions) + _KNN_ENTRIES,
           [_pos("points"), _pos("normals", None), _pos("colors", None)],
           defaults={"enabled": True})
 
@@ -503,7 +511,7 @@ towards `viewpoint` or by minimum-spanning-tree propagation, Hoppe 1992) and per
 points: PointCloud or (N, 3) array, world units; normals: optional (N, 3) array (kept, or
 repaired where zero/NaN, per `mode`).
 Returns a NormalResult: .normals (N, 3), .scales (N,) or None, and counts.""",
-          _struct_entries(NormalOptions), [_pos("points"), _pos("normals", None)])
+          _struct_entries(NormalOptions) + _KNN_ENTRIES, [_pos("points"), _pos("normals", None)])
 
 
 def splat(points, normals=None, colors=None, scales=None, *, voxel=None, **options):

@@ -85,7 +85,7 @@ std::vector<Keyed> cell_keys(const PointCloud& cloud, const SplatOptions& o, dou
             const Vec3f& p = pos[i];
             const double len = length(nrm[i]);
             const float c = conf ? conf[i] : 1.0f;
-            if (!(std::isfinite(len) && len > 1e-12 && c > 0.0f && std::isfinite(c)) ||
+            if (!kernel_usable(len, c) ||
                 !(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) {
                 continue;
             }

@@ -210,12 +210,11 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
             for (auto* v : {&raw.normals, &raw.colors}) {
                 if (!v->empty()) std::copy_n(v->data() + 3 * i, 3, v->data() + 3 * kept);
             }
-            for (auto* v : {&raw.scales, &raw.confidences}) {
-                if (!v->empty()) (*v)[kept] = (*v)[i];
-            }
             auto keep = [&](auto& v) {
                 if (!v.empty()) v[kept] = v[i];
             };
+            keep(raw.scales);
+            keep(raw.confidences);
             keep(raw.scans);
             keep(raw.las.classification);
             keep(raw.las.intensity);

@@ -28,6 +28,7 @@
 // for any number of threads.
 #pragma once
 
+#include <cmath>
 #include <cstddef>
 #include <memory>
 
@@ -103,6 +104,14 @@ inline double kernel_sigma_voxels(const SplatOptions& options, float scale) {
                                   : options.sigma_voxels;
     return s < options.min_sigma_voxels ? options.min_sigma_voxels
                                         : (s > options.max_sigma_voxels ? options.max_sigma_voxels : s);
+}
+
+/// Whether the splat uses a sample with this normal length and confidence: a finite normal
+/// longer than 1e-12 and a finite confidence > 0 (FSSR's weight carries the confidence; a
+/// sample of confidence <= 0 or NaN weighs nothing and is skipped like one without a normal).
+inline bool kernel_usable(double normal_length, float confidence) {
+    return std::isfinite(normal_length) && normal_length > 1e-12 && confidence > 0.0f &&
+           std::isfinite(confidence);
 }
 
 /// Samples summed into fewer before a splat ("presumming"): the samples of one sigma level

@@ -58,10 +58,8 @@ class Kernels {
         k.cz = c[2];
         const double s = kernel_sigma_voxels(options_, use_scale_ ? cloud_.scales[i] : 0.0f);
         k.s = float(s);
-        // FSSR's weight carries the sample's confidence; a sample of confidence <= 0 (or NaN)
-        // weighs nothing and is skipped like one without a normal.
         k.conf = use_conf_ ? cloud_.confidences[i] : 1.0f;
-        if (!(std::isfinite(len) && len > 1e-12) || !(k.conf > 0.0f && std::isfinite(k.conf))) {
+        if (!kernel_usable(len, k.conf)) {
             k.r = 0.0f;  // no usable normal (or no confidence): skipped
             return k;
         }

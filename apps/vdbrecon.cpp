@@ -180,6 +180,9 @@ void print_help() {
         << "                         [half the physical memory: " << fmt_bytes(memory_budget(d.splat))
         << "]\n"
         << "  --no-vdb               do not write the .vdb volume\n"
+        << "  --tile N               splat, close and mesh tiles of N^3 voxels one at a time\n"
+        << "                         (each with a halo of samples): less memory, the same mesh;\n"
+        << "                         no .vdb is written [0: off]\n"
         << "  --preview PATH         write a shaded picture of the mesh: .png, or .exr with a\n"
         << "                         depth channel Z [none]\n"
         << "  -q, --quiet            no progress or timings on stderr\n"
@@ -433,6 +436,8 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.preview_path = args.value(a);
     } else if (a == "--no-vdb") {
         o.write_vdb = false;
+    } else if (a == "--tile") {
+        o.tile = parse_int(a, args.value(a));
     } else {
         return false;
     }
@@ -512,13 +517,20 @@ void report(const RunResult& r, const PipelineOptions& o,
             s << "; set --voxel to override)";
         }
         s << "\n";
-        s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max
-          << " (median " << p.splat.sigma_median << "), " << p.splat.active_voxels
-          << " valid voxels in " << p.splat.leaves << " leaves, " << p.splat.updates
-          << " kernel updates, grids " << fmt_megabytes(p.splat.memory_bytes) << " in memory";
-        if (p.splat.skipped_points) s << ", " << p.splat.skipped_points << " points without normal";
-        if (p.splat.crease_voxels) s << ", " << p.splat.crease_voxels << " voxels at creases";
-        s << "\n";
+        if (p.tile > 0) {
+            s << "vdbrecon: tiles: " << p.tiles << " tiles of " << p.tile << "^3 voxels, halo "
+              << p.tile_halo << " voxels, largest " << p.max_tile_points << " samples; "
+              << p.splat.active_voxels << " valid voxels in " << p.splat.leaves
+              << " leaves (halos counted in each tile)\n";
+        } else {
+            s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max
+              << " (median " << p.splat.sigma_median << "), " << p.splat.active_voxels
+              << " valid voxels in " << p.splat.leaves << " leaves, " << p.splat.updates
+              << " kernel updates, grids " << fmt_megabytes(p.splat.memory_bytes) << " in memory";
+            if (p.splat.skipped_points) s << ", " << p.splat.skipped_points << " points without normal";
+            if (p.splat.crease_voxels) s << ", " << p.splat.crease_voxels << " voxels at creases";
+            s << "\n";
+        }
         if (o.close.hole_radius > 0) {
             s << "vdbrecon: close: " << p.close.supported_voxels << " supported voxels -> "
               << p.close.closed_voxels << " after closing by " << o.close.hole_radius << ", "

@@ -38,8 +38,6 @@
 // the result does not depend on the thread count.
 #include "detail/creases.h"
 
-#include "detail/release.h"
-
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
@@ -481,19 +479,26 @@ class LeafSums {
 
 }  // namespace
 
-CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels, std::size_t points,
-                            double voxel, double crease_angle, float background) {
-    CreaseStats stats;
-    if (!(crease_angle > 0.0)) return stats;
+CreaseReach crease_reach(const Kernels& kernels, std::size_t points) {
+    CreaseReach reach;
+    if (points == 0) return reach;
     std::vector<float> radius(points);
     for (std::size_t i = 0; i < points; ++i) radius[i] = kernels(i, false).r;
-    const float r_max = *std::max_element(radius.begin(), radius.end());
+    reach.r_max = *std::max_element(radius.begin(), radius.end());
     // The crease test looks as far as most kernels reach (95 %): a crease only the widest
     // kernels see from a leaf leaves the splat's value there.
     auto p95 = radius.begin() + std::ptrdiff_t(0.95 * double(points - 1));
     std::nth_element(radius.begin(), p95, radius.end());
-    const float r_typical = *p95;
-    detail::release(radius);
+    reach.r_typical = *p95;
+    return reach;
+}
+
+CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels, std::size_t points,
+                            double voxel, double crease_angle, float background,
+                            const CreaseReach& reach) {
+    CreaseStats stats;
+    if (!(crease_angle > 0.0)) return stats;
+    const float r_max = reach.r_max, r_typical = reach.r_typical;
     const double cos_group = std::cos(0.5 * crease_angle), cos_crease = std::cos(crease_angle);
     const SampleCells cells(kernels, points, cos_group);
     const int margin = int(std::ceil(double(r_typical) / kCell));  // cells most kernels reach

@@ -4,8 +4,12 @@
 #include <openvdb/tools/Interpolation.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 
+#include <array>
 #include <cmath>
+#include <cstring>
+#include <numeric>
 #include <limits>
 #include <memory>
 
@@ -153,9 +157,6 @@ bool in_one_cell(const openvdb::Vec3d& p) {
     return lo[0] == hi[0] && lo[1] == hi[1] && lo[2] == hi[2];
 }
 
-/// What finish_mesh makes of a point a triangle uses.
-enum PointStatus : char { kInvalid = 0, kSupported = 1, kWeak = 2, kFar = 3 };
-
 /// Classifies the points the triangles use (invalid cell, supported, weak, far; see
 /// detail/support.h) and, when the mesher gave none, takes their normals from the SDF gradient
 /// into `grad`.
@@ -238,32 +239,110 @@ std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::ve
 
 }  // namespace
 
-MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurface&& raw) {
-    const double voxel = volume.sdf->voxelSize()[0];
+namespace {
+
+/// Points at the same position (bit for bit) become one, the first of them: marching cubes
+/// puts the crossings of every edge at a corner whose value is the iso-value there, and tiles
+/// (tiles.cpp) each hand over the points of their faces along shared tile faces. Faces left
+/// with a repeated point (no area) are dropped.
+void weld_coincident(ClassifiedSurface& s) {
+    std::vector<std::int32_t> used;
+    {
+        std::vector<char> in(s.points.size(), 0);
+        for (const Triangle& t : s.triangles) {
+            for (std::int32_t v : t) in[std::size_t(v)] = 1;
+        }
+        for (std::size_t i = 0; i < in.size(); ++i) {
+            if (in[i]) used.push_back(std::int32_t(i));
+        }
+    }
+    auto key = [&](std::int32_t i) {
+        std::array<std::uint32_t, 3> k;
+        std::memcpy(k.data(), &s.points[std::size_t(i)][0], sizeof k);
+        return k;
+    };
+    // A total order (position, then index): the same result for any sort and thread count.
+    tbb::parallel_sort(used.begin(), used.end(), [&](std::int32_t a, std::int32_t b) {
+        const auto ka = key(a), kb = key(b);
+        return ka != kb ? ka < kb : a < b;
+    });
+    std::vector<std::int32_t> to;  // (duplicate, first) pairs
+    for (std::size_t j = 1; j < used.size(); ++j) {
+        if (key(used[j]) != key(used[j - 1])) continue;
+        std::size_t first = j - 1;
+        while (first > 0 && key(used[first - 1]) == key(used[j])) --first;
+        to.push_back(used[j]);
+        to.push_back(used[first]);
+    }
+    if (to.empty()) return;
+    std::vector<std::int32_t> id(s.points.size());
+    std::iota(id.begin(), id.end(), 0);
+    for (std::size_t j = 0; j < to.size(); j += 2) id[std::size_t(to[j])] = to[j + 1];
+    std::size_t kept = 0;
+    for (const Triangle& f : s.triangles) {
+        const Triangle t{id[std::size_t(f[0])], id[std::size_t(f[1])], id[std::size_t(f[2])]};
+        if (t[0] == t[1] || t[1] == t[2] || t[2] == t[0]) {
+            ++s.dropped_faces;
+            continue;
+        }
+        s.triangles[kept++] = t;
+    }
+    s.triangles.resize(kept);
+}
+
+}  // namespace
+
+ClassifiedSurface classify_surface(const Volume& volume, const MeshOptions& options,
+                                   RawSurface&& raw) {
     const std::size_t npoints = raw.points.size();
-    MeshResult result;
+    ClassifiedSurface out;
     // The vertex normals before the face-normal fallback: the mesher's own, or the SDF gradient
     // (trilinear blend of central differences), which needs a stencil around each point.
     const bool own_normals = raw.normals.size() == npoints && npoints > 0;
-    std::vector<openvdb::Vec3f> grad =
-        own_normals ? std::move(raw.normals)
-                    : std::vector<openvdb::Vec3f>(npoints, openvdb::Vec3f(0.0f));
-    const std::vector<char> status = classify_points(volume, options, raw, own_normals, grad);
+    out.grad = own_normals ? std::move(raw.normals)
+                           : std::vector<openvdb::Vec3f>(npoints, openvdb::Vec3f(0.0f));
+    out.status = classify_points(volume, options, raw, own_normals, out.grad);
 
-    // Faces: dropped in invalid cells, then trimmed where unsupported (see trimmed_faces).
-    // Compacted in place (a filtered copy would add the mesh's faces to the peak).
-    std::vector<Triangle> tris = std::move(raw.triangles);
+    // Faces in invalid cells are dropped. Compacted in place (a filtered copy would add the
+    // mesh's faces to the peak).
+    out.triangles = std::move(raw.triangles);
+    std::vector<Triangle>& tris = out.triangles;
+    const std::vector<char>& status = out.status;
     std::size_t kept = 0;
     for (const Triangle& t : tris) {
         if (status[std::size_t(t[0])] && status[std::size_t(t[1])] && status[std::size_t(t[2])]) {
             tris[kept++] = t;
         } else {
-            ++result.dropped_faces;
+            ++out.dropped_faces;
         }
     }
     tris.resize(kept);
-    const std::vector<char> trim = trimmed_faces(tris, status, npoints);
-    kept = 0;
+    out.points = std::move(raw.points);
+    if (volume.color) {
+        out.colors.assign(npoints, openvdb::Vec3f(0.0f));
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            Vec3Accessor cacc(volume.color->tree());
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                if (status[i] == kInvalid) continue;
+                out.colors[i] = openvdb::tools::BoxSampler::sample(
+                    cacc, openvdb::Vec3d(out.points[i]));
+            }
+        });
+    }
+    return out;
+}
+
+MeshResult finish_surface(ClassifiedSurface&& surface, double voxel, const Vec3d& origin,
+                          const MeshOptions& options) {
+    const std::size_t npoints = surface.points.size();
+    MeshResult result;
+    weld_coincident(surface);
+    result.dropped_faces = surface.dropped_faces;
+    // Faces trimmed where unsupported (see trimmed_faces).
+    std::vector<Triangle> tris = std::move(surface.triangles);
+    const std::vector<char> trim = trimmed_faces(tris, surface.status, npoints);
+    std::size_t kept = 0;
     for (std::size_t f = 0; f < tris.size(); ++f) {
         if (trim[f]) {
             ++result.trimmed_faces;
@@ -277,37 +356,33 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
     std::size_t kept_points = 0;
     const std::vector<std::int32_t> remap = compact_vertices(tris, npoints, &kept_points);
     Mesh& mesh = result.mesh;
-    mesh.origin = volume.origin;
+    mesh.origin = origin;
     std::vector<Vec3f>& vertices = mesh.vertices.edit();
     vertices.resize(kept_points);  // sized first: growth by doubling would raise the peak
     for (std::size_t i = 0; i < npoints; ++i) {
         if (remap[i] < 0) continue;
-        const openvdb::Vec3f& p = raw.points[i];
+        const openvdb::Vec3f& p = surface.points[i];
         vertices[std::size_t(remap[i])] = {float(p[0] * voxel), float(p[1] * voxel),
                                            float(p[2] * voxel)};
     }
     mesh.faces = std::move(tris);
-
-    if (volume.color && !mesh.vertices.empty()) {
+    release(surface.points);  // not needed from here on: less to hold while the normals are made
+    if (!surface.colors.empty() && !mesh.vertices.empty()) {
         std::vector<Vec3f>& colors = mesh.colors.edit();
         colors.resize(mesh.vertices.size());
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 4096),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            Vec3Accessor cacc(volume.color->tree());
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                if (remap[i] < 0) continue;
-                const openvdb::Vec3f c =
-                    openvdb::tools::BoxSampler::sample(cacc, openvdb::Vec3d(raw.points[i]));
-                colors[std::size_t(remap[i])] = {c[0], c[1], c[2]};
-            }
-        });
+        for (std::size_t i = 0; i < npoints; ++i) {
+            if (remap[i] < 0) continue;
+            const openvdb::Vec3f& c = surface.colors[i];
+            colors[std::size_t(remap[i])] = {c[0], c[1], c[2]};
+        }
     }
-    release(raw.points);  // not needed from here on: less to hold while the normals are made
+    release(surface.colors);
     if (options.normals && !mesh.vertices.empty()) {
         // Normalised SDF gradient; area-weighted face normals where it vanishes or disagrees.
         const std::vector<std::array<double, 3>> face_n = face_normal_sums(mesh);
         std::vector<Vec3f>& normals = mesh.normals.edit();
         normals.resize(mesh.vertices.size());
+        const std::vector<openvdb::Vec3f>& grad = surface.grad;
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 16384),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t i = r.begin(); i < r.end(); ++i) {
@@ -325,19 +400,27 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
     return result;
 }
 
+MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurface&& raw) {
+    return finish_surface(classify_surface(volume, options, std::move(raw)),
+                          volume.sdf->voxelSize()[0], volume.origin, options);
+}
+
+RawSurface mesh_raw(const Volume& volume, const MeshOptions& options) {
+    switch (options.method) {
+        case Mesher::vdb: return mesh_vdb(volume, options);
+        case Mesher::mc: return mesh_mc(volume, options);
+        case Mesher::dc: return mesh_dc(volume, options);
+    }
+    return {};
+}
+
 }  // namespace detail
 
 MeshResult extract_mesh(const Volume& volume, const MeshOptions& options) {
     options.validate();
     if (!volume.sdf) throw InvalidArgument("extract_mesh: the volume has no sdf grid");
     initialize_openvdb();
-    detail::RawSurface raw;
-    switch (options.method) {
-        case Mesher::vdb: raw = detail::mesh_vdb(volume, options); break;
-        case Mesher::mc: raw = detail::mesh_mc(volume, options); break;
-        case Mesher::dc: raw = detail::mesh_dc(volume, options); break;
-    }
-    return detail::finish_mesh(volume, options, std::move(raw));
+    return detail::finish_mesh(volume, options, detail::mesh_raw(volume, options));
 }
 
 }  // namespace vdbrecon

@@ -16,6 +16,8 @@
 #include "detail/io_common.h"
 #include "detail/release.h"
 #include "detail/run.h"
+#include "detail/tiles.h"
+#include "detail/volume_grids.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
 #include "vdbrecon/log.h"
@@ -40,6 +42,14 @@ void PipelineOptions::validate() const {
     clean.validate();
     preview.validate();
     if (decimate.ratio != 1.0 || decimate.max_error != 0.0) decimate.validate();
+    if (tile < 0 || tile > 65536) {
+        throw InvalidArgument("tile = " + std::to_string(tile) +
+                              ": must be in 0..65536 voxels (0 = untiled)");
+    }
+    if (tile > 0 && close.solid_radius > 0) {
+        throw InvalidArgument("tile: a solid closing needs the whole surface at once; use "
+                              "hole closing (--close) or no tiles");
+    }
     if (threads < 0 || threads > 1024) {
         throw InvalidArgument("threads = " + std::to_string(threads) + ": must be in 0..1024");
     }
@@ -152,6 +162,27 @@ void fill_and_close(PipelineResult& r, const PipelineOptions& options, const Vol
     if (options.keep_volumes) r.closed_volume = std::move(closed);
 }
 
+/// The stages after the mesh: clean > fill (and, with watertight, the closed volume in
+/// `frame`) > decimate.
+void mesh_cleanup_stages(PipelineResult& r, const PipelineOptions& options, const Volume& frame,
+                         const StageCallback& on_stage, const VolumeCallback& on_volume) {
+    {
+        StageClock clock(r.timings, on_stage, "clean");
+        CleanOptions clean = options.clean;
+        if (options.watertight) clean.min_component_ratio = 1.0;  // one piece
+        r.clean_stats = clean_mesh(r.mesh, clean);
+        r.mesh = std::move(r.clean_stats.mesh);
+        r.clean_stats.mesh = Mesh{};
+    }
+    fill_and_close(r, options, frame, on_stage, on_volume);
+    if (options.decimate.ratio != 1.0 || options.decimate.max_error != 0.0) {
+        StageClock clock(r.timings, on_stage, "decimate");
+        r.decimation = vdbrecon::decimate(r.mesh, options.decimate);
+        r.mesh = std::move(r.decimation.mesh);
+        r.decimation.mesh = Mesh{};
+    }
+}
+
 /// The stages after the splat, on r.volume: close > mesh > clean > fill (and the closed
 /// volume). Each volume goes to on_volume while the next stage runs.
 void mesh_stages(PipelineResult& r, const PipelineOptions& options, const StageCallback& on_stage,
@@ -201,21 +232,41 @@ void mesh_stages(PipelineResult& r, const PipelineOptions& options, const StageC
         r.volume = Volume{};
         r.closed_volume = Volume{};
     }
+    mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
+}
+
+/// splat > close > mesh tile by tile (detail/tiles.h) on an oriented cloud, then the stages
+/// after the mesh. No volume is kept or handed to on_volume: no tile holds the whole of it.
+void tiled_stages(PipelineResult& r, const PointCloud& cloud, const SplatOptions& splat_options,
+                  const PipelineOptions& options, const StageCallback& on_stage,
+                  const VolumeCallback& on_volume) {
     {
-        StageClock clock(r.timings, on_stage, "clean");
-        CleanOptions clean = options.clean;
-        if (options.watertight) clean.min_component_ratio = 1.0;  // one piece
-        r.clean_stats = clean_mesh(r.mesh, clean);
-        r.mesh = std::move(r.clean_stats.mesh);
-        r.clean_stats.mesh = Mesh{};
+        StageClock clock(r.timings, on_stage, "tiles");
+        detail::TiledOptions t;
+        t.splat = splat_options;
+        t.close = options.close;
+        t.mesh = options.mesh;
+        t.tile = options.tile;
+        t.sample_spacing = sample_spacing(r);
+        detail::TiledResult tiled = detail::tiled_surface(cloud, t);
+        r.splat = std::move(tiled.splat);
+        r.close = std::move(tiled.close);
+        r.mesh_stats = std::move(tiled.mesh);
+        r.mesh = std::move(r.mesh_stats.mesh);
+        r.mesh_stats.mesh = Mesh{};
+        r.tiles = tiled.tiles;
+        r.tile = tiled.tile;
+        r.tile_halo = tiled.halo;
+        r.max_tile_points = tiled.max_tile_points;
     }
-    fill_and_close(r, options, frame, on_stage, on_volume);
-    if (options.decimate.ratio != 1.0 || options.decimate.max_error != 0.0) {
-        StageClock clock(r.timings, on_stage, "decimate");
-        r.decimation = vdbrecon::decimate(r.mesh, options.decimate);
-        r.mesh = std::move(r.decimation.mesh);
-        r.decimation.mesh = Mesh{};
+    Volume frame;  // the grid frame, for --watertight's closed volume
+    if (options.watertight) {
+        frame = detail::make_volume(openvdb::FloatGrid::create(0.0f),
+                                    openvdb::FloatGrid::create(0.0f),
+                                    openvdb::Vec3fGrid::create(), nullptr,
+                                    splat_options.voxel_size, cloud.origin);
     }
+    mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
 }
 
 /// reconstruct(); `consume`: free the cloud after the splat.
@@ -270,6 +321,11 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
             throw NumericalError("reconstruct: all " + std::to_string(cloud.size()) +
                                  " points coincide; no surface can be reconstructed");
         }
+        if (options.tile > 0) {
+            tiled_stages(r, cloud, splat_options, options, on_stage, on_volume);
+            if (consume) cloud = PointCloud{};
+            return;
+        }
         {
             StageClock clock(r.timings, on_stage, "splat");
             r.splat = splat(cloud, splat_options);
@@ -317,7 +373,9 @@ RunResult run_to_files(const std::string& input, const std::string& output,
     if (same_file(input, out.mesh_path)) {
         throw InvalidArgument("output '" + out.mesh_path + "' is the input file; refusing to overwrite it");
     }
-    if (options.write_vdb) {
+    // A tiled run holds no tile's volume past its tile: no stage volume to write.
+    const bool vdb = options.write_vdb && options.tile == 0;
+    if (vdb) {
         out.vdb_path = stage_volume_path(out.mesh_path, "splat");
         if (options.close.enabled() || options.watertight) {
             out.closed_vdb_path = stage_volume_path(out.mesh_path, "closed");
@@ -345,7 +403,7 @@ RunResult run_to_files(const std::string& input, const std::string& output,
     std::mutex vdb_mutex;  // the two volumes may be written at the same time
     VolumeCallback write_vdb;
     std::string vdb_temp, closed_vdb_temp;
-    if (options.write_vdb) {
+    if (vdb) {
         vdb_temp = staged.stage(out.vdb_path);
         if (!out.closed_vdb_path.empty()) closed_vdb_temp = staged.stage(out.closed_vdb_path);
         write_vdb = [&](const std::string& stage, const Volume& v) {
@@ -392,7 +450,7 @@ RunResult run_to_files(const std::string& input, const std::string& output,
                     render_preview(out.result.mesh, options.preview));
     }
     staged.commit_all();
-    if (options.write_vdb) timings.push_back({"vdb (in the background)", vdb_seconds, peak_rss_mb()});
+    if (vdb) timings.push_back({"vdb (in the background)", vdb_seconds, peak_rss_mb()});
     out.result.timings = std::move(timings);
     return out;
 }

@@ -35,6 +35,7 @@
 #include "detail/radix_sort.h"
 #include "detail/release.h"
 #include "detail/simd.h"
+#include "detail/splat_frame.h"
 #include "detail/volume_grids.h"
 #include "vdbrecon/error.h"
 
@@ -1093,7 +1094,11 @@ Volume detail::make_volume(openvdb::FloatGrid::Ptr sdf, openvdb::FloatGrid::Ptr 
     return vol;
 }
 
-SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
+namespace {
+
+/// splat(), in the whole cloud's frame (frame == nullptr: this cloud's own).
+SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
+                        const detail::KernelFrame* frame) {
     options.validate();
     initialize_openvdb();
     check_cloud(cloud);
@@ -1107,6 +1112,14 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     result.sigma_min = sums.sigma_min;
     result.sigma_median = sums.sigma_median;
     result.sigma_max = sums.sigma_max;
+    detail::CreaseReach reach;
+    if (frame) {
+        result.sigma_median = frame->sigma_median;
+        sums.max_r = frame->max_r;  // the band's half width
+        reach = {frame->max_r, frame->r_typical};
+    } else if (options.crease_angle > 0.0) {
+        reach = detail::crease_reach(kernels, cloud.size());
+    }
     // Area normalisation: every sample's kernel carries the same mass, so where fine and coarse
     // samples overlap the fine ones (smaller footprint, usually the more accurate, e.g. not at a
     // grazing angle) dominate -- the scale weighting of FSSR.
@@ -1116,12 +1129,35 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     // Next to sharp creases, the field of each face on its own, combined as the solid they bound.
     const detail::CreaseStats creases =
         detail::sharpen_creases(g.sdf->tree(), kernels, cloud.size(), voxel,
-                                options.crease_angle * M_PI / 180.0, sums.background);
+                                options.crease_angle * M_PI / 180.0, sums.background, reach);
     result.crease_voxels = creases.modelled;
     finish_volume(std::move(g), cloud.origin, cloud.size(), options, result);
     return result;
 }
 
+}  // namespace
+
+SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
+    return splat_cloud(cloud, options, nullptr);
+}
+
+detail::KernelFrame detail::kernel_frame(const PointCloud& cloud, const SplatOptions& options) {
+    options.validate();
+    check_cloud(cloud);
+    Kernels kernels(cloud, options);
+    CloudSums sums;
+    measure_kernels(kernels, options.voxel_size, sums);
+    KernelFrame frame;
+    frame.sigma_median = sums.sigma_median;
+    frame.max_r = sums.max_r;
+    frame.r_typical = crease_reach(kernels, cloud.size()).r_typical;
+    return frame;
+}
+
+SplatResult detail::splat_in_frame(const PointCloud& cloud, const SplatOptions& options,
+                                   const KernelFrame& frame) {
+    return splat_cloud(cloud, options, &frame);
+}
 
 SplatAccumulator::SplatAccumulator(const SplatOptions& options, const Vec3d& origin)
     : state_(std::make_unique<detail::SplatState>()) {

@@ -51,8 +51,15 @@ struct PipelineOptions {
     bool watertight = false;
     /// QEM decimation of the final mesh (decimate.h); off while ratio is 1 and max_error 0.
     DecimateOptions decimate;
-    /// Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh.
+    /// Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh (not with
+    /// `tile`: no stage volume is ever whole then).
     bool write_vdb = true;
+    /// Splat, close and mesh tile by tile: cubes of this many voxels (rounded up to a multiple
+    /// of 8), each from the samples within a halo around it, so that only one tile's grids are
+    /// in memory at a time; 0 = the whole volume at once. The mesh has the same faces on the
+    /// same vertices as the untiled one (in another order), for any tile size and thread count.
+    /// Not with a solid closing (close.solid_radius), which needs the whole surface.
+    int tile = 0;
     /// Return the splatted (and closed) volumes in the result. false frees them as soon as the
     /// mesh is made and the volume callback has returned, which lowers the peak memory of the
     /// clean stage by the grids' size; the CLI, which has written them to .vdb files by then,
@@ -96,6 +103,10 @@ struct PipelineResult {
     double voxel_size = 0.0;    ///< the voxel used, world units
     bool voxel_chosen = false;  ///< true when it was picked automatically
     double spacing = 0.0;       ///< the median sample spacing it was picked from, world units
+    int tile = 0;               ///< tiled runs: the tile edge used, voxels (0: untiled)
+    int tile_halo = 0;          ///< ... the halo of samples around each tile, voxels
+    std::size_t tiles = 0;      ///< ... tiles that had samples near them
+    std::size_t max_tile_points = 0;  ///< ... samples of the largest tile with its halo
     std::vector<StageTiming> timings;
 };
 

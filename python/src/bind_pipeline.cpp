@@ -38,6 +38,10 @@ void bind_pipeline(py::module_& m) {
         .field("watertight", &PipelineOptions::watertight,
                "A closed, manifold, one-piece mesh: keep the largest piece, fill every hole; "
                "closed_volume is its signed distance field (bool; CLI --watertight).")
+        .field("tile", &PipelineOptions::tile,
+               "Splat, close and mesh cubes of this many voxels one at a time (rounded up to a "
+               "multiple of 8), each from the samples within a halo of it: the same mesh in "
+               "less memory, no volumes kept; 0 = untiled (CLI --tile).")
         .field("threads", &PipelineOptions::threads,
                "Worker threads, 0 = all cores; the output does not depend on it (CLI --threads).")
         .field("write_vdb", &PipelineOptions::write_vdb,
@@ -91,6 +95,14 @@ void bind_pipeline(py::module_& m) {
                       "True when the voxel was picked automatically.")
         .def_readonly("spacing", &PipelineResult::spacing,
                       "The median sample spacing it was picked from, world units.")
+        .def_readonly("tile", &PipelineResult::tile,
+                      "Tiled runs: the tile edge used, voxels (0: untiled).")
+        .def_readonly("tile_halo", &PipelineResult::tile_halo,
+                      "Tiled runs: the halo of samples around each tile, voxels.")
+        .def_readonly("tiles", &PipelineResult::tiles,
+                      "Tiled runs: the tiles that had samples near them.")
+        .def_readonly("max_tile_points", &PipelineResult::max_tile_points,
+                      "Tiled runs: samples of the largest tile with its halo.")
         .def_readonly("timings", &PipelineResult::timings, "StageTiming per stage.")
         .def("__repr__", [](const PipelineResult& r) {
             return "PipelineResult(" + std::to_string(r.mesh.faces.size()) +

@@ -87,3 +87,30 @@ def test_run_with_closing_writes_the_same_files_as_the_cli(cli, tmp_path):
         t.stage for t in r.result.timings]
     plain = vdbrecon.run(src, tmp_path / "plain.ply", voxel=0.05)
     assert plain.closed_vdb_path == "" and not (tmp_path / "plain.closed.vdb").exists()
+
+
+def canonical_mesh(m):
+    """Vertices sorted by position, faces renumbered, each starting at its smallest vertex,
+    sorted: a mesh's faces and vertices whatever their order."""
+    v = np.asarray(m.vertices) + np.asarray(m.origin, np.float32)
+    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
+    rank = np.empty(len(v), np.int64)
+    rank[order] = np.arange(len(v))
+    f = rank[np.asarray(m.faces)]
+    k = np.argmin(f, axis=1)
+    f = np.stack([f[np.arange(len(f)), (k + i) % 3] for i in range(3)], axis=1)
+    return v[order], f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
+
+
+def test_tiles_give_the_untiled_mesh_and_the_cli_bytes(cli, tmp_path):
+    src = SOURCE_DIR / "data" / "bunny_sample.ply"
+    run_cli(cli, src, "-o", tmp_path / "cli.ply", "--tile", "40", "-q")
+    assert not (tmp_path / "cli.splat.vdb").exists()  # a tiled run has no whole volume
+    r = vdbrecon.run(src, tmp_path / "py.ply", tile=40)
+    assert r.vdb_path == "" and r.result.tile == 40 and r.result.tiles > 1
+    assert (tmp_path / "py.ply").read_bytes() == (tmp_path / "cli.ply").read_bytes()
+    whole = vdbrecon.run(src, tmp_path / "whole.ply", write_vdb=False)
+    a = canonical_mesh(vdbrecon.read_mesh(tmp_path / "whole.ply"))
+    b = canonical_mesh(vdbrecon.read_mesh(tmp_path / "py.ply"))
+    np.testing.assert_array_equal(a[1], b[1])
+    np.testing.assert_allclose(a[0], b[0], atol=1e-6 * whole.result.voxel_size)

@@ -33,6 +33,7 @@ CLI_FLAGS = {
     "--close-solid": (vdbrecon.CloseOptions, "solid_radius"),
     "--fill-holes": (vdbrecon.PipelineOptions, "fill_holes"),
     "--watertight": (vdbrecon.PipelineOptions, "watertight"),
+    "--tile": (vdbrecon.PipelineOptions, "tile"),
 }
 
 

@@ -181,6 +181,33 @@ inline bool cell_valid(FloatAccessor& acc, const openvdb::Coord& c) {
 /// colours.
 MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurface&& raw);
 
+/// What finish_mesh makes of a point a triangle uses.
+enum PointStatus : char { kInvalid = 0, kSupported = 1, kWeak = 2, kFar = 3 };
+
+/// A raw surface with what the volume says of each point (finish_mesh's first half, which
+/// reads the volume; the second half, finish_surface, needs only this).
+struct ClassifiedSurface {
+    std::vector<openvdb::Vec3f> points;  ///< index space
+    std::vector<Triangle> triangles;     ///< faces with a point in an invalid cell dropped
+    std::vector<char> status;            ///< per point, a PointStatus (kInvalid when unused)
+    std::vector<openvdb::Vec3f> grad;    ///< per point, the mesher's normal or the SDF gradient
+    std::vector<openvdb::Vec3f> colors;  ///< per point, from the "color" grid; empty without
+    std::size_t dropped_faces = 0;
+};
+
+/// Classifies the points the triangles use and drops the faces in invalid cells.
+ClassifiedSurface classify_surface(const Volume& volume, const MeshOptions& options,
+                                   RawSurface&& raw);
+
+/// Trims unsupported faces from the open border inwards, compacts the points, makes world
+/// vertices (x voxel, in the frame of `origin`), colours and normals. Every step looks only at
+/// the surface, so a surface stitched from tiles' pieces finishes as the whole one would.
+MeshResult finish_surface(ClassifiedSurface&& surface, double voxel, const Vec3d& origin,
+                          const MeshOptions& options);
+
+/// The raw surface of options.method.
+RawSurface mesh_raw(const Volume& volume, const MeshOptions& options);
+
 RawSurface mesh_vdb(const Volume& volume, const MeshOptions& options);
 RawSurface mesh_mc(const Volume& volume, const MeshOptions& options);
 RawSurface mesh_dc(const Volume& volume, const MeshOptions& options);

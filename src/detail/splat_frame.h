@@ -1,0 +1,26 @@
+// What a splat takes from its whole cloud rather than from each voxel's own samples: the
+// statistics of all kernels. A tile of a tiled run (tiles.cpp) splats only the samples near it,
+// and gets these from the whole cloud, so that its voxels are summed exactly as the untiled
+// splat sums them.
+#pragma once
+
+#include "vdbrecon/splat.h"
+#include "vdbrecon/types.h"
+
+namespace vdbrecon::detail {
+
+struct KernelFrame {
+    double sigma_median = 0.0;  ///< median sigma of the usable kernels, world units (area weights)
+    float max_r = 0.0f;         ///< largest support radius, voxels (the band's half width)
+    float r_typical = 0.0f;     ///< the 95th percentile radius, voxels (the crease test's reach)
+};
+
+/// The frame of a whole cloud (throws as splat() does for a cloud it refuses).
+KernelFrame kernel_frame(const PointCloud& cloud, const SplatOptions& options);
+
+/// splat() in a given frame instead of the cloud's own: every voxel whose kernels are all in
+/// `cloud` gets the value the whole cloud's splat gives it, bit for bit.
+SplatResult splat_in_frame(const PointCloud& cloud, const SplatOptions& options,
+                           const KernelFrame& frame);
+
+}  // namespace vdbrecon::detail

@@ -1,0 +1,294 @@
+// Tiled reconstruction (see detail/tiles.h).
+//
+// Splatting is local: a voxel's sums are those of the kernels that reach it, each added in
+// increasing point order (splat.cpp), so the splat of a subset of the cloud in the same order
+// gives every voxel all of whose kernels are in the subset exactly the whole cloud's value, bit
+// for bit, once the few statistics the splat takes from all kernels (the median sigma of the
+// area weights, the band's half width, the crease test's reach: detail::KernelFrame) are the
+// whole cloud's. The crease model, the hole closing and the meshers read a bounded neighbourhood
+// of a voxel. So a tile of N^3 voxels is exact given the samples within a halo of it:
+//
+//   exact margin  : what a face in the tile reads around it -- the mesher's cells, stencils and
+//                   support test (4 voxels), and a hole closing of radius R (dilation and
+//                   erosion 2R, the slab R, the layers that extend the field up to 2R, + 4)
+//   sample margin : what a voxel of that zone is summed from -- kernels up to max_r away, and,
+//                   for the crease model, the samples and sample cells (4 voxels) that reach or
+//                   surround its leaf (8 voxels) within the crease test's reach
+//
+// Each tile keeps the triangles whose centroid lies in it (each triangle has one owner, computed
+// from its points' coordinates, which both tiles beside a tile face compute alike) and
+// classifies their points (finish_mesh's first half). finish_surface welds points at equal
+// coordinates (bit for bit), as it does for an untiled surface, which joins the pieces. The trims (which follow connected regions of the whole surface), the compaction,
+// the normals and colours then run on the welded surface as on the untiled one
+// (detail::finish_surface): the result has the untiled mesh's faces on its vertices.
+#include "detail/tiles.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <numeric>
+#include <sstream>
+
+#include "detail/io_common.h"
+#include "detail/mesh_common.h"
+#include "detail/mesh_graph.h"
+#include "detail/splat_frame.h"
+#include "vdbrecon/error.h"
+
+namespace vdbrecon::detail {
+namespace {
+
+using TileKey = std::array<int, 3>;
+
+int round_up(int v, int m) { return (v + m - 1) / m * m; }
+
+/// Voxels around a tile whose values its faces read (see above).
+int exact_margin(const CloseOptions& close) {
+    return 4 + (close.hole_radius > 0 ? 6 * close.hole_radius + 4 : 0);
+}
+
+/// Voxels around the exact zone whose samples its voxels are summed from (see above).
+int sample_margin(const KernelFrame& frame) {
+    const int reach = int(std::ceil(double(frame.max_r)));
+    const int cells = 4 * (int(std::ceil(double(frame.r_typical) / 4.0)) + 1);
+    return 8 + std::max(reach, cells) + 1;
+}
+
+/// The points of a cloud bucketed by the tile of their kernel centre.
+struct Buckets {
+    std::vector<TileKey> keys;            ///< occupied tiles, sorted
+    std::vector<std::size_t> begin;       ///< their ranges in `order` (keys.size() + 1)
+    std::vector<std::uint32_t> order;     ///< point indices by (tile, index)
+    std::vector<TileKey> point_tile;      ///< freed after bucketing
+};
+
+TileKey tile_of(const openvdb::Vec3d& c, int n) {
+    return {int(std::floor(c[0] / n)), int(std::floor(c[1] / n)), int(std::floor(c[2] / n))};
+}
+
+openvdb::Vec3d centre(const PointCloud& cloud, std::size_t i, double voxel) {
+    const Vec3f& p = cloud.positions[i];
+    return {double(p[0]) / voxel, double(p[1]) / voxel, double(p[2]) / voxel};
+}
+
+Buckets bucket_points(const PointCloud& cloud, double voxel, int n) {
+    Buckets b;
+    const std::size_t np = cloud.size();
+    std::vector<TileKey> tile(np);
+    for (std::size_t i = 0; i < np; ++i) tile[i] = tile_of(centre(cloud, i, voxel), n);
+    b.order.resize(np);
+    std::iota(b.order.begin(), b.order.end(), 0u);
+    std::stable_sort(b.order.begin(), b.order.end(),
+                     [&](std::uint32_t a, std::uint32_t c) { return tile[a] < tile[c]; });
+    for (std::size_t j = 0; j < np; ++j) {
+        const TileKey& k = tile[b.order[j]];
+        if (b.keys.empty() || b.keys.back() != k) {
+            b.keys.push_back(k);
+            b.begin.push_back(j);
+        }
+    }
+    b.begin.push_back(np);
+    return b;
+}
+
+/// The tiles to visit: every occupied tile and its neighbours within `reach` tiles, sorted.
+std::vector<TileKey> tiles_to_visit(const Buckets& b, int reach) {
+    std::vector<TileKey> out;
+    for (const TileKey& k : b.keys) {
+        for (int dx = -reach; dx <= reach; ++dx) {
+            for (int dy = -reach; dy <= reach; ++dy) {
+                for (int dz = -reach; dz <= reach; ++dz) {
+                    out.push_back({k[0] + dx, k[1] + dy, k[2] + dz});
+                }
+            }
+        }
+        if (out.size() > 4 * b.keys.size() * std::size_t(2 * reach + 1) * (2 * reach + 1)) {
+            std::sort(out.begin(), out.end());
+            out.erase(std::unique(out.begin(), out.end()), out.end());
+        }
+    }
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
+    return out;
+}
+
+/// The points whose kernel centre lies within `halo` voxels of tile t, in increasing order.
+std::vector<std::uint32_t> tile_points(const PointCloud& cloud, const Buckets& b, const TileKey& t,
+                                       int n, int halo, double voxel) {
+    std::vector<std::uint32_t> idx;
+    const int reach = (halo + n - 1) / n;
+    double lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+        lo[a] = double(t[std::size_t(a)]) * n - halo;
+        hi[a] = double(t[std::size_t(a)] + 1) * n + halo;
+    }
+    for (int dx = -reach; dx <= reach; ++dx) {
+        for (int dy = -reach; dy <= reach; ++dy) {
+            for (int dz = -reach; dz <= reach; ++dz) {
+                const TileKey k{t[0] + dx, t[1] + dy, t[2] + dz};
+                const auto it = std::lower_bound(b.keys.begin(), b.keys.end(), k);
+                if (it == b.keys.end() || *it != k) continue;
+                const std::size_t j = std::size_t(it - b.keys.begin());
+                for (std::size_t q = b.begin[j]; q < b.begin[j + 1]; ++q) {
+                    const openvdb::Vec3d c = centre(cloud, b.order[q], voxel);
+                    bool in = true;
+                    for (int a = 0; a < 3; ++a) in = in && c[a] >= lo[a] && c[a] < hi[a];
+                    if (in) idx.push_back(b.order[q]);
+                }
+            }
+        }
+    }
+    std::sort(idx.begin(), idx.end());
+    return idx;
+}
+
+template <typename T>
+Column<T> pick(const Column<T>& c, const std::vector<std::uint32_t>& idx) {
+    Column<T> out;
+    if (c.empty()) return out;
+    std::vector<T>& v = out.edit();
+    v.reserve(idx.size());
+    for (std::uint32_t i : idx) v.push_back(c[i]);
+    return out;
+}
+
+PointCloud subset(const PointCloud& cloud, const std::vector<std::uint32_t>& idx) {
+    PointCloud s;
+    s.positions = pick(cloud.positions, idx);
+    s.normals = pick(cloud.normals, idx);
+    s.colors = pick(cloud.colors, idx);
+    s.scales = pick(cloud.scales, idx);
+    s.confidences = pick(cloud.confidences, idx);
+    s.origin = cloud.origin;
+    return s;
+}
+
+/// Whether tile t owns the triangle: the tile of its centroid (from the exact sum of its
+/// points' coordinates, which every tile that meshes it computes alike).
+bool owns(const TileKey& t, const RawSurface& raw, const Triangle& tri, int n) {
+    for (int a = 0; a < 3; ++a) {
+        const double s = double(raw.points[std::size_t(tri[0])][a]) +
+                         double(raw.points[std::size_t(tri[1])][a]) +
+                         double(raw.points[std::size_t(tri[2])][a]);
+        if (int(std::floor(s / (3.0 * n))) != t[std::size_t(a)]) return false;
+    }
+    return true;
+}
+
+/// The tile's piece: its own triangles, classified, on the points they use.
+ClassifiedSurface tile_piece(const Volume& volume, const MeshOptions& options, RawSurface raw,
+                             const TileKey& t, int n) {
+    std::size_t kept = 0;
+    for (const Triangle& tri : raw.triangles) {
+        if (owns(t, raw, tri, n)) raw.triangles[kept++] = tri;
+    }
+    raw.triangles.resize(kept);
+    ClassifiedSurface s = classify_surface(volume, options, std::move(raw));
+    // Only the points its triangles use.
+    std::size_t used = 0;
+    const std::vector<std::int32_t> remap = compact_vertices(s.triangles, s.points.size(), &used);
+    ClassifiedSurface out;
+    out.dropped_faces = s.dropped_faces;
+    out.points.resize(used);
+    out.status.resize(used);
+    out.grad.resize(used);
+    if (!s.colors.empty()) out.colors.resize(used);
+    for (std::size_t i = 0; i < s.points.size(); ++i) {
+        if (remap[i] < 0) continue;
+        const std::size_t j = std::size_t(remap[i]);
+        out.points[j] = s.points[i];
+        out.status[j] = s.status[i];
+        out.grad[j] = s.grad[i];
+        if (!s.colors.empty()) out.colors[j] = s.colors[i];
+    }
+    out.triangles = std::move(s.triangles);  // renumbered by compact_vertices
+    return out;
+}
+
+/// Appends a tile's piece to the stitched surface.
+void append(ClassifiedSurface& all, ClassifiedSurface&& piece) {
+    const auto offset = std::int32_t(all.points.size());
+    if (all.points.size() + piece.points.size() > std::size_t(INT32_MAX)) {
+        throw NumericalError("tiles: the mesh has more than 2^31 points");
+    }
+    all.points.insert(all.points.end(), piece.points.begin(), piece.points.end());
+    all.status.insert(all.status.end(), piece.status.begin(), piece.status.end());
+    all.grad.insert(all.grad.end(), piece.grad.begin(), piece.grad.end());
+    all.colors.insert(all.colors.end(), piece.colors.begin(), piece.colors.end());
+    for (Triangle t : piece.triangles) {
+        for (std::int32_t& v : t) v += offset;
+        all.triangles.push_back(t);
+    }
+    all.dropped_faces += piece.dropped_faces;
+}
+
+}  // namespace
+
+TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options) {
+    if (options.close.solid_radius > 0) {
+        throw InvalidArgument("tiles: a solid closing (--solid-close) needs the whole surface "
+                              "at once and cannot run tile by tile");
+    }
+    if (options.tile <= 0) throw InvalidArgument("tiles: the tile edge must be positive");
+    if (cloud.size() >= std::size_t(UINT32_MAX)) {
+        throw InvalidArgument("tiles: more than 2^32 points");
+    }
+    const double voxel = options.splat.voxel_size;
+    const KernelFrame frame = kernel_frame(cloud, options.splat);
+    TiledResult result;
+    const int n = round_up(options.tile, 8);
+    const int halo = round_up(exact_margin(options.close) + sample_margin(frame), 8);
+    result.tile = n;
+    result.halo = halo;
+    result.splat.sigma_median = frame.sigma_median;
+    const Buckets buckets = bucket_points(cloud, voxel, n);
+    const std::vector<TileKey> visit = tiles_to_visit(buckets, (halo + n - 1) / n);
+    ClassifiedSurface all;
+    for (const TileKey& t : visit) {
+        const std::vector<std::uint32_t> idx = tile_points(cloud, buckets, t, n, halo, voxel);
+        if (idx.empty()) continue;
+        const PointCloud part = subset(cloud, idx);
+        SplatResult s;
+        try {
+            s = splat_in_frame(part, options.splat, frame);
+        } catch (const NumericalError&) {
+            continue;  // no valid voxel near this tile: no surface in it
+        } catch (const InvalidArgument&) {
+            // Refused for its memory, or none of its samples has a usable normal.
+            bool usable = false;
+            for (std::size_t i = 0; i < part.size() && !usable; ++i) {
+                const Vec3f& nr = part.normals[i];
+                usable = kernel_usable(std::sqrt(double(nr[0]) * nr[0] + double(nr[1]) * nr[1] +
+                                                 double(nr[2]) * nr[2]),
+                                       part.has_confidences() ? part.confidences[i] : 1.0f);
+            }
+            if (usable) throw;
+            continue;
+        }
+        ++result.tiles;
+        result.max_tile_points = std::max(result.max_tile_points, part.size());
+        result.max_tile_bytes = std::max(result.max_tile_bytes, s.memory_bytes);
+        result.splat.active_voxels += s.active_voxels;
+        result.splat.leaves += s.leaves;
+        result.splat.updates += s.updates;
+        result.splat.crease_voxels += s.crease_voxels;
+        Volume volume = std::move(s.volume);
+        if (options.sample_spacing > 0.0) {
+            volume.metadata["sample_spacing"] = format_number(options.sample_spacing);
+        }
+        if (options.close.enabled()) {
+            CloseResult c = close_volume(volume, options.close, options.mesh);
+            volume = std::move(c.volume);
+            result.close.supported_voxels += c.supported_voxels;
+            result.close.closed_voxels += c.closed_voxels;
+            result.close.filled_voxels += c.filled_voxels;
+        }
+        append(all, tile_piece(volume, options.mesh, mesh_raw(volume, options.mesh), t, n));
+    }
+    result.splat.points = cloud.size();
+    result.mesh = finish_surface(std::move(all), voxel, cloud.origin, options.mesh);
+    return result;
+}
+
+}  // namespace vdbrecon::detail

@@ -1,0 +1,184 @@
+// Tiled reconstruction (issue 24 point 1): splat > close > mesh tile by tile gives the untiled
+// mesh -- the same faces on the same vertices -- for any tile size, mesher and thread count, on
+// generated CAD parts (creases), smooth shapes with colours, a holed sphere closed by --close,
+// and the Stanford bunny scans.
+#include <algorithm>
+#include <numeric>
+#include <random>
+
+#include "shapes.h"
+#include "support.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/io.h"
+#include "vdbrecon/pipeline.h"
+
+using namespace vdbrecon;
+using namespace vdbrecon::test;
+
+namespace {
+
+/// A mesh in an order of its own: vertices sorted by position, each face starting at its
+/// smallest vertex (orientation kept), faces sorted.
+struct Canonical {
+    std::vector<Vec3f> vertices, normals, colors;
+    std::vector<Triangle> faces;
+};
+
+Canonical canonical(const Mesh& m) {
+    const std::size_t nv = m.vertices.size();
+    std::vector<std::size_t> order(nv);
+    std::iota(order.begin(), order.end(), 0);
+    std::sort(order.begin(), order.end(),
+              [&](std::size_t a, std::size_t b) { return m.vertices[a] < m.vertices[b]; });
+    std::vector<std::int32_t> rank(nv);
+    Canonical c;
+    for (std::size_t j = 0; j < nv; ++j) {
+        rank[order[j]] = std::int32_t(j);
+        c.vertices.push_back(m.vertices[order[j]]);
+        if (!m.normals.empty()) c.normals.push_back(m.normals[order[j]]);
+        if (!m.colors.empty()) c.colors.push_back(m.colors[order[j]]);
+    }
+    for (const Triangle& f : m.faces) {
+        Triangle t{rank[std::size_t(f[0])], rank[std::size_t(f[1])], rank[std::size_t(f[2])]};
+        std::rotate(t.begin(), std::min_element(t.begin(), t.end()), t.end());
+        c.faces.push_back(t);
+    }
+    std::sort(c.faces.begin(), c.faces.end());
+    return c;
+}
+
+float max_difference(const std::vector<Vec3f>& a, const std::vector<Vec3f>& b) {
+    float d = 0.0f;
+    for (std::size_t i = 0; i < a.size(); ++i) {
+        for (int k = 0; k < 3; ++k) d = std::max(d, std::fabs(a[i][k] - b[i][k]));
+    }
+    return d;
+}
+
+/// The tiled mesh is the untiled one: same counts, same faces, vertices within 1e-6 voxel,
+/// the same normals and colours.
+void check_same_mesh(const Mesh& untiled, const Mesh& tiled, double voxel) {
+    REQUIRE(untiled.faces.size() > 0);
+    REQUIRE(tiled.vertices.size() == untiled.vertices.size());
+    REQUIRE(tiled.faces.size() == untiled.faces.size());
+    const Canonical a = canonical(untiled), b = canonical(tiled);
+    CHECK(max_difference(a.vertices, b.vertices) <= 1e-6 * voxel);
+    CHECK(a.faces == b.faces);
+    REQUIRE(a.normals.size() == b.normals.size());
+    CHECK(max_difference(a.normals, b.normals) <= 1e-6f);
+    REQUIRE(a.colors.size() == b.colors.size());
+    CHECK(max_difference(a.colors, b.colors) <= 1e-6f);
+}
+
+/// reconstruct() on a copy (it removes the outliers from the cloud it is given and fills in
+/// normals and scales).
+PipelineResult run_on(PointCloud cloud, const PipelineOptions& o) { return reconstruct(cloud, o); }
+
+PipelineOptions options_at(double voxel, Mesher mesher, int tile) {
+    PipelineOptions o;
+    o.splat.voxel_size = voxel;
+    o.mesh.method = mesher;
+    o.tile = tile;
+    return o;
+}
+
+}  // namespace
+
+TEST_CASE("tiles give the untiled mesh on CAD parts and smooth shapes with every mesher", "[tiles]") {
+    constexpr std::size_t kPoints = 12000;
+    // Tile edges 8 (every kernel crosses tiles) to 40, voxels of 1x and 2x the spacing.
+    const struct {
+        const char* shape;
+        Mesher mesher;
+        double factor;
+        int tile;
+    } cases[] = {{"cube", Mesher::dc, 1.0, 32}, {"fan", Mesher::dc, 1.0, 40},
+                 {"lbracket", Mesher::mc, 2.0, 8}, {"torus", Mesher::mc, 1.0, 24},
+                 {"blob", Mesher::vdb, 1.0, 40}, {"drilled", Mesher::vdb, 2.0, 16}};
+    for (const auto& c : cases) {
+        const Shape shape = make_shape(c.shape);
+        PointCloud sample = sample_uniform(shape.mesh, kPoints, 11);
+        // Colours, to follow them through the tiles.
+        std::vector<Vec3f>& colors = sample.colors.edit();
+        for (std::size_t i = 0; i < sample.size(); ++i) {
+            const Vec3f& p = sample.positions[i];
+            colors.push_back({0.5f + 0.5f * p[0], 0.5f + 0.5f * p[1], 0.5f + 0.5f * p[2]});
+        }
+        const double voxel = c.factor * spacing_of(shape.area, kPoints);
+        INFO(c.shape << ", tile " << c.tile << ", voxel " << c.factor << "x the spacing");
+        const PipelineResult whole = run_on(sample, options_at(voxel, c.mesher, 0));
+        const PipelineResult tiled = run_on(sample, options_at(voxel, c.mesher, c.tile));
+        CHECK(tiled.tiles > 1);
+        CHECK(tiled.tile == (c.tile + 7) / 8 * 8);
+        check_same_mesh(whole.mesh, tiled.mesh, voxel);
+        if (shape.cad) CHECK(whole.splat.crease_voxels > 0);  // the crease model was at work
+    }
+}
+
+TEST_CASE("tiles with hole closing give the untiled mesh", "[tiles][close]") {
+    PointCloud sample = sample_sphere(8000, 1.0);
+    punch_holes(sample, 4, 0.1, 5);
+    const double voxel = 0.05;  // holes 4 voxels across
+    for (const Mesher m : {Mesher::vdb, Mesher::dc}) {
+        PipelineOptions o = options_at(voxel, m, 0);
+        o.close.hole_radius = 2;
+        const PipelineResult whole = run_on(sample, o);
+        o.tile = 24;
+        const PipelineResult tiled = run_on(sample, o);
+        CHECK(whole.close.filled_voxels > 0);
+        check_same_mesh(whole.mesh, tiled.mesh, voxel);
+    }
+}
+
+TEST_CASE("tiled meshes do not depend on the thread count", "[tiles]") {
+    const Shape shape = make_shape("boss");
+    const PointCloud sample = sample_uniform(shape.mesh, 10000, 2);
+    PipelineOptions o = options_at(spacing_of(shape.area, 10000), Mesher::dc, 24);
+    o.threads = 1;
+    const PipelineResult one = run_on(sample, o);
+    o.threads = 2;
+    const PipelineResult two = run_on(sample, o);
+    REQUIRE(one.mesh.vertices.size() == two.mesh.vertices.size());
+    REQUIRE(one.mesh.faces.size() == two.mesh.faces.size());
+    CHECK(std::equal(one.mesh.vertices.begin(), one.mesh.vertices.end(), two.mesh.vertices.begin()));
+    CHECK(std::equal(one.mesh.faces.begin(), one.mesh.faces.end(), two.mesh.faces.begin()));
+}
+
+TEST_CASE("tiles: estimated normals and outlier removal run on the whole cloud", "[tiles]") {
+    PointCloud sample = sample_sphere(20000, 1.0);
+    sample.normals.clear();
+    // Strays around the sphere for the outlier stage.
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(-1.5f, 1.5f);
+    std::vector<Vec3f>& p = sample.positions.edit();
+    for (int i = 0; i < 200; ++i) p.push_back({u(rng), u(rng), u(rng)});
+    PipelineOptions o = options_at(0.04, Mesher::vdb, 0);
+    const PipelineResult whole = run_on(sample, o);
+    o.tile = 16;
+    const PipelineResult tiled = run_on(sample, o);
+    CHECK(tiled.outliers.statistical + tiled.outliers.planarity ==
+          whole.outliers.statistical + whole.outliers.planarity);
+    check_same_mesh(whole.mesh, tiled.mesh, 0.04);
+}
+
+TEST_CASE("tiles are refused with a solid closing and out of range", "[tiles]") {
+    PointCloud sample = sample_sphere(2000, 1.0);
+    PipelineOptions o = options_at(0.1, Mesher::vdb, 16);
+    o.close.solid_radius = 2;
+    CHECK_THROWS_AS(run_on(sample, o), InvalidArgument);
+    o.close.solid_radius = 0;
+    o.tile = -1;
+    CHECK_THROWS_AS(run_on(sample, o), InvalidArgument);
+}
+
+TEST_CASE("bunny scans: tiles of 48 voxels give the untiled mesh", "[tiles][data]") {
+    const std::string path = shared_data("stanford_bunny/bun_scans_aligned.ply");
+    if (path.empty()) return;
+    PipelineOptions o = options_at(0.001, Mesher::vdb, 0);
+    ReadResult read = read_points(path);
+    const PipelineResult whole = run_on(read.cloud, o);
+    o.tile = 48;
+    const PipelineResult tiled = run_on(read.cloud, o);
+    CHECK(tiled.tiles >= 8);
+    check_same_mesh(whole.mesh, tiled.mesh, 0.001);
+}

@@ -180,9 +180,10 @@ void print_help() {
         << "                         [half the physical memory: " << fmt_bytes(memory_budget(d.splat))
         << "]\n"
         << "  --no-vdb               do not write the .vdb volume\n"
-        << "  --tile N               splat, close and mesh tiles of N^3 voxels one at a time\n"
+        << "  --tile N|auto          splat, close and mesh tiles of N^3 voxels one at a time\n"
         << "                         (each with a halo of samples): less memory, the same mesh;\n"
-        << "                         no .vdb is written [0: off]\n"
+        << "                         auto: the largest that fits --max-memory; no .vdb is\n"
+        << "                         written [0: off]\n"
         << "  --preview PATH         write a shaded picture of the mesh: .png, or .exr with a\n"
         << "                         depth channel Z [none]\n"
         << "  -q, --quiet            no progress or timings on stderr\n"
@@ -437,7 +438,11 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
     } else if (a == "--no-vdb") {
         o.write_vdb = false;
     } else if (a == "--tile") {
-        o.tile = parse_int(a, args.value(a));
+        const std::string v = args.value(a);
+        o.tile = v == "auto" ? -1 : parse_int(a, v);
+        if (o.tile < -1 || (o.tile == -1 && v != "auto")) {
+            throw UsageError(a + ": " + v + " must be a number of voxels > 0, or auto");
+        }
     } else {
         return false;
     }

@@ -42,11 +42,11 @@ void PipelineOptions::validate() const {
     clean.validate();
     preview.validate();
     if (decimate.ratio != 1.0 || decimate.max_error != 0.0) decimate.validate();
-    if (tile < 0 || tile > 65536) {
+    if (tile < -1 || tile > 65536) {
         throw InvalidArgument("tile = " + std::to_string(tile) +
-                              ": must be in 0..65536 voxels (0 = untiled)");
+                              ": must be in 0..65536 voxels (0 = untiled, -1 = automatic)");
     }
-    if (tile > 0 && close.solid_radius > 0) {
+    if (tile != 0 && close.solid_radius > 0) {
         throw InvalidArgument("tile: a solid closing needs the whole surface at once; use "
                               "hole closing (--close) or no tiles");
     }
@@ -269,6 +269,17 @@ void tiled_stages(PipelineResult& r, const PointCloud& cloud, const SplatOptions
     mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
 }
 
+/// splat(); a refusal for the memory budget also suggests tiles.
+SplatResult splat_or_suggest_tiles(const PointCloud& cloud, const SplatOptions& options) {
+    try {
+        return splat(cloud, options);
+    } catch (const InvalidArgument& e) {
+        const std::string what = e.what();
+        if (what.find(" of memory (") == std::string::npos) throw;
+        throw InvalidArgument(what + ", or --tile auto (tile by tile, the same mesh)");
+    }
+}
+
 /// reconstruct(); `consume`: free the cloud after the splat.
 PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const PipelineOptions& options,
                                  const StageCallback& on_stage, const VolumeCallback& on_volume) {
@@ -321,14 +332,14 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
             throw NumericalError("reconstruct: all " + std::to_string(cloud.size()) +
                                  " points coincide; no surface can be reconstructed");
         }
-        if (options.tile > 0) {
+        if (options.tile != 0) {
             tiled_stages(r, cloud, splat_options, options, on_stage, on_volume);
             if (consume) cloud = PointCloud{};
             return;
         }
         {
             StageClock clock(r.timings, on_stage, "splat");
-            r.splat = splat(cloud, splat_options);
+            r.splat = splat_or_suggest_tiles(cloud, splat_options);
             r.volume = std::move(r.splat.volume);
             r.splat.volume = Volume{};
         }

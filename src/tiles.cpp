@@ -41,6 +41,16 @@ namespace {
 
 using TileKey = std::array<int, 3>;
 
+/// Tiles of n^3 voxels, tile (0, 0, 0) starting at voxel `origin` (a multiple of 8 at the
+/// cloud's lowest corner: a cloud narrower than n fits one tile), and the halo of samples
+/// around each.
+struct TileGrid {
+    int n = 0;
+    std::array<int, 3> origin{0, 0, 0};
+    int halo = 0;
+    double reach = 0.0;  ///< voxels from a sample's kernel centre within which faces can lie
+};
+
 int round_up(int v, int m) { return (v + m - 1) / m * m; }
 
 /// Voxels around a tile whose values its faces read (see above).
@@ -63,8 +73,12 @@ struct Buckets {
     std::vector<TileKey> point_tile;      ///< freed after bucketing
 };
 
-TileKey tile_of(const openvdb::Vec3d& c, int n) {
-    return {int(std::floor(c[0] / n)), int(std::floor(c[1] / n)), int(std::floor(c[2] / n))};
+TileKey tile_of(const openvdb::Vec3d& c, const TileGrid& g) {
+    TileKey k;
+    for (int a = 0; a < 3; ++a) {
+        k[std::size_t(a)] = int(std::floor((c[a] - g.origin[std::size_t(a)]) / g.n));
+    }
+    return k;
 }
 
 openvdb::Vec3d centre(const PointCloud& cloud, std::size_t i, double voxel) {
@@ -72,11 +86,11 @@ openvdb::Vec3d centre(const PointCloud& cloud, std::size_t i, double voxel) {
     return {double(p[0]) / voxel, double(p[1]) / voxel, double(p[2]) / voxel};
 }
 
-Buckets bucket_points(const PointCloud& cloud, double voxel, int n) {
+Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g) {
     Buckets b;
     const std::size_t np = cloud.size();
     std::vector<TileKey> tile(np);
-    for (std::size_t i = 0; i < np; ++i) tile[i] = tile_of(centre(cloud, i, voxel), n);
+    for (std::size_t i = 0; i < np; ++i) tile[i] = tile_of(centre(cloud, i, voxel), g);
     b.order.resize(np);
     std::iota(b.order.begin(), b.order.end(), 0u);
     std::stable_sort(b.order.begin(), b.order.end(),
@@ -92,36 +106,42 @@ Buckets bucket_points(const PointCloud& cloud, double voxel, int n) {
     return b;
 }
 
-/// The tiles to visit: every occupied tile and its neighbours within `reach` tiles, sorted.
-std::vector<TileKey> tiles_to_visit(const Buckets& b, int reach) {
-    std::vector<TileKey> out;
-    for (const TileKey& k : b.keys) {
-        for (int dx = -reach; dx <= reach; ++dx) {
-            for (int dy = -reach; dy <= reach; ++dy) {
-                for (int dz = -reach; dz <= reach; ++dz) {
-                    out.push_back({k[0] + dx, k[1] + dy, k[2] + dz});
-                }
+void sort_unique(std::vector<TileKey>& v) {
+    std::sort(v.begin(), v.end());
+    v.erase(std::unique(v.begin(), v.end()), v.end());
+}
+
+/// The tiles to visit, sorted: those within `reach` voxels of a sample's kernel centre.
+std::vector<TileKey> tiles_to_visit(const PointCloud& cloud, const Buckets& b, const TileGrid& g,
+                                    double voxel, double reach) {
+    std::vector<TileKey> out = b.keys;
+    const std::size_t flush = 2 * b.keys.size() + (std::size_t(1) << 20);
+    for (std::size_t i = 0; i < cloud.size(); ++i) {
+        const openvdb::Vec3d c = centre(cloud, i, voxel);
+        const TileKey lo = tile_of(c - openvdb::Vec3d(reach), g);
+        const TileKey hi = tile_of(c + openvdb::Vec3d(reach), g);
+        if (lo == hi) continue;  // its own tile, an occupied one
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+            for (int y = lo[1]; y <= hi[1]; ++y) {
+                for (int z = lo[2]; z <= hi[2]; ++z) out.push_back({x, y, z});
             }
         }
-        if (out.size() > 4 * b.keys.size() * std::size_t(2 * reach + 1) * (2 * reach + 1)) {
-            std::sort(out.begin(), out.end());
-            out.erase(std::unique(out.begin(), out.end()), out.end());
-        }
+        if (out.size() > flush) sort_unique(out);
     }
-    std::sort(out.begin(), out.end());
-    out.erase(std::unique(out.begin(), out.end()), out.end());
+    sort_unique(out);
     return out;
 }
 
 /// The points whose kernel centre lies within `halo` voxels of tile t, in increasing order.
 std::vector<std::uint32_t> tile_points(const PointCloud& cloud, const Buckets& b, const TileKey& t,
-                                       int n, int halo, double voxel) {
+                                       const TileGrid& g, double voxel) {
     std::vector<std::uint32_t> idx;
-    const int reach = (halo + n - 1) / n;
+    const int reach = (g.halo + g.n - 1) / g.n;
     double lo[3], hi[3];
     for (int a = 0; a < 3; ++a) {
-        lo[a] = double(t[std::size_t(a)]) * n - halo;
-        hi[a] = double(t[std::size_t(a)] + 1) * n + halo;
+        const double o = g.origin[std::size_t(a)];
+        lo[a] = o + double(t[std::size_t(a)]) * g.n - g.halo;
+        hi[a] = o + double(t[std::size_t(a)] + 1) * g.n + g.halo;
     }
     for (int dx = -reach; dx <= reach; ++dx) {
         for (int dy = -reach; dy <= reach; ++dy) {
@@ -166,22 +186,23 @@ PointCloud subset(const PointCloud& cloud, const std::vector<std::uint32_t>& idx
 
 /// Whether tile t owns the triangle: the tile of its centroid (from the exact sum of its
 /// points' coordinates, which every tile that meshes it computes alike).
-bool owns(const TileKey& t, const RawSurface& raw, const Triangle& tri, int n) {
+bool owns(const TileKey& t, const RawSurface& raw, const Triangle& tri, const TileGrid& g) {
     for (int a = 0; a < 3; ++a) {
         const double s = double(raw.points[std::size_t(tri[0])][a]) +
                          double(raw.points[std::size_t(tri[1])][a]) +
                          double(raw.points[std::size_t(tri[2])][a]);
-        if (int(std::floor(s / (3.0 * n))) != t[std::size_t(a)]) return false;
+        const double o = 3.0 * g.origin[std::size_t(a)];
+        if (int(std::floor((s - o) / (3.0 * g.n))) != t[std::size_t(a)]) return false;
     }
     return true;
 }
 
 /// The tile's piece: its own triangles, classified, on the points they use.
 ClassifiedSurface tile_piece(const Volume& volume, const MeshOptions& options, RawSurface raw,
-                             const TileKey& t, int n) {
+                             const TileKey& t, const TileGrid& g) {
     std::size_t kept = 0;
     for (const Triangle& tri : raw.triangles) {
-        if (owns(t, raw, tri, n)) raw.triangles[kept++] = tri;
+        if (owns(t, raw, tri, g)) raw.triangles[kept++] = tri;
     }
     raw.triangles.resize(kept);
     ClassifiedSurface s = classify_surface(volume, options, std::move(raw));
@@ -223,6 +244,78 @@ void append(ClassifiedSurface& all, ClassifiedSurface&& piece) {
     all.dropped_faces += piece.dropped_faces;
 }
 
+/// The tile edge for `--tile auto`: the largest multiple of 8 (at least 32) whose tile with its
+/// halo should fit the memory budget left beside the cloud. A surface crossing a cube of E
+/// voxels touches about c (E / 8)^2 of its leaves (c = 1 for a plane through it; 3 allows for
+/// a folded surface), each costing SplatOptions::kBytesPerLeaf through the tile's stages.
+int auto_tile(const PointCloud& cloud, const SplatOptions& splat, int halo) {
+    const double budget = double(memory_budget(splat)) - 1.5 * double(cloud.memory_bytes());
+    const double leaves = std::max(0.0, budget) / double(SplatOptions::kBytesPerLeaf) / 3.0;
+    const double edge = 8.0 * std::sqrt(leaves) - 2.0 * halo;
+    return std::max(32, int(std::min(edge, 65536.0)) / 8 * 8);
+}
+
+}  // namespace
+
+namespace {
+
+bool any_usable(const PointCloud& part) {
+    for (std::size_t i = 0; i < part.size(); ++i) {
+        const Vec3f& nr = part.normals[i];
+        const double len =
+            std::sqrt(double(nr[0]) * nr[0] + double(nr[1]) * nr[1] + double(nr[2]) * nr[2]);
+        if (kernel_usable(len, part.has_confidences() ? part.confidences[i] : 1.0f)) return true;
+    }
+    return false;
+}
+
+/// Tile t's piece of the surface from the samples around it (`part`, in the cloud's order):
+/// splat in the whole cloud's frame, close, mesh, keep the tile's own triangles. Statistics go
+/// to `stats`. Empty when no voxel near the tile is valid.
+ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& options,
+                               const KernelFrame& frame, const TileKey& t,
+                               const TileGrid& g, TiledResult& stats) {
+    if (part.empty() || !any_usable(part)) return {};
+    SplatResult s;
+    try {
+        s = splat_in_frame(part, options.splat, frame);
+    } catch (const NumericalError&) {
+        return {};  // no valid voxel near this tile: no surface in it
+    }
+    ++stats.tiles;
+    stats.max_tile_points = std::max(stats.max_tile_points, part.size());
+    stats.max_tile_bytes = std::max(stats.max_tile_bytes, s.memory_bytes);
+    stats.splat.active_voxels += s.active_voxels;
+    stats.splat.leaves += s.leaves;
+    stats.splat.updates += s.updates;
+    stats.splat.crease_voxels += s.crease_voxels;
+    Volume volume = std::move(s.volume);
+    if (options.sample_spacing > 0.0) {
+        volume.metadata["sample_spacing"] = format_number(options.sample_spacing);
+    }
+    if (options.close.enabled()) {
+        CloseResult c = close_volume(volume, options.close, options.mesh);
+        volume = std::move(c.volume);
+        stats.close.supported_voxels += c.supported_voxels;
+        stats.close.closed_voxels += c.closed_voxels;
+        stats.close.filled_voxels += c.filled_voxels;
+    }
+    return tile_piece(volume, options.mesh, mesh_raw(volume, options.mesh), t, g);
+}
+
+/// Every tile's piece, at tile edge n, appended in tile order.
+ClassifiedSurface all_tiles(const PointCloud& cloud, const TiledOptions& options,
+                            const KernelFrame& frame, const TileGrid& g, TiledResult& stats) {
+    const double voxel = options.splat.voxel_size;
+    const Buckets buckets = bucket_points(cloud, voxel, g);
+    ClassifiedSurface all;
+    for (const TileKey& t : tiles_to_visit(cloud, buckets, g, voxel, g.reach)) {
+        const PointCloud part = subset(cloud, tile_points(cloud, buckets, t, g, voxel));
+        append(all, tile_surface(part, options, frame, t, g, stats));
+    }
+    return all;
+}
+
 }  // namespace
 
 TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options) {
@@ -230,65 +323,43 @@ TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options) 
         throw InvalidArgument("tiles: a solid closing (--solid-close) needs the whole surface "
                               "at once and cannot run tile by tile");
     }
-    if (options.tile <= 0) throw InvalidArgument("tiles: the tile edge must be positive");
+    if (options.tile == 0 || options.tile < kAutoTile) {
+        throw InvalidArgument("tiles: the tile edge must be positive (or kAutoTile)");
+    }
     if (cloud.size() >= std::size_t(UINT32_MAX)) {
         throw InvalidArgument("tiles: more than 2^32 points");
     }
-    const double voxel = options.splat.voxel_size;
     const KernelFrame frame = kernel_frame(cloud, options.splat);
-    TiledResult result;
-    const int n = round_up(options.tile, 8);
-    const int halo = round_up(exact_margin(options.close) + sample_margin(frame), 8);
-    result.tile = n;
-    result.halo = halo;
-    result.splat.sigma_median = frame.sigma_median;
-    const Buckets buckets = bucket_points(cloud, voxel, n);
-    const std::vector<TileKey> visit = tiles_to_visit(buckets, (halo + n - 1) / n);
-    ClassifiedSurface all;
-    for (const TileKey& t : visit) {
-        const std::vector<std::uint32_t> idx = tile_points(cloud, buckets, t, n, halo, voxel);
-        if (idx.empty()) continue;
-        const PointCloud part = subset(cloud, idx);
-        SplatResult s;
-        try {
-            s = splat_in_frame(part, options.splat, frame);
-        } catch (const NumericalError&) {
-            continue;  // no valid voxel near this tile: no surface in it
-        } catch (const InvalidArgument&) {
-            // Refused for its memory, or none of its samples has a usable normal.
-            bool usable = false;
-            for (std::size_t i = 0; i < part.size() && !usable; ++i) {
-                const Vec3f& nr = part.normals[i];
-                usable = kernel_usable(std::sqrt(double(nr[0]) * nr[0] + double(nr[1]) * nr[1] +
-                                                 double(nr[2]) * nr[2]),
-                                       part.has_confidences() ? part.confidences[i] : 1.0f);
-            }
-            if (usable) throw;
-            continue;
-        }
-        ++result.tiles;
-        result.max_tile_points = std::max(result.max_tile_points, part.size());
-        result.max_tile_bytes = std::max(result.max_tile_bytes, s.memory_bytes);
-        result.splat.active_voxels += s.active_voxels;
-        result.splat.leaves += s.leaves;
-        result.splat.updates += s.updates;
-        result.splat.crease_voxels += s.crease_voxels;
-        Volume volume = std::move(s.volume);
-        if (options.sample_spacing > 0.0) {
-            volume.metadata["sample_spacing"] = format_number(options.sample_spacing);
-        }
-        if (options.close.enabled()) {
-            CloseResult c = close_volume(volume, options.close, options.mesh);
-            volume = std::move(c.volume);
-            result.close.supported_voxels += c.supported_voxels;
-            result.close.closed_voxels += c.closed_voxels;
-            result.close.filled_voxels += c.filled_voxels;
-        }
-        append(all, tile_piece(volume, options.mesh, mesh_raw(volume, options.mesh), t, n));
+    TileGrid g;
+    g.halo = round_up(exact_margin(options.close) + sample_margin(frame), 8);
+    g.n = options.tile == kAutoTile ? auto_tile(cloud, options.splat, g.halo)
+                                    : round_up(options.tile, 8);
+    // A face lies within the kernels' reach of a sample, or in a hole a closing bridges.
+    g.reach = double(frame.max_r) + exact_margin(options.close);
+    const BBox box = bounding_box(cloud.positions);
+    for (int a = 0; a < 3; ++a) {
+        const double lowest = double(box.min[a]) / options.splat.voxel_size - g.reach;
+        g.origin[std::size_t(a)] = int(std::floor(lowest / 8.0)) * 8;
     }
-    result.splat.points = cloud.size();
-    result.mesh = finish_surface(std::move(all), voxel, cloud.origin, options.mesh);
-    return result;
+    for (;;) {
+        TiledResult result;
+        result.tile = g.n;
+        result.halo = g.halo;
+        try {
+            ClassifiedSurface all = all_tiles(cloud, options, frame, g, result);
+            result.splat.sigma_median = frame.sigma_median;
+            result.splat.points = cloud.size();
+            result.mesh =
+                finish_surface(std::move(all), options.splat.voxel_size, cloud.origin, options.mesh);
+            return result;
+        } catch (const InvalidArgument& e) {
+            // A tile over the memory budget: with an automatic edge, half as large (the
+            // estimate assumes a surface of average folding), from the start.
+            const bool memory = std::string(e.what()).find(" of memory (") != std::string::npos;
+            if (options.tile != kAutoTile || !memory || g.n <= 32) throw;
+            g.n = std::max(32, g.n / 2 / 8 * 8);
+        }
+    }
 }
 
 }  // namespace vdbrecon::detail

@@ -127,6 +127,8 @@ TEST_CASE("cli: usage errors exit 2, I/O and format errors exit 3, nothing is wr
         {in + " --bogus", 2, "unknown option '--bogus'"},
         {in + " --normals sideways", 2, "not one of auto, estimate, keep"},
         {in + " --viewpoint 1,2", 2, "--viewpoint needs three numbers"},
+        {in + " --tile -3", 2, "--tile: -3 must be a number of voxels > 0, or auto"},
+        {in + " --tile 16 --close-solid 2", 2, "a solid closing needs the whole surface"},
         {"", 2, "no input file"},
         {dir.file("missing.ply"), 3, dir.file("missing.ply") + ": cannot open"},
         {in + " -o " + in, 2, "refusing to overwrite"},

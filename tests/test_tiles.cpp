@@ -167,7 +167,7 @@ TEST_CASE("tiles are refused with a solid closing and out of range", "[tiles]") 
     o.close.solid_radius = 2;
     CHECK_THROWS_AS(run_on(sample, o), InvalidArgument);
     o.close.solid_radius = 0;
-    o.tile = -1;
+    o.tile = -2;
     CHECK_THROWS_AS(run_on(sample, o), InvalidArgument);
 }
 
@@ -181,4 +181,24 @@ TEST_CASE("bunny scans: tiles of 48 voxels give the untiled mesh", "[tiles][data
     const PipelineResult tiled = run_on(read.cloud, o);
     CHECK(tiled.tiles >= 8);
     check_same_mesh(whole.mesh, tiled.mesh, 0.001);
+}
+
+TEST_CASE("tile auto fits the memory budget that refuses the untiled run", "[tiles]") {
+    const PointCloud sample = sample_sphere(20000, 1.0);
+    PipelineOptions o = options_at(0.01, Mesher::vdb, 0);  // 200 voxels across
+    o.splat.max_memory = std::size_t(100) << 20;
+    try {
+        run_on(sample, o);
+        FAIL("the untiled run fitted the budget");
+    } catch (const InvalidArgument& e) {
+        CHECK(std::string(e.what()).find("--tile auto") != std::string::npos);
+    }
+    o.tile = -1;
+    const PipelineResult tiled = run_on(sample, o);
+    CHECK(tiled.tile >= 32);
+    CHECK(tiled.tile % 8 == 0);
+    CHECK(tiled.tiles > 1);
+    o.tile = 0;
+    o.splat.max_memory = 0;
+    check_same_mesh(run_on(sample, o).mesh, tiled.mesh, 0.01);
 }

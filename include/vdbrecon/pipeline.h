@@ -58,7 +58,8 @@ struct PipelineOptions {
     /// of 8), each from the samples within a halo around it, so that only one tile's grids are
     /// in memory at a time; 0 = the whole volume at once. The mesh has the same faces on the
     /// same vertices as the untiled one (in another order), for any tile size and thread count.
-    /// Not with a solid closing (close.solid_radius), which needs the whole surface.
+    /// -1 = automatic: the largest edge whose tile should fit splat.max_memory beside the
+    /// cloud. Not with a solid closing (close.solid_radius), which needs the whole surface.
     int tile = 0;
     /// Return the splatted (and closed) volumes in the result. false frees them as soon as the
     /// mesh is made and the volume callback has returned, which lowers the peak memory of the

@@ -41,7 +41,8 @@ void bind_pipeline(py::module_& m) {
         .field("tile", &PipelineOptions::tile,
                "Splat, close and mesh cubes of this many voxels one at a time (rounded up to a "
                "multiple of 8), each from the samples within a halo of it: the same mesh in "
-               "less memory, no volumes kept; 0 = untiled (CLI --tile).")
+               "less memory, no volumes kept; 0 = untiled, -1 = the largest that fits "
+               "splat.max_memory (CLI --tile N|auto).")
         .field("threads", &PipelineOptions::threads,
                "Worker threads, 0 = all cores; the output does not depend on it (CLI --threads).")
         .field("write_vdb", &PipelineOptions::write_vdb,

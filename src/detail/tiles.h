@@ -12,11 +12,14 @@
 
 namespace vdbrecon::detail {
 
+/// TiledOptions::tile for an edge chosen from the memory budget (PipelineOptions::tile).
+constexpr int kAutoTile = -1;
+
 struct TiledOptions {
     SplatOptions splat;  ///< voxel_size > 0
     CloseOptions close;  ///< hole closing only: a solid closing needs the whole surface
     MeshOptions mesh;
-    int tile = 0;                 ///< tile edge, voxels (> 0; rounded up to a multiple of 8)
+    int tile = 0;  ///< tile edge, voxels (> 0; rounded up to a multiple of 8), or kAutoTile
     double sample_spacing = 0.0;  ///< the whole cloud's, world units (the trims' gap test)
 };
 

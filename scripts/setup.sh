@@ -14,6 +14,7 @@ PACKAGES=(
   catch2                                  # Catch2 v2 tests
   pybind11-dev python3-dev python3-numpy  # the Python module (built for /usr/bin/python3)
   python3-pytest                          # its tests
+  python3-distributed                     # vdbrecon.distributed: the tiles as Dask tasks
   python3-openvdb libopenvdb-tools        # interop tests: pyopenvdb, vdb_print
   blender                                 # interop test: Blender imports and renders the .vdb
 )

@@ -1,5 +1,6 @@
 // The reconstruction pipeline (see pipeline.h).
 #include "vdbrecon/pipeline.h"
+#include "vdbrecon/tiles.h"
 
 #include <sys/resource.h>
 #include <sys/stat.h>
@@ -235,6 +236,44 @@ void mesh_stages(PipelineResult& r, const PipelineOptions& options, const StageC
     mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
 }
 
+/// The tiles' options from the pipeline's.
+detail::TiledOptions tiled_options(const PipelineOptions& options, const SplatOptions& splat,
+                                   double spacing) {
+    detail::TiledOptions t;
+    t.splat = splat;
+    t.close = options.close;
+    t.mesh = options.mesh;
+    t.tile = options.tile;
+    t.sample_spacing = spacing;
+    return t;
+}
+
+/// A tiled surface's mesh and statistics into the result.
+void take_tiled(PipelineResult& r, detail::TiledResult&& tiled) {
+    r.splat = std::move(tiled.splat);
+    r.close = std::move(tiled.close);
+    r.mesh_stats = std::move(tiled.mesh);
+    r.mesh = std::move(r.mesh_stats.mesh);
+    r.mesh_stats.mesh = Mesh{};
+    r.tiles = tiled.tiles;
+    r.tile = tiled.tile;
+    r.tile_halo = tiled.halo;
+    r.max_tile_points = tiled.max_tile_points;
+}
+
+/// mesh_cleanup_stages for a tiled mesh: no volume, its frame made from the voxel and origin.
+void tiled_cleanup_stages(PipelineResult& r, const PipelineOptions& options, double voxel,
+                          const Vec3d& origin, const StageCallback& on_stage,
+                          const VolumeCallback& on_volume) {
+    Volume frame;  // the grid frame, for --watertight's closed volume
+    if (options.watertight) {
+        frame = detail::make_volume(openvdb::FloatGrid::create(0.0f),
+                                    openvdb::FloatGrid::create(0.0f),
+                                    openvdb::Vec3fGrid::create(), nullptr, voxel, origin);
+    }
+    mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
+}
+
 /// splat > close > mesh tile by tile (detail/tiles.h) on an oriented cloud, then the stages
 /// after the mesh. No volume is kept or handed to on_volume: no tile holds the whole of it.
 void tiled_stages(PipelineResult& r, const PointCloud& cloud, const SplatOptions& splat_options,
@@ -242,31 +281,11 @@ void tiled_stages(PipelineResult& r, const PointCloud& cloud, const SplatOptions
                   const VolumeCallback& on_volume) {
     {
         StageClock clock(r.timings, on_stage, "tiles");
-        detail::TiledOptions t;
-        t.splat = splat_options;
-        t.close = options.close;
-        t.mesh = options.mesh;
-        t.tile = options.tile;
-        t.sample_spacing = sample_spacing(r);
-        detail::TiledResult tiled = detail::tiled_surface(cloud, t);
-        r.splat = std::move(tiled.splat);
-        r.close = std::move(tiled.close);
-        r.mesh_stats = std::move(tiled.mesh);
-        r.mesh = std::move(r.mesh_stats.mesh);
-        r.mesh_stats.mesh = Mesh{};
-        r.tiles = tiled.tiles;
-        r.tile = tiled.tile;
-        r.tile_halo = tiled.halo;
-        r.max_tile_points = tiled.max_tile_points;
+        detail::TiledResult tiled =
+            detail::tiled_surface(cloud, tiled_options(options, splat_options, sample_spacing(r)));
+        take_tiled(r, std::move(tiled));
     }
-    Volume frame;  // the grid frame, for --watertight's closed volume
-    if (options.watertight) {
-        frame = detail::make_volume(openvdb::FloatGrid::create(0.0f),
-                                    openvdb::FloatGrid::create(0.0f),
-                                    openvdb::Vec3fGrid::create(), nullptr,
-                                    splat_options.voxel_size, cloud.origin);
-    }
-    mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
+    tiled_cleanup_stages(r, options, splat_options.voxel_size, cloud.origin, on_stage, on_volume);
 }
 
 /// splat(); a refusal for the memory budget also suggests tiles.
@@ -281,57 +300,65 @@ SplatResult splat_or_suggest_tiles(const PointCloud& cloud, const SplatOptions& 
 }
 
 /// reconstruct(); `consume`: free the cloud after the splat.
+/// The stages on the points: outliers > normals and scales > the voxel (chosen when
+/// options.splat has none); returns the splat's options with that voxel.
+SplatOptions point_stages(PipelineResult& r, PointCloud& cloud, const PipelineOptions& options,
+                          const StageCallback& on_stage) {
+    KnnResult neighbours;  // the outlier stage's, reused by a normal estimation
+    if (options.outliers.enabled) {
+        StageClock clock(r.timings, on_stage, "outliers");
+        // Its lists are kept (64 bytes a point) only for a normal estimation to reuse; the
+        // kNN scale alone it hands over without them.
+        OutlierHandOver hand_over;
+        hand_over.lists = normals_need_neighbours(cloud, options.normals);
+        if (!hand_over.lists && scales_need_neighbours(cloud, options.normals)) {
+            hand_over.spacing_k = options.normals.k;
+        }
+        r.outliers = remove_outliers(std::move(cloud), options.outliers, hand_over);
+        cloud = std::move(r.outliers.cloud);
+        r.outliers.cloud = PointCloud{};
+        if (cloud.empty()) throw InvalidArgument("reconstruct: every point was an outlier");
+        if (hand_over.lists) {
+            const int k = std::min<int>(options.normals.k, int(cloud.size()) - 1);
+            neighbours = std::move(r.outliers.neighbours)
+                             .subset(r.outliers.removed, cloud.positions, k);
+        }
+        r.outliers.neighbours = KnnResult{};
+    }
+    {
+        StageClock clock(r.timings, on_stage, "normals");
+        r.normals = r.outliers.spacing.empty()
+                        ? estimate_normals(cloud, options.normals, neighbours)
+                        : estimate_normals(cloud, options.normals, r.outliers.spacing);
+        neighbours = KnnResult{};  // #P x k lists: not kept through the splat
+        detail::release(r.outliers.spacing);
+        cloud.normals = std::move(r.normals.normals);
+        cloud.scales = std::move(r.normals.scales);
+        r.normals.normals.clear();
+        r.normals.scales.clear();
+    }
+    SplatOptions splat_options = options.splat;
+    if (splat_options.voxel_size == 0.0) {
+        r.spacing = sample_spacing(r);
+        splat_options.voxel_size = choose_voxel_size(cloud, r.spacing, options);
+        r.voxel_chosen = true;
+    }
+    r.voxel_size = splat_options.voxel_size;
+    if (!(bounding_box(cloud.positions).diagonal() > 0.0)) {
+        // A single oriented sample would give a disc the size of its kernel: not a surface.
+        throw NumericalError("reconstruct: all " + std::to_string(cloud.size()) +
+                             " points coincide; no surface can be reconstructed");
+    }
+    return splat_options;
+}
+
 PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const PipelineOptions& options,
                                  const StageCallback& on_stage, const VolumeCallback& on_volume) {
     options.validate();
     if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
     PipelineResult r;
     in_arena(options.threads, [&] {
-        KnnResult neighbours;  // the outlier stage's, reused by a normal estimation
-        if (options.outliers.enabled) {
-            StageClock clock(r.timings, on_stage, "outliers");
-            // Its lists are kept (64 bytes a point) only for a normal estimation to reuse; the
-            // kNN scale alone it hands over without them.
-            OutlierHandOver hand_over;
-            hand_over.lists = normals_need_neighbours(cloud, options.normals);
-            if (!hand_over.lists && scales_need_neighbours(cloud, options.normals)) {
-                hand_over.spacing_k = options.normals.k;
-            }
-            r.outliers = remove_outliers(std::move(cloud), options.outliers, hand_over);
-            cloud = std::move(r.outliers.cloud);
-            r.outliers.cloud = PointCloud{};
-            if (cloud.empty()) throw InvalidArgument("reconstruct: every point was an outlier");
-            if (hand_over.lists) {
-                const int k = std::min<int>(options.normals.k, int(cloud.size()) - 1);
-                neighbours = std::move(r.outliers.neighbours)
-                                 .subset(r.outliers.removed, cloud.positions, k);
-            }
-            r.outliers.neighbours = KnnResult{};
-        }
-        {
-            StageClock clock(r.timings, on_stage, "normals");
-            r.normals = r.outliers.spacing.empty()
-                            ? estimate_normals(cloud, options.normals, neighbours)
-                            : estimate_normals(cloud, options.normals, r.outliers.spacing);
-            neighbours = KnnResult{};  // #P x k lists: not kept through the splat
-            detail::release(r.outliers.spacing);
-            cloud.normals = std::move(r.normals.normals);
-            cloud.scales = std::move(r.normals.scales);
-            r.normals.normals.clear();
-            r.normals.scales.clear();
-        }
-        SplatOptions splat_options = options.splat;
-        if (splat_options.voxel_size == 0.0) {
-            r.spacing = sample_spacing(r);
-            splat_options.voxel_size = choose_voxel_size(cloud, r.spacing, options);
-            r.voxel_chosen = true;
-        }
-        r.voxel_size = splat_options.voxel_size;
-        if (!(bounding_box(cloud.positions).diagonal() > 0.0)) {
-            // A single oriented sample would give a disc the size of its kernel: not a surface.
-            throw NumericalError("reconstruct: all " + std::to_string(cloud.size()) +
-                                 " points coincide; no surface can be reconstructed");
-        }
+        const SplatOptions splat_options = point_stages(r, cloud, options, on_stage);
         if (options.tile != 0) {
             tiled_stages(r, cloud, splat_options, options, on_stage, on_volume);
             if (consume) cloud = PointCloud{};
@@ -505,6 +532,62 @@ PipelineResult reconstruct_volume(Volume volume, const PipelineOptions& options,
         log_warning("reconstruct: the surface is empty (no valid cell crosses zero)");
     }
     return r;
+}
+
+TileJob prepare_tiles(const std::string& input, const std::string& dir,
+                      const PipelineOptions& options) {
+    options.validate();
+    if (options.tile == 0) {
+        throw InvalidArgument("prepare_tiles: options.tile is 0; give a tile edge, or -1 (auto)");
+    }
+    TileJob job;
+    job.dir = dir;
+    try {
+        in_arena(options.threads, [&] {
+            job.read = read_points(input, options.read);
+            PointCloud cloud = std::move(job.read.cloud);
+            job.read.cloud = PointCloud{};
+            if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
+            const SplatOptions splat_options = point_stages(job.result, cloud, options, {});
+            job.voxel_size = splat_options.voxel_size;
+            job.tiles = detail::write_tile_job(
+                cloud, tiled_options(options, splat_options, sample_spacing(job.result)), dir,
+                &job.tile);
+        });
+    } catch (const Error& e) {
+        detail::rethrow_naming(input, e);
+    }
+    return job;
+}
+
+std::string run_tile(const std::string& dir, std::size_t index, const PipelineOptions& options) {
+    options.validate();
+    return in_arena(options.threads, [&] {
+        return detail::run_tile_job(dir, index, tiled_options(options, options.splat, 0.0));
+    });
+}
+
+RunResult finish_tiles(const std::string& input, const std::string& output, const std::string& dir,
+                       const std::vector<std::string>& pieces, const PipelineOptions& options,
+                       const StageCallback& on_stage) {
+    PipelineOptions o = options;
+    if (o.tile == 0) o.tile = -1;  // a tiled run's outputs: no .vdb
+    auto compute = [&](RunResult&, std::vector<StageTiming>&, const VolumeCallback& write_vdb) {
+        PipelineResult r;
+        in_arena(o.threads, [&] {
+            double voxel = 0.0;
+            Vec3d origin{0.0, 0.0, 0.0};
+            {
+                StageClock clock(r.timings, on_stage, "stitch");
+                take_tiled(r, detail::finish_tile_job(dir, pieces, tiled_options(o, o.splat, 0.0),
+                                                      voxel, origin));
+            }
+            r.voxel_size = voxel;
+            tiled_cleanup_stages(r, o, voxel, origin, on_stage, write_vdb);
+        });
+        return r;
+    };
+    return detail::run_to_files(input, output, o, on_stage, compute);
 }
 
 }  // namespace vdbrecon

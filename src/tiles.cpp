@@ -39,18 +39,6 @@
 namespace vdbrecon::detail {
 namespace {
 
-using TileKey = std::array<int, 3>;
-
-/// Tiles of n^3 voxels, tile (0, 0, 0) starting at voxel `origin` (a multiple of 8 at the
-/// cloud's lowest corner: a cloud narrower than n fits one tile), and the halo of samples
-/// around each.
-struct TileGrid {
-    int n = 0;
-    std::array<int, 3> origin{0, 0, 0};
-    int halo = 0;
-    double reach = 0.0;  ///< voxels from a sample's kernel centre within which faces can lie
-};
-
 int round_up(int v, int m) { return (v + m - 1) / m * m; }
 
 /// Voxels around a tile whose values its faces read (see above).
@@ -65,13 +53,6 @@ int sample_margin(const KernelFrame& frame) {
     return 8 + std::max(reach, cells) + 1;
 }
 
-/// The points of a cloud bucketed by the tile of their kernel centre.
-struct Buckets {
-    std::vector<TileKey> keys;            ///< occupied tiles, sorted
-    std::vector<std::size_t> begin;       ///< their ranges in `order` (keys.size() + 1)
-    std::vector<std::uint32_t> order;     ///< point indices by (tile, index)
-    std::vector<TileKey> point_tile;      ///< freed after bucketing
-};
 
 TileKey tile_of(const openvdb::Vec3d& c, const TileGrid& g) {
     TileKey k;
@@ -81,16 +62,18 @@ TileKey tile_of(const openvdb::Vec3d& c, const TileGrid& g) {
     return k;
 }
 
-openvdb::Vec3d centre(const PointCloud& cloud, std::size_t i, double voxel) {
-    const Vec3f& p = cloud.positions[i];
-    return {double(p[0]) / voxel, double(p[1]) / voxel, double(p[2]) / voxel};
+void sort_unique(std::vector<TileKey>& v) {
+    std::sort(v.begin(), v.end());
+    v.erase(std::unique(v.begin(), v.end()), v.end());
 }
+
+}  // namespace
 
 Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g) {
     Buckets b;
     const std::size_t np = cloud.size();
     std::vector<TileKey> tile(np);
-    for (std::size_t i = 0; i < np; ++i) tile[i] = tile_of(centre(cloud, i, voxel), g);
+    for (std::size_t i = 0; i < np; ++i) tile[i] = tile_of(kernel_centre(cloud, i, voxel), g);
     b.order.resize(np);
     std::iota(b.order.begin(), b.order.end(), 0u);
     std::stable_sort(b.order.begin(), b.order.end(),
@@ -106,18 +89,13 @@ Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g) 
     return b;
 }
 
-void sort_unique(std::vector<TileKey>& v) {
-    std::sort(v.begin(), v.end());
-    v.erase(std::unique(v.begin(), v.end()), v.end());
-}
-
-/// The tiles to visit, sorted: those within `reach` voxels of a sample's kernel centre.
 std::vector<TileKey> tiles_to_visit(const PointCloud& cloud, const Buckets& b, const TileGrid& g,
-                                    double voxel, double reach) {
+                                    double voxel) {
+    const double reach = g.reach;
     std::vector<TileKey> out = b.keys;
     const std::size_t flush = 2 * b.keys.size() + (std::size_t(1) << 20);
     for (std::size_t i = 0; i < cloud.size(); ++i) {
-        const openvdb::Vec3d c = centre(cloud, i, voxel);
+        const openvdb::Vec3d c = kernel_centre(cloud, i, voxel);
         const TileKey lo = tile_of(c - openvdb::Vec3d(reach), g);
         const TileKey hi = tile_of(c + openvdb::Vec3d(reach), g);
         if (lo == hi) continue;  // its own tile, an occupied one
@@ -132,33 +110,17 @@ std::vector<TileKey> tiles_to_visit(const PointCloud& cloud, const Buckets& b, c
     return out;
 }
 
+namespace {
+
 /// The points whose kernel centre lies within `halo` voxels of tile t, in increasing order.
 std::vector<std::uint32_t> tile_points(const PointCloud& cloud, const Buckets& b, const TileKey& t,
                                        const TileGrid& g, double voxel) {
     std::vector<std::uint32_t> idx;
-    const int reach = (g.halo + g.n - 1) / g.n;
-    double lo[3], hi[3];
-    for (int a = 0; a < 3; ++a) {
-        const double o = g.origin[std::size_t(a)];
-        lo[a] = o + double(t[std::size_t(a)]) * g.n - g.halo;
-        hi[a] = o + double(t[std::size_t(a)] + 1) * g.n + g.halo;
-    }
-    for (int dx = -reach; dx <= reach; ++dx) {
-        for (int dy = -reach; dy <= reach; ++dy) {
-            for (int dz = -reach; dz <= reach; ++dz) {
-                const TileKey k{t[0] + dx, t[1] + dy, t[2] + dz};
-                const auto it = std::lower_bound(b.keys.begin(), b.keys.end(), k);
-                if (it == b.keys.end() || *it != k) continue;
-                const std::size_t j = std::size_t(it - b.keys.begin());
-                for (std::size_t q = b.begin[j]; q < b.begin[j + 1]; ++q) {
-                    const openvdb::Vec3d c = centre(cloud, b.order[q], voxel);
-                    bool in = true;
-                    for (int a = 0; a < 3; ++a) in = in && c[a] >= lo[a] && c[a] < hi[a];
-                    if (in) idx.push_back(b.order[q]);
-                }
-            }
+    for_each_bucket_near(b.keys, t, g, [&](std::size_t j) {
+        for (std::size_t q = b.begin[j]; q < b.begin[j + 1]; ++q) {
+            if (in_halo(kernel_centre(cloud, b.order[q], voxel), t, g)) idx.push_back(b.order[q]);
         }
-    }
+    });
     std::sort(idx.begin(), idx.end());
     return idx;
 }
@@ -227,7 +189,8 @@ ClassifiedSurface tile_piece(const Volume& volume, const MeshOptions& options, R
     return out;
 }
 
-/// Appends a tile's piece to the stitched surface.
+}  // namespace
+
 void append(ClassifiedSurface& all, ClassifiedSurface&& piece) {
     const auto offset = std::int32_t(all.points.size());
     if (all.points.size() + piece.points.size() > std::size_t(INT32_MAX)) {
@@ -244,6 +207,8 @@ void append(ClassifiedSurface& all, ClassifiedSurface&& piece) {
     all.dropped_faces += piece.dropped_faces;
 }
 
+namespace {
+
 /// The tile edge for `--tile auto`: the largest multiple of 8 (at least 32) whose tile with its
 /// halo should fit the memory budget left beside the cloud. A surface crossing a cube of E
 /// voxels touches about c (E / 8)^2 of its leaves (c = 1 for a plane through it; 3 allows for
@@ -255,10 +220,6 @@ int auto_tile(const PointCloud& cloud, const SplatOptions& splat, int halo) {
     return std::max(32, int(std::min(edge, 65536.0)) / 8 * 8);
 }
 
-}  // namespace
-
-namespace {
-
 bool any_usable(const PointCloud& part) {
     for (std::size_t i = 0; i < part.size(); ++i) {
         const Vec3f& nr = part.normals[i];
@@ -269,16 +230,14 @@ bool any_usable(const PointCloud& part) {
     return false;
 }
 
-/// Tile t's piece of the surface from the samples around it (`part`, in the cloud's order):
-/// splat in the whole cloud's frame, close, mesh, keep the tile's own triangles. Statistics go
-/// to `stats`. Empty when no voxel near the tile is valid.
+}  // namespace
+
 ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& options,
-                               const KernelFrame& frame, const TileKey& t,
-                               const TileGrid& g, TiledResult& stats) {
+                               const TileSetup& setup, const TileKey& t, TiledResult& stats) {
     if (part.empty() || !any_usable(part)) return {};
     SplatResult s;
     try {
-        s = splat_in_frame(part, options.splat, frame);
+        s = splat_in_frame(part, options.splat, setup.frame);
     } catch (const NumericalError&) {
         return {};  // no valid voxel near this tile: no surface in it
     }
@@ -300,25 +259,35 @@ ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& optio
         stats.close.closed_voxels += c.closed_voxels;
         stats.close.filled_voxels += c.filled_voxels;
     }
-    return tile_piece(volume, options.mesh, mesh_raw(volume, options.mesh), t, g);
+    return tile_piece(volume, options.mesh, mesh_raw(volume, options.mesh), t, setup.grid);
 }
 
-/// Every tile's piece, at tile edge n, appended in tile order.
+namespace {
+
+/// Every tile's piece, appended in tile order.
 ClassifiedSurface all_tiles(const PointCloud& cloud, const TiledOptions& options,
-                            const KernelFrame& frame, const TileGrid& g, TiledResult& stats) {
+                            const TileSetup& setup, TiledResult& stats) {
     const double voxel = options.splat.voxel_size;
-    const Buckets buckets = bucket_points(cloud, voxel, g);
+    const Buckets buckets = bucket_points(cloud, voxel, setup.grid);
     ClassifiedSurface all;
-    for (const TileKey& t : tiles_to_visit(cloud, buckets, g, voxel, g.reach)) {
-        const PointCloud part = subset(cloud, tile_points(cloud, buckets, t, g, voxel));
-        append(all, tile_surface(part, options, frame, t, g, stats));
+    for (const TileKey& t : tiles_to_visit(cloud, buckets, setup.grid, voxel)) {
+        const PointCloud part = subset(cloud, tile_points(cloud, buckets, t, setup.grid, voxel));
+        append(all, tile_surface(part, options, setup, t, stats));
     }
     return all;
 }
 
 }  // namespace
 
-TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options) {
+TileGrid tile_margins(const KernelFrame& frame, const CloseOptions& close) {
+    TileGrid g;
+    g.halo = round_up(exact_margin(close) + sample_margin(frame), 8);
+    // A face lies within the kernels' reach of a sample, or in a hole a closing bridges.
+    g.reach = double(frame.max_r) + exact_margin(close);
+    return g;
+}
+
+TileSetup tile_setup(const PointCloud& cloud, const TiledOptions& options) {
     if (options.close.solid_radius > 0) {
         throw InvalidArgument("tiles: a solid closing (--solid-close) needs the whole surface "
                               "at once and cannot run tile by tile");
@@ -329,25 +298,30 @@ TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options) 
     if (cloud.size() >= std::size_t(UINT32_MAX)) {
         throw InvalidArgument("tiles: more than 2^32 points");
     }
-    const KernelFrame frame = kernel_frame(cloud, options.splat);
-    TileGrid g;
-    g.halo = round_up(exact_margin(options.close) + sample_margin(frame), 8);
+    TileSetup setup;
+    setup.frame = kernel_frame(cloud, options.splat);
+    TileGrid& g = setup.grid;
+    g = tile_margins(setup.frame, options.close);
     g.n = options.tile == kAutoTile ? auto_tile(cloud, options.splat, g.halo)
                                     : round_up(options.tile, 8);
-    // A face lies within the kernels' reach of a sample, or in a hole a closing bridges.
-    g.reach = double(frame.max_r) + exact_margin(options.close);
     const BBox box = bounding_box(cloud.positions);
     for (int a = 0; a < 3; ++a) {
         const double lowest = double(box.min[a]) / options.splat.voxel_size - g.reach;
         g.origin[std::size_t(a)] = int(std::floor(lowest / 8.0)) * 8;
     }
+    return setup;
+}
+
+TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options) {
+    TileSetup setup = tile_setup(cloud, options);
+    TileGrid& g = setup.grid;
     for (;;) {
         TiledResult result;
         result.tile = g.n;
         result.halo = g.halo;
         try {
-            ClassifiedSurface all = all_tiles(cloud, options, frame, g, result);
-            result.splat.sigma_median = frame.sigma_median;
+            ClassifiedSurface all = all_tiles(cloud, options, setup, result);
+            result.splat.sigma_median = setup.frame.sigma_median;
             result.splat.points = cloud.size();
             result.mesh =
                 finish_surface(std::move(all), options.splat.voxel_size, cloud.origin, options.mesh);

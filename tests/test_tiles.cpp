@@ -11,6 +11,7 @@
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/pipeline.h"
+#include "vdbrecon/tiles.h"
 
 using namespace vdbrecon;
 using namespace vdbrecon::test;
@@ -201,4 +202,42 @@ TEST_CASE("tile auto fits the memory budget that refuses the untiled run", "[til
     o.tile = 0;
     o.splat.max_memory = 0;
     check_same_mesh(run_on(sample, o).mesh, tiled.mesh, 0.01);
+}
+
+TEST_CASE("tile jobs: prepared, run in any order and finished give the bytes of run --tile", "[tiles]") {
+    TempDir dir;
+    const Shape shape = make_shape("boss");
+    write_points(dir.file("in.ply"), sample_uniform(shape.mesh, 12000, 4));
+    PipelineOptions o;
+    o.tile = 32;
+    o.close.hole_radius = 1;
+    o.mesh.method = Mesher::dc;
+    o.write_vdb = false;
+    const RunResult whole = run(dir.file("in.ply"), dir.file("run.ply"), o);
+    REQUIRE(::mkdir(dir.file("job").c_str(), 0755) == 0);
+    const TileJob job = prepare_tiles(dir.file("in.ply"), dir.file("job"), o);
+    CHECK(job.tiles > 4);
+    CHECK(job.tile == 32);
+    CHECK(job.voxel_size == whole.result.voxel_size);
+    std::vector<std::string> pieces(job.tiles);
+    for (std::size_t i = job.tiles; i-- > 0;) pieces[i] = run_tile(dir.file("job"), i, o);
+    const RunResult finished = finish_tiles(dir.file("in.ply"), dir.file("job.ply"),
+                                            dir.file("job"), pieces, o);
+    CHECK(finished.result.tiles == whole.result.tiles);
+    CHECK(read_bytes(dir.file("job.ply")) == read_bytes(dir.file("run.ply")));
+
+    // Options that would cut other halos, a piece out of place or cut short: refused.
+    PipelineOptions other = o;
+    other.close.hole_radius = 3;
+    CHECK_THROWS_AS(run_tile(dir.file("job"), 0, other), InvalidArgument);
+    CHECK_THROWS_AS(run_tile(dir.file("job"), job.tiles, o), InvalidArgument);
+    std::vector<std::string> bad = pieces;
+    std::swap(bad[0], bad[1]);
+    CHECK_THROWS_AS(finish_tiles(dir.file("in.ply"), dir.file("bad.ply"), dir.file("job"), bad, o),
+                    InvalidArgument);
+    bad = pieces;
+    bad[0].resize(bad[0].size() / 2);
+    CHECK_THROWS_AS(finish_tiles(dir.file("in.ply"), dir.file("bad.ply"), dir.file("job"), bad, o),
+                    FormatError);
+    CHECK_FALSE(file_exists(dir.file("bad.ply")));
 }

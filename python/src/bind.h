@@ -209,6 +209,7 @@ void bind_decimate(py::module_& m);  // decimate
 void bind_eval(py::module_& m);      // evaluate, mesh_topology
 void bind_pipeline(py::module_& m);  // PipelineOptions, reconstruct, run
 void bind_fusion(py::module_& m);    // DepthOptions, _Fusion (after bind_pipeline)
+void bind_tiles(py::module_& m);     // prepare_tiles, run_tile, finish_tiles (after bind_pipeline)
 
 // ---- template definitions --------------------------------------------------------------------
 

@@ -25,4 +25,5 @@ PYBIND11_MODULE(_vdbrecon, m) {
     bind_eval(m);
     bind_pipeline(m);
     bind_fusion(m);
+    bind_tiles(m);
 }

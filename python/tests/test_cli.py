@@ -1,4 +1,5 @@
 """The module and the CLI give the same results for the same input and options."""
+import importlib.util
 import subprocess
 
 import numpy as np
@@ -90,16 +91,11 @@ def test_run_with_closing_writes_the_same_files_as_the_cli(cli, tmp_path):
 
 
 def canonical_mesh(m):
-    """Vertices sorted by position, faces renumbered, each starting at its smallest vertex,
-    sorted: a mesh's faces and vertices whatever their order."""
-    v = np.asarray(m.vertices) + np.asarray(m.origin, np.float32)
-    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
-    rank = np.empty(len(v), np.int64)
-    rank[order] = np.arange(len(v))
-    f = rank[np.asarray(m.faces)]
-    k = np.argmin(f, axis=1)
-    f = np.stack([f[np.arange(len(f)), (k + i) % 3] for i in range(3)], axis=1)
-    return v[order], f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
+    """bench/mesh_diff.py's canonical form: a mesh whatever the order of its vertices and faces."""
+    spec = importlib.util.spec_from_file_location("mesh_diff", SOURCE_DIR / "bench" / "mesh_diff.py")
+    mesh_diff = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mesh_diff)
+    return mesh_diff.canonical(m)
 
 
 def test_tiles_give_the_untiled_mesh_and_the_cli_bytes(cli, tmp_path):

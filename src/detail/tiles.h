@@ -3,8 +3,16 @@
 // volume gives.
 #pragma once
 
-#include <cstddef>
+#include <openvdb/openvdb.h>
 
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "detail/mesh_common.h"
+#include "detail/splat_frame.h"
 #include "vdbrecon/close.h"
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/splat.h"
@@ -34,9 +42,104 @@ struct TiledResult {
     int halo = 0;                     ///< voxels of samples around a tile, each side
 };
 
+/// Tile coordinates (x, y, z).
+using TileKey = std::array<int, 3>;
+
+/// Tiles of n^3 voxels, tile (0, 0, 0) starting at voxel `origin` (a multiple of 8 at the
+/// cloud's lowest corner less `reach`: a cloud narrower than n fits one tile), and the halo of
+/// samples around each.
+struct TileGrid {
+    int n = 0;
+    std::array<int, 3> origin{0, 0, 0};
+    int halo = 0;
+    double reach = 0.0;  ///< voxels from a sample's kernel centre within which faces can lie
+};
+
+/// What every tile of a cloud shares: the whole cloud's kernel statistics and the grid.
+struct TileSetup {
+    KernelFrame frame;
+    TileGrid grid;
+};
+
+/// The halo and reach of tiles for these kernels and options (n and origin left 0).
+TileGrid tile_margins(const KernelFrame& frame, const CloseOptions& close);
+
+/// Checks the options and sets the tiles of `cloud` up (kAutoTile: auto_tile's first guess).
+TileSetup tile_setup(const PointCloud& cloud, const TiledOptions& options);
+
+/// Point i's kernel centre, index space (as the splat computes it).
+inline openvdb::Vec3d kernel_centre(const PointCloud& cloud, std::size_t i, double voxel) {
+    const Vec3f& p = cloud.positions[i];
+    return {double(p[0]) / voxel, double(p[1]) / voxel, double(p[2]) / voxel};
+}
+
+/// Whether a kernel centre (index space) lies within the halo of tile t.
+inline bool in_halo(const openvdb::Vec3d& c, const TileKey& t, const TileGrid& g) {
+    for (int a = 0; a < 3; ++a) {
+        const double lo = g.origin[std::size_t(a)] + double(t[std::size_t(a)]) * g.n - g.halo;
+        if (!(c[a] >= lo && c[a] < lo + g.n + 2.0 * g.halo)) return false;
+    }
+    return true;
+}
+
+/// Calls fn(j) for each occupied tile keys[j] (keys sorted) whose samples can lie in tile t's
+/// halo.
+template <typename Fn>
+void for_each_bucket_near(const std::vector<TileKey>& keys, const TileKey& t, const TileGrid& g,
+                          Fn&& fn) {
+    const int reach = (g.halo + g.n - 1) / g.n;
+    for (int dx = -reach; dx <= reach; ++dx) {
+        for (int dy = -reach; dy <= reach; ++dy) {
+            for (int dz = -reach; dz <= reach; ++dz) {
+                const TileKey k{t[0] + dx, t[1] + dy, t[2] + dz};
+                const auto it = std::lower_bound(keys.begin(), keys.end(), k);
+                if (it != keys.end() && *it == k) fn(std::size_t(it - keys.begin()));
+            }
+        }
+    }
+}
+
+/// The points of a cloud bucketed by the tile of their kernel centre.
+struct Buckets {
+    std::vector<TileKey> keys;         ///< occupied tiles, sorted
+    std::vector<std::size_t> begin;    ///< their ranges in `order` (keys.size() + 1)
+    std::vector<std::uint32_t> order;  ///< point indices by (tile, index)
+};
+Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g);
+
+/// The tiles to visit, sorted: those within g.reach voxels of a sample's kernel centre.
+std::vector<TileKey> tiles_to_visit(const PointCloud& cloud, const Buckets& b, const TileGrid& g,
+                                    double voxel);
+
+/// Tile t's piece of the surface from the samples in its halo (`part`, in the whole cloud's
+/// order): splat in the whole cloud's frame, close, mesh, keep the tile's own triangles.
+/// Statistics are added to `stats`. Empty when no voxel near the tile is valid.
+ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& options,
+                               const TileSetup& setup, const TileKey& t, TiledResult& stats);
+
+/// Appends a tile's piece to the pieces so far (finish_surface welds them).
+void append(ClassifiedSurface& all, ClassifiedSurface&& piece);
+
 /// The mesh of `cloud` (oriented; scales and colours used as by splat()) reconstructed tile by
 /// tile: the same faces on the same vertices as splat > close_volume > extract_mesh of the
 /// whole cloud, in another order. Throws InvalidArgument for a solid closing.
 TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options);
+
+// ---- Tile jobs (tile_jobs.cpp): the same tiles in other processes --------------------------
+
+/// Writes the oriented cloud into `dir` bucketed by tile, with the plan every tile shares
+/// (options.tile: an edge, or kAutoTile for auto_tile's guess); returns the number of tiles
+/// (and the tile edge in *tile).
+std::size_t write_tile_job(const PointCloud& cloud, const TiledOptions& options,
+                           const std::string& dir, int* tile = nullptr);
+
+/// Tile `index`'s piece of the surface (bytes), from the job in `dir`: the piece the in-memory
+/// run makes of it. The options must give the plan's halo (the same closing).
+std::string run_tile_job(const std::string& dir, std::size_t index, const TiledOptions& options);
+
+/// Every tile's piece (in tile order) welded and finished: the in-memory run's mesh. Sets the
+/// job's voxel and origin.
+TiledResult finish_tile_job(const std::string& dir, const std::vector<std::string>& pieces,
+                            const TiledOptions& options, double& voxel, Vec3d& origin);
 
 }  // namespace vdbrecon::detail

@@ -1,0 +1,73 @@
+"""vdbrecon.distributed: the tiles of a tiled run as Dask tasks on a 2-worker LocalCluster
+(processes) write the bytes the CLI's --tile run writes, also when a worker dies mid-run."""
+import logging
+import os
+import signal
+import subprocess
+
+import pytest
+
+import vdbrecon
+from conftest import SOURCE_DIR
+
+distributed = pytest.importorskip(
+    "distributed", reason="SKIPPED: Dask distributed is not installed (Debian: python3-distributed, "
+    "which scripts/setup.sh installs)")
+import vdbrecon.distributed  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=logging.ERROR)
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+def cli_tiled(cli, src, out, *args):
+    r = subprocess.run([cli, str(src), "-o", str(out), "-q", *args], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    return out.read_bytes()
+
+
+SRC = SOURCE_DIR / "data" / "bunny_sample.ply"
+
+
+def test_the_cli_bytes_from_tasks(client, cli, tmp_path):
+    expected = cli_tiled(cli, SRC, tmp_path / "cli.ply", "--tile", "32", "--mesher", "dc")
+    r = vdbrecon.distributed.run(SRC, tmp_path / "dask.ply", client=client, tile=32, method="dc")
+    assert (tmp_path / "dask.ply").read_bytes() == expected
+    assert r.result.tile == 32 and r.result.tiles > 8 and r.vdb_path == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cli.ply", "dask.ply"]  # job removed
+
+
+def test_a_worker_killed_mid_run_changes_nothing(client, cli, tmp_path):
+    expected = cli_tiled(cli, SRC, tmp_path / "cli.ply", "--tile", "48", "--close", "2")
+    killed = []
+
+    pids = client.run(os.getpid)  # worker address -> process id
+
+    def kill_one_worker(done, tiles):
+        if done == 2 and not killed:  # tiles are still running or waiting
+            worker = sorted(pids)[0]
+            os.kill(pids[worker], signal.SIGKILL)
+            killed.append(worker)
+
+    workdir = tmp_path / "job"
+    workdir.mkdir()
+    r = vdbrecon.distributed.run(SRC, tmp_path / "dask.ply", client=client, tile=48,
+                                 hole_radius=2, workdir=workdir, progress=kill_one_worker)
+    assert killed
+    assert (tmp_path / "dask.ply").read_bytes() == expected
+    assert r.result.tiles > 8
+    assert (workdir / "plan.bin").exists()  # a given workdir is kept
+
+
+def test_bad_job_directory_and_options(client, tmp_path):
+    with pytest.raises(ValueError):
+        vdbrecon.distributed.run(SRC, tmp_path / "x.ply", client=client, tile=0)
+    with pytest.raises(vdbrecon.IoError, match="plan.bin"):
+        vdbrecon._vdbrecon.run_tile(str(tmp_path), 0, vdbrecon.PipelineOptions())
+    assert not (tmp_path / "x.ply").exists()

@@ -1,0 +1,327 @@
+// Tile jobs (see detail/tiles.h): a tiled run cut into a preparation that writes the oriented
+// samples into a directory, bucketed by tile, with the plan every tile shares; tile tasks that
+// each read the buckets around their tile and return their piece of the surface as bytes; and a
+// finish that welds the pieces in tile order. Each tile's samples are those the in-memory tiled
+// run (tiles.cpp) picks, in the same order, so the pieces, and the mesh, are the same.
+//
+// Files: <dir>/plan.bin, <dir>/bucket-<j>.bin (occupied tile j's samples: their indices in the
+// whole cloud and their columns). Little-endian machine layout of plain values, each file
+// tagged, written under a temporary name and renamed into place.
+#include <algorithm>
+#include <cstring>
+#include <string_view>
+#include <type_traits>
+
+#include "detail/io_common.h"
+#include "detail/tiles.h"
+#include "vdbrecon/error.h"
+
+namespace vdbrecon::detail {
+namespace {
+
+constexpr char kPlanTag[8] = {'v', 'd', 'b', 'r', 'P', 'L', 'N', '1'};
+constexpr char kBucketTag[8] = {'v', 'd', 'b', 'r', 'B', 'K', 'T', '1'};
+constexpr char kPieceTag[8] = {'v', 'd', 'b', 'r', 'P', 'C', 'E', '1'};
+
+class Bytes {
+  public:
+    template <typename T>
+    void put(const T& v) {
+        bytes_.append(reinterpret_cast<const char*>(&v), sizeof(T));
+    }
+    template <typename T>
+    void put_array(const T* data, std::size_t n) {
+        put<std::uint64_t>(n);
+        bytes_.append(reinterpret_cast<const char*>(data), n * sizeof(T));
+    }
+    template <typename V>
+    void put_vector(const V& v) {
+        put_array(v.data(), v.size());
+    }
+    std::string& str() { return bytes_; }
+
+  private:
+    std::string bytes_;
+};
+
+class Reader {
+  public:
+    Reader(std::string_view bytes, std::string what) : bytes_(bytes), what_(std::move(what)) {}
+    template <typename T>
+    T get() {
+        need(sizeof(T));
+        T v;
+        std::memcpy(&v, bytes_.data() + at_, sizeof(T));
+        at_ += sizeof(T);
+        return v;
+    }
+    template <typename T>
+    std::vector<T> get_vector() {
+        const auto n = get<std::uint64_t>();
+        if (n > (bytes_.size() - at_) / sizeof(T)) fail();
+        std::vector<T> v(n);
+        std::memcpy(v.data(), bytes_.data() + at_, n * sizeof(T));
+        at_ += n * sizeof(T);
+        return v;
+    }
+    template <typename T>
+    Column<T> get_column() {
+        Column<T> c;
+        c.edit() = get_vector<T>();
+        return c;
+    }
+    void tag(const char (&t)[8]) {
+        need(8);
+        if (std::memcmp(bytes_.data() + at_, t, 8) != 0) {
+            throw FormatError(what_ + ": not a vdbrecon tile job file of this version");
+        }
+        at_ += 8;
+    }
+
+  private:
+    void need(std::size_t n) {
+        if (n > bytes_.size() - at_) fail();
+    }
+    [[noreturn]] void fail() { throw FormatError(what_ + ": truncated"); }
+    std::string_view bytes_;
+    std::string what_;
+    std::size_t at_ = 0;
+};
+
+void write_file(const std::string& path, const std::string& bytes) {
+    AtomicFile f(path);
+    if (std::fwrite(bytes.data(), 1, bytes.size(), f.stream()) != bytes.size()) {
+        throw IoError(path + ": write failed");
+    }
+    f.commit();
+}
+
+std::string plan_path(const std::string& dir) { return dir + "/plan.bin"; }
+std::string bucket_path(const std::string& dir, std::size_t j) {
+    return dir + "/bucket-" + std::to_string(j) + ".bin";
+}
+
+/// What every tile task reads first.
+struct Plan {
+    double voxel = 0.0;
+    Vec3d origin{0.0, 0.0, 0.0};
+    double sample_spacing = 0.0;
+    TileSetup setup;
+    std::uint8_t scales = 0, colors = 0, confidences = 0;
+    std::uint64_t points = 0;
+    std::vector<TileKey> tiles;    ///< to visit, in order
+    std::vector<TileKey> buckets;  ///< occupied, sorted (bucket-<j>.bin)
+};
+
+std::string plan_bytes(const Plan& p) {
+    Bytes b;
+    b.str().append(kPlanTag, 8);
+    b.put(p.voxel);
+    b.put(p.origin);
+    b.put(p.sample_spacing);
+    b.put(p.setup.frame);
+    b.put(p.setup.grid);
+    b.put(p.scales);
+    b.put(p.colors);
+    b.put(p.confidences);
+    b.put(p.points);
+    b.put_vector(p.tiles);
+    b.put_vector(p.buckets);
+    return std::move(b.str());
+}
+
+Plan read_plan(const std::string& dir) {
+    const std::string path = plan_path(dir);
+    const std::string bytes = read_file(path);
+    Reader r(bytes, path);
+    r.tag(kPlanTag);
+    Plan p;
+    p.voxel = r.get<double>();
+    p.origin = r.get<Vec3d>();
+    p.sample_spacing = r.get<double>();
+    p.setup.frame = r.get<KernelFrame>();
+    p.setup.grid = r.get<TileGrid>();
+    p.scales = r.get<std::uint8_t>();
+    p.colors = r.get<std::uint8_t>();
+    p.confidences = r.get<std::uint8_t>();
+    p.points = r.get<std::uint64_t>();
+    p.tiles = r.get_vector<TileKey>();
+    p.buckets = r.get_vector<TileKey>();
+    return p;
+}
+
+/// The options a tile runs with: the caller's, at the plan's voxel and sample spacing; refused
+/// when they would give another halo than the plan's (its buckets were cut for that one).
+TiledOptions tile_options(const Plan& plan, const TiledOptions& given) {
+    TiledOptions o = given;
+    o.splat.voxel_size = plan.voxel;
+    o.sample_spacing = plan.sample_spacing;
+    o.tile = plan.setup.grid.n;
+    const TileGrid g = tile_margins(plan.setup.frame, o.close);
+    if (g.halo != plan.setup.grid.halo || g.reach != plan.setup.grid.reach) {
+        throw InvalidArgument("tile job: the options differ from those it was prepared with "
+                              "(the closing radius sets the tiles' halo)");
+    }
+    return o;
+}
+
+/// Tile t's samples from the buckets around it, in the whole cloud's order.
+PointCloud read_tile_samples(const std::string& dir, const Plan& plan, const TileKey& t) {
+    struct Row {
+        std::uint32_t index;
+        std::size_t bucket, at;
+    };
+    std::vector<Row> rows;
+    std::vector<PointCloud> parts;
+    for_each_bucket_near(plan.buckets, t, plan.setup.grid, [&](std::size_t j) {
+        const std::string path = bucket_path(dir, j);
+        const std::string bytes = read_file(path);
+        Reader r(bytes, path);
+        r.tag(kBucketTag);
+        const std::vector<std::uint32_t> index = r.get_vector<std::uint32_t>();
+        PointCloud c;
+        c.positions = r.get_column<Vec3f>();
+        c.normals = r.get_column<Vec3f>();
+        c.scales = r.get_column<float>();
+        c.colors = r.get_column<Vec3f>();
+        c.confidences = r.get_column<float>();
+        for (std::size_t i = 0; i < index.size(); ++i) {
+            if (in_halo(kernel_centre(c, i, plan.voxel), t, plan.setup.grid)) {
+                rows.push_back({index[i], parts.size(), i});
+            }
+        }
+        parts.push_back(std::move(c));
+    });
+    std::sort(rows.begin(), rows.end(),
+              [](const Row& a, const Row& b) { return a.index < b.index; });
+    PointCloud out;
+    out.origin = plan.origin;
+    auto& pos = out.positions.edit();
+    auto& nrm = out.normals.edit();
+    for (const Row& w : rows) {
+        const PointCloud& c = parts[w.bucket];
+        pos.push_back(c.positions[w.at]);
+        nrm.push_back(c.normals[w.at]);
+        if (plan.scales) out.scales.edit().push_back(c.scales[w.at]);
+        if (plan.colors) out.colors.edit().push_back(c.colors[w.at]);
+        if (plan.confidences) out.confidences.edit().push_back(c.confidences[w.at]);
+    }
+    return out;
+}
+
+}  // namespace
+
+std::size_t write_tile_job(const PointCloud& cloud, const TiledOptions& options,
+                           const std::string& dir, int* tile) {
+    if (options.tile == 0) throw InvalidArgument("tile job: no tile size (tile = 0)");
+    Plan plan;
+    plan.setup = tile_setup(cloud, options);  // checks the options
+    plan.voxel = options.splat.voxel_size;
+    plan.origin = cloud.origin;
+    plan.sample_spacing = options.sample_spacing;
+    plan.scales = cloud.has_scales();
+    plan.colors = cloud.has_colors();
+    plan.confidences = cloud.has_confidences();
+    plan.points = cloud.size();
+    const Buckets b = bucket_points(cloud, plan.voxel, plan.setup.grid);
+    plan.tiles = tiles_to_visit(cloud, b, plan.setup.grid, plan.voxel);
+    plan.buckets = b.keys;
+    for (std::size_t j = 0; j < b.keys.size(); ++j) {
+        const std::vector<std::uint32_t> index(b.order.begin() + std::ptrdiff_t(b.begin[j]),
+                                               b.order.begin() + std::ptrdiff_t(b.begin[j + 1]));
+        Bytes out;
+        out.str().append(kBucketTag, 8);
+        out.put_vector(index);
+        auto column = [&](const auto& c) {
+            using T = std::decay_t<decltype(c[0])>;
+            std::vector<T> v;
+            if (!c.empty()) {
+                for (std::uint32_t i : index) v.push_back(c[i]);
+            }
+            out.put_vector(v);
+        };
+        column(cloud.positions);
+        column(cloud.normals);
+        column(cloud.scales);
+        column(cloud.colors);
+        column(cloud.confidences);
+        write_file(bucket_path(dir, j), out.str());
+    }
+    write_file(plan_path(dir), plan_bytes(plan));  // last: a job with a plan is whole
+    if (tile) *tile = plan.setup.grid.n;
+    return plan.tiles.size();
+}
+
+std::string run_tile_job(const std::string& dir, std::size_t index, const TiledOptions& options) {
+    const Plan plan = read_plan(dir);
+    if (index >= plan.tiles.size()) {
+        throw InvalidArgument("tile job: tile " + std::to_string(index) + " of " +
+                              std::to_string(plan.tiles.size()));
+    }
+    const TiledOptions o = tile_options(plan, options);
+    const TileKey& t = plan.tiles[index];
+    TiledResult stats;
+    const ClassifiedSurface s =
+        tile_surface(read_tile_samples(dir, plan, t), o, plan.setup, t, stats);
+    Bytes b;
+    b.str().append(kPieceTag, 8);
+    b.put<std::uint64_t>(index);
+    b.put_vector(s.points);
+    b.put_vector(s.triangles);
+    b.put_vector(s.status);
+    b.put_vector(s.grad);
+    b.put_vector(s.colors);
+    b.put<std::uint64_t>(s.dropped_faces);
+    b.put<std::uint64_t>(stats.tiles);
+    b.put<std::uint64_t>(stats.max_tile_points);
+    b.put<std::uint64_t>(stats.splat.active_voxels);
+    b.put<std::uint64_t>(stats.splat.leaves);
+    return std::move(b.str());
+}
+
+TiledResult finish_tile_job(const std::string& dir, const std::vector<std::string>& pieces,
+                            const TiledOptions& options, double& voxel, Vec3d& origin) {
+    const Plan plan = read_plan(dir);
+    if (pieces.size() != plan.tiles.size()) {
+        throw InvalidArgument("tile job: " + std::to_string(pieces.size()) + " pieces for " +
+                              std::to_string(plan.tiles.size()) + " tiles");
+    }
+    const TiledOptions o = tile_options(plan, options);
+    TiledResult result;
+    result.tile = plan.setup.grid.n;
+    result.halo = plan.setup.grid.halo;
+    ClassifiedSurface all;
+    for (std::size_t i = 0; i < pieces.size(); ++i) {
+        Reader r(pieces[i], "tile job piece " + std::to_string(i));
+        r.tag(kPieceTag);
+        if (r.get<std::uint64_t>() != i) throw InvalidArgument("tile job: pieces out of order");
+        ClassifiedSurface s;
+        s.points = r.get_vector<openvdb::Vec3f>();
+        s.triangles = r.get_vector<Triangle>();
+        s.status = r.get_vector<char>();
+        s.grad = r.get_vector<openvdb::Vec3f>();
+        s.colors = r.get_vector<openvdb::Vec3f>();
+        s.dropped_faces = r.get<std::uint64_t>();
+        result.tiles += r.get<std::uint64_t>();
+        result.max_tile_points = std::max<std::size_t>(result.max_tile_points,
+                                                       r.get<std::uint64_t>());
+        result.splat.active_voxels += r.get<std::uint64_t>();
+        result.splat.leaves += r.get<std::uint64_t>();
+        const std::size_t np = s.points.size();
+        bool ok = s.status.size() == np && s.grad.size() == np &&
+                  (s.colors.empty() || s.colors.size() == np);
+        for (const Triangle& t : s.triangles) {
+            for (std::int32_t v : t) ok = ok && v >= 0 && std::size_t(v) < np;
+        }
+        if (!ok) throw FormatError("tile job piece " + std::to_string(i) + ": inconsistent");
+        append(all, std::move(s));
+    }
+    result.splat.sigma_median = plan.setup.frame.sigma_median;
+    result.splat.points = plan.points;
+    voxel = plan.voxel;
+    origin = plan.origin;
+    result.mesh = finish_surface(std::move(all), plan.voxel, plan.origin, o.mesh);
+    return result;
+}
+
+}  // namespace vdbrecon::detail

@@ -164,6 +164,14 @@ void print_help() {
         << "                         than E, world units [0: no limit]\n"
         << "  --placement P          decimated vertex: edge (the quadric's minimum on the edge)\n"
         << "                         or free (its unconstrained minimum) [edge]\n"
+        << "  --planes               planar regions with crisp edges and corners, each\n"
+        << "                         re-triangulated with few faces; region id per face [off]\n"
+        << "  --plane-angle A        a face joins a region within A degrees of its plane ["
+        << fmt(d.planes.angle) << "]\n"
+        << "  --plane-distance D     ... and with its vertices within D voxels of it ["
+        << fmt(d.planes.distance) << "]\n"
+        << "  --plane-min-area A     smaller regions are no plane, square voxels ["
+        << fmt(d.planes.min_area) << "]\n"
         << "  --watertight           a closed, manifold, one-piece mesh: keep the largest piece,\n"
         << "                         fill every hole; its volume goes to <out>.closed.vdb [off]\n"
         << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
@@ -418,6 +426,14 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.decimate.max_error = parse_number(a, args.value(a));
     } else if (a == "--placement") {
         o.decimate.placement = parse_choice(a, args.value(a), placement_choices());
+    } else if (a == "--planes") {
+        o.planes.enabled = true;
+    } else if (a == "--plane-angle") {
+        o.planes.angle = parse_number(a, args.value(a));
+    } else if (a == "--plane-distance") {
+        o.planes.distance = parse_number(a, args.value(a));
+    } else if (a == "--plane-min-area") {
+        o.planes.min_area = parse_number(a, args.value(a));
     } else if (a == "--mesher") {
         o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
     } else if (a == "--adaptivity") {
@@ -563,6 +579,13 @@ void report(const RunResult& r, const PipelineOptions& o,
             s << "vdbrecon: decimate: " << p.decimation.faces_before << " -> "
               << p.decimation.faces_after << " faces (" << p.decimation.collapses
               << " collapses, largest error " << p.decimation.max_error << ")\n";
+        }
+        if (o.planes.enabled) {
+            s << "vdbrecon: planes: " << p.planes.planes.size() << " planar regions ("
+              << p.planes.planar_faces << " of " << p.planes.faces_before << " faces), "
+              << p.planes.edge_vertices << " vertices onto edges, " << p.planes.corner_vertices
+              << " onto corners; " << p.planes.faces_before << " -> " << p.planes.faces_after
+              << " faces\n";
         }
         if (p.holes.loops > 0) {
             s << "vdbrecon: fill: " << p.holes.filled << " of " << p.holes.loops

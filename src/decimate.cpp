@@ -151,8 +151,12 @@ class Decimator {
         Mesh m;
         m.origin = in.origin;
         std::vector<Triangle> faces;
+        std::vector<std::int32_t> regions;  // the faces' planar regions, when the mesh has them
+        const bool with_regions = in.regions.size() == faces_.size() && !faces_.empty();
         for (std::size_t f = 0; f < faces_.size(); ++f) {
-            if (alive_face_[f]) faces.push_back(faces_[f]);
+            if (!alive_face_[f]) continue;
+            faces.push_back(faces_[f]);
+            if (with_regions) regions.push_back(in.regions[f]);
         }
         std::size_t used = 0;
         const std::vector<std::int32_t> map = detail::compact_vertices(faces, p_.size(), &used);
@@ -165,6 +169,7 @@ class Decimator {
         }
         m.vertices = std::move(v);
         m.faces = std::move(faces);
+        if (with_regions) m.regions = std::move(regions);
         if (!c.empty()) m.colors = std::move(c);
         if (!in.normals.empty()) {
             std::vector<Vec3f> n;

@@ -622,8 +622,14 @@ void write_mesh(const std::string& path, const Mesh& mesh, const WriteOptions& o
     if (ext == "ply") {
         const bool n = !mesh.normals.empty() && mesh.normals.size() == mesh.vertices.size();
         const bool c = !mesh.colors.empty() && mesh.colors.size() == mesh.vertices.size();
+        if (!mesh.regions.empty() && mesh.regions.size() != mesh.faces.size()) {
+            throw InvalidArgument("write_mesh: " + std::to_string(mesh.regions.size()) +
+                                  " face regions for " + std::to_string(mesh.faces.size()) +
+                                  " faces");
+        }
         detail::write_ply(path, mesh.vertices, mesh.origin, n ? mesh.normals : Span<Vec3f>(),
-                          c ? mesh.colors : Span<Vec3f>(), {}, {}, &mesh.faces, options);
+                          c ? mesh.colors : Span<Vec3f>(), {}, {}, &mesh.faces, options,
+                          mesh.regions);
     } else if (ext == "obj") {
         write_obj(path, mesh, options);
     } else {

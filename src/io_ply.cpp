@@ -617,7 +617,7 @@ std::uint8_t to_byte(float c) {
 void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& origin,
                Span<Vec3f> normals, Span<Vec3f> colors, Span<float> scales,
                Span<float> confidences, const Column<Triangle>* faces,
-               const WriteOptions& options) {
+               const WriteOptions& options, Span<std::int32_t> regions) {
     const bool far = origin != Vec3d{0, 0, 0};
     const bool ascii = options.encoding == PlyEncoding::ascii;
     const bool big = options.encoding == PlyEncoding::binary_big_endian;
@@ -644,6 +644,7 @@ void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& orig
     if (faces) {
         header += "element face " + std::to_string(faces->size()) + "\n";
         header += "property list uchar int vertex_indices\n";
+        if (!regions.empty()) header += "property int region\n";
     }
     header += "end_header\n";
 
@@ -671,9 +672,12 @@ void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& orig
             out.write(rec.data(), rec.size());
         }
         if (faces) {
-            for (const Triangle& t : *faces) {
+            for (std::size_t f = 0; f < faces->size(); ++f) {
+                const Triangle& t = (*faces)[f];
                 rec = "3 " + std::to_string(t[0]) + ' ' + std::to_string(t[1]) + ' ' +
-                      std::to_string(t[2]) + '\n';
+                      std::to_string(t[2]);
+                if (!regions.empty()) rec += ' ' + std::to_string(regions[f]);
+                rec += '\n';
                 out.write(rec.data(), rec.size());
             }
         }
@@ -708,9 +712,10 @@ void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& orig
             flush_if_full();
         }
         if (faces) {
-            for (const Triangle& t : *faces) {
+            for (std::size_t f = 0; f < faces->size(); ++f) {
                 put_binary(p, std::uint8_t(3), big);
-                for (std::int32_t v : t) put_binary(p, v, big);
+                for (std::int32_t v : (*faces)[f]) put_binary(p, v, big);
+                if (!regions.empty()) put_binary(p, regions[f], big);
                 flush_if_full();
             }
         }

@@ -43,6 +43,7 @@ void PipelineOptions::validate() const {
     clean.validate();
     preview.validate();
     if (decimate.ratio != 1.0 || decimate.max_error != 0.0) decimate.validate();
+    if (planes.enabled) planes.validate();
     if (tile < -1 || tile > 65536) {
         throw InvalidArgument("tile = " + std::to_string(tile) +
                               ": must be in 0..65536 voxels (0 = untiled, -1 = automatic)");
@@ -176,6 +177,12 @@ void mesh_cleanup_stages(PipelineResult& r, const PipelineOptions& options, cons
         r.clean_stats.mesh = Mesh{};
     }
     fill_and_close(r, options, frame, on_stage, on_volume);
+    if (options.planes.enabled && !r.mesh.faces.empty()) {
+        StageClock clock(r.timings, on_stage, "planes");
+        r.planes = planar_regions(r.mesh, options.planes, r.voxel_size);
+        r.mesh = std::move(r.planes.mesh);
+        r.planes.mesh = Mesh{};
+    }
     if (options.decimate.ratio != 1.0 || options.decimate.max_error != 0.0) {
         StageClock clock(r.timings, on_stage, "decimate");
         r.decimation = vdbrecon::decimate(r.mesh, options.decimate);

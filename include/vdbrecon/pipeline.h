@@ -17,6 +17,7 @@
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/normals.h"
 #include "vdbrecon/outliers.h"
+#include "vdbrecon/planes.h"
 #include "vdbrecon/preview.h"
 #include "vdbrecon/splat.h"
 #include "vdbrecon/types.h"
@@ -49,6 +50,9 @@ struct PipelineOptions {
     /// loop is filled (whatever fill_holes says); the result's closed_volume (run():
     /// <out>.closed.vdb) is the signed distance field of that mesh.
     bool watertight = false;
+    /// Planar regions with crisp edges, re-triangulated with few faces (planes.h); off by
+    /// default. Runs after the hole filling, before the decimation.
+    PlaneOptions planes;
     /// QEM decimation of the final mesh (decimate.h); off while ratio is 1 and max_error 0.
     DecimateOptions decimate;
     /// Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh (not with
@@ -100,6 +104,7 @@ struct PipelineResult {
     MeshResult mesh_stats;      ///< mesh moved out; statistics kept
     CleanResult clean_stats;    ///< mesh moved into `mesh`; statistics kept
     HoleFillResult holes;       ///< mesh moved into `mesh`; statistics kept
+    PlaneResult planes;         ///< mesh moved into `mesh`; planes and statistics kept
     DecimateResult decimation;  ///< mesh moved into `mesh`; statistics kept (none: 0 faces)
     double voxel_size = 0.0;    ///< the voxel used, world units
     bool voxel_chosen = false;  ///< true when it was picked automatically

@@ -177,6 +177,9 @@ struct Mesh {
     Column<Vec3f> normals;     ///< #V by 3 or empty; unit outward vertex normals
     Column<Vec3f> colors;      ///< #V by 3 or empty; linear 0..1 RGB
     Column<Triangle> faces;    ///< #F by 3, counter-clockwise seen from outside
+    /// #F or empty: per face, the planar region it belongs to (planes.h; -1 = none). Written
+    /// as the PLY face property `region`.
+    Column<std::int32_t> regions;
     Vec3d origin{0.0, 0.0, 0.0};    ///< world position of the local frame's origin
 
     bool empty() const { return faces.empty(); }

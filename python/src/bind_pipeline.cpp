@@ -29,6 +29,8 @@ void bind_pipeline(py::module_& m) {
         .nested("close", &PipelineOptions::close, "CloseOptions; off by default.")
         .nested("mesh", &PipelineOptions::mesh, "MeshOptions.")
         .nested("clean", &PipelineOptions::clean, "CleanOptions.")
+        .nested("planes", &PipelineOptions::planes,
+                "PlaneOptions; off by default (planes_enabled=True, CLI --planes).")
         .nested("decimate", &PipelineOptions::decimate,
                 "DecimateOptions; off while ratio is 1 and max_error 0.")
         .nested("write", &PipelineOptions::write, "WriteOptions (run() only).")
@@ -89,6 +91,8 @@ void bind_pipeline(py::module_& m) {
                       "MeshResult (statistics; no mesh).")
         .def_readonly("holes", &PipelineResult::holes,
                       "HoleFillResult (statistics; no mesh) of fill_holes / watertight.")
+        .def_readonly("planes", &PipelineResult::planes,
+                      "PlaneResult (planes and statistics; no mesh) of planes_enabled=True.")
         .def_readonly("clean_stats", &PipelineResult::clean_stats,
                       "CleanResult (statistics; no mesh).")
         .def_readonly("voxel_size", &PipelineResult::voxel_size, "The voxel used, world units.")

@@ -120,6 +120,14 @@ void bind_types(py::module_& m) {
         .def_property_readonly(
             "colors", [](py::object self) { return view_or_none(self.cast<Mesh&>().colors, self); },
             "(V, 3) float32 view of linear 0..1 RGB vertex colours, or None.")
+        .def_property_readonly(
+            "regions",
+            [](const Mesh& mesh) -> py::object {
+                if (mesh.regions.empty()) return py::none();
+                return py::array_t<std::int32_t>(py::ssize_t(mesh.regions.size()),
+                                                 mesh.regions.data());
+            },
+            "(F,) int32 copy of each face's planar region (-1: none; planes=True), or None.")
         .def_property(
             "origin", [](const Mesh& c) { return to_tuple(c.origin); },
             [](Mesh& c, const py::object& o) { c.origin = to_vec3d(o, "origin"); },

@@ -34,6 +34,10 @@ CLI_FLAGS = {
     "--fill-holes": (vdbrecon.PipelineOptions, "fill_holes"),
     "--watertight": (vdbrecon.PipelineOptions, "watertight"),
     "--tile": (vdbrecon.PipelineOptions, "tile"),
+    "--planes": (vdbrecon.PlaneOptions, "enabled"),
+    "--plane-angle": (vdbrecon.PlaneOptions, "angle"),
+    "--plane-distance": (vdbrecon.PlaneOptions, "distance"),
+    "--plane-min-area": (vdbrecon.PlaneOptions, "min_area"),
 }
 
 
@@ -77,7 +81,7 @@ def test_every_field_has_a_documented_unit_or_meaning():
     for cls in (vdbrecon.ReadOptions, vdbrecon.WriteOptions, vdbrecon.OutlierOptions,
                 vdbrecon.NormalOptions, vdbrecon.SplatOptions, vdbrecon.CloseOptions,
                 vdbrecon.MeshOptions, vdbrecon.CleanOptions, vdbrecon.HoleFillOptions,
-                vdbrecon.EvalOptions,
+                vdbrecon.EvalOptions, vdbrecon.PlaneOptions,
                 vdbrecon.PipelineOptions):
         assert cls._fields, cls
         for name, doc in cls._fields:

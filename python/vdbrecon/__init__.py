@@ -49,6 +49,9 @@ from ._vdbrecon import (  # noqa: F401  (re-exported)
     DepthOptions,
     CloseResult,
     DecimateOptions,
+    PlaneOptions,
+    Plane,
+    PlaneResult,
     DecimateResult,
     Error,
     EvalOptions,
@@ -89,7 +92,7 @@ __version__ = _v.__version__
 __all__ = [
     "reconstruct", "run", "Fusion", "DepthOptions", "read_points", "read_mesh", "write_mesh", "write_points",
     "remove_outliers", "estimate_normals", "splat", "close", "extract_mesh", "clean_mesh",
-    "fill_holes", "decimate", "DecimateOptions", "DecimateResult", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
+    "fill_holes", "decimate", "DecimateOptions", "DecimateResult", "planar_regions", "PlaneOptions", "PlaneResult", "Plane", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
     "version", "stage_volume_path",
     "PointCloud", "Mesh", "Volume", "PipelineOptions", "ReadOptions", "WriteOptions",
     "OutlierOptions", "NormalOptions", "KnnOptions", "SplatOptions", "CloseOptions", "MeshOptions",
@@ -215,7 +218,7 @@ def _fill(cls, kwargs, func):
 
 # A plain keyword name that several structs have, and the stage it means: the one the CLI flag of
 # that name sets (--k sets normals.k; the outlier stage's k is outliers_k).
-_PLAIN_NAME_OWNER = {"k": "normals"}
+_PLAIN_NAME_OWNER = {"k": "normals", "max_error": "decimate"}
 # Fields taken only as <stage>_<field>: their plain name would not say which stage they switch
 # (outliers_enabled).
 _QUALIFIED_ONLY = ("enabled",)
@@ -620,6 +623,22 @@ makes the mesh non-manifold or changes its topology; open borders stay put; colo
 mesh: Mesh or mesh path.
 Returns a DecimateResult: .mesh, .faces_before, .faces_after, .collapses, .max_error.""",
           _struct_entries(DecimateOptions), [_pos("mesh")])
+
+
+def planar_regions(mesh, voxel, **options):
+    return _v.planar_regions(_mesh(mesh, "mesh"), _fill(PlaneOptions, options, "planar_regions"),
+                             voxel)
+
+
+_document(planar_regions, """Finds the planar regions of a mesh by region growing, moves the
+vertices onto their planes (onto the line of two planes at an edge, the point of three at a
+corner) and re-triangulates the regions with few faces, as reconstruct(planes_enabled=True)
+does after the hole filling. Lengths are in voxels of `voxel` (world units).
+
+mesh: Mesh or mesh path.
+Returns a PlaneResult: .mesh (with .regions per face), .planes, .faces_before, .faces_after,
+.planar_faces, .edge_vertices, .corner_vertices.""",
+          _struct_entries(PlaneOptions), [_pos("mesh"), _pos("voxel")])
 
 
 def evaluate(recon, reference, **options):

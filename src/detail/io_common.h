@@ -138,10 +138,11 @@ RawPoints read_obj_raw(const std::string& path, std::string_view content, bool w
 RawPoints read_las_raw(const std::string& path, std::string_view content,
                        const std::vector<int>& classes);
 
-/// PLY writer for clouds and meshes. Empty attributes are left out; `faces` may be null.
+/// PLY writer for clouds and meshes. Empty attributes are left out; `faces` may be null;
+/// `regions` (one per face) are the faces' `region` property.
 void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& origin,
                Span<Vec3f> normals, Span<Vec3f> colors, Span<float> scales,
                Span<float> confidences, const Column<Triangle>* faces,
-               const WriteOptions& options);
+               const WriteOptions& options, Span<std::int32_t> regions = {});
 
 }  // namespace vdbrecon::detail

@@ -1,0 +1,69 @@
+// Planar regions of a mesh with crisp edges (after the Las Vegas Reconstruction toolkit's plane
+// optimisation, T. Wiemann et al., "Automatic construction of polygonal maps from point cloud
+// data", SSRR 2010; and region growing as in their mesh optimisation):
+//
+//  1. region growing over edge-adjacent faces, seeded at the flattest faces first: a face joins
+//     a region when its normal is within `angle` of the region's plane normal and its three
+//     vertices are within `distance` of the plane (the plane refitted as the region doubles);
+//     regions smaller than `min_area` are no plane. A curved surface flat to within `distance`
+//     over `min_area` becomes planar facets (as in LVR): tolerances are the user's;
+//  2. each region's plane is the least-squares plane of its vertices;
+//  3. vertices are moved onto the planes of the regions around them: one region, onto its plane;
+//     two, onto the line where the planes meet (a crisp edge); three or more, onto the point
+//     nearest to all of them (a corner) -- never farther than `max_move` (onto one plane: than
+//     `distance`). Planes that meet at less than three times `angle` make no crease (facets of
+//     one curved surface): such a vertex goes onto one of them;
+//  4. the planar regions are re-triangulated with few triangles: quadric error edge collapses
+//     (decimate.h) that move the surface by at most `max_error`. A collapse inside a flat
+//     region, or along a straight crease, costs nothing; corners, open borders, the rest of the
+//     surface and the topology stay (the decimator's link condition and flip test).
+//
+// The region of every face of the result goes to Mesh::regions (-1: none). Deterministic.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "vdbrecon/types.h"
+
+namespace vdbrecon {
+
+struct PlaneOptions {
+    /// Run the stage at all (the pipeline's --planes).
+    bool enabled = false;
+    /// A face joins a region when its normal is within this of the region's plane, degrees.
+    double angle = 10.0;
+    /// ... and its vertices within this of the plane, voxels.
+    double distance = 0.5;
+    /// Regions smaller than this are no plane, square voxels.
+    double min_area = 50.0;
+    /// No vertex moves farther than this onto its planes, voxels.
+    double max_move = 2.0;
+    /// The re-triangulation moves the surface by at most this, voxels.
+    double max_error = 0.01;
+
+    /// Throws InvalidArgument naming the field when out of range.
+    void validate() const;
+};
+
+/// A region's plane: normal . x = offset (unit normal, out of the surface; local frame).
+struct Plane {
+    Vec3d normal{0.0, 0.0, 1.0};
+    double offset = 0.0;
+    double area = 0.0;  ///< of its faces, before the re-triangulation, world units^2
+};
+
+struct PlaneResult {
+    Mesh mesh;  ///< with `regions` per face
+    std::vector<Plane> planes;
+    std::size_t faces_before = 0, faces_after = 0;
+    std::size_t planar_faces = 0;      ///< faces in a region before the re-triangulation
+    std::size_t edge_vertices = 0;     ///< vertices moved onto the line of two planes
+    std::size_t corner_vertices = 0;   ///< vertices moved onto the point of three or more
+};
+
+/// Finds the planar regions of `mesh` (voxel: the unit of the options' lengths, world units).
+PlaneResult planar_regions(const Mesh& mesh, const PlaneOptions& options, double voxel);
+
+}  // namespace vdbrecon

@@ -105,8 +105,9 @@ void smooth_normals(FaceData& d, double cos_angle) {
     }
 }
 
-/// Faces in the order regions are seeded: flattest first (the largest angle to a neighbour,
-/// ties by index).
+/// Faces in the order regions are seeded: flattest first (the largest angle to a neighbour),
+/// ties by position (not by index: the same surface numbered otherwise, as tiles number it,
+/// grows the same regions).
 std::vector<std::int32_t> seed_order(const FaceData& d) {
     const std::size_t nf = d.area.size();
     std::vector<double> rough(nf, 2.0);
@@ -119,8 +120,13 @@ std::vector<std::int32_t> seed_order(const FaceData& d) {
     }
     std::vector<std::int32_t> order(nf);
     std::iota(order.begin(), order.end(), 0);
-    std::stable_sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) {
-        return rough[std::size_t(a)] < rough[std::size_t(b)];
+    std::sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) {
+        const double ra = rough[std::size_t(a)], rb = rough[std::size_t(b)];
+        if (ra != rb) return ra < rb;
+        const V3 &ca = d.centre[std::size_t(a)], &cb = d.centre[std::size_t(b)];
+        if (ca[0] != cb[0]) return ca[0] < cb[0];
+        if (ca[1] != cb[1]) return ca[1] < cb[1];
+        return ca[2] != cb[2] ? ca[2] < cb[2] : a < b;
     });
     return order;
 }

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <queue>
 #include <sstream>
 #include <vector>
@@ -87,14 +88,35 @@ struct Quadric {
     }
 };
 
+/// A key of a collapse's place: a hash of the bits of its target and of its edge's midpoint
+/// (several edges of a vertex can have it as their target). Equal keys for two collapses are as
+/// good as impossible; they would fall back to the vertex numbers.
+inline std::uint64_t place_key(const V3& target, const V3& mid) {
+    std::uint64_t h = 0x9e3779b97f4a7c15ull;
+    for (const V3* p : {&target, &mid}) {
+        for (double x : *p) {
+            std::uint64_t bits;
+            std::memcpy(&bits, &x, sizeof bits);
+            h ^= bits + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
+            h *= 0xff51afd7ed558ccdull;
+            h ^= h >> 33;
+        }
+    }
+    return h;
+}
+
 struct Candidate {
     double cost;                // Q(target): the heap's order (Garland and Heckbert's)
     double error;               // sqrt(Q(target) / weights): a distance, world units
-    std::int32_t a, b;          // a < b
+    std::int32_t a, b;          // a before b by position (Decimator::before)
     std::uint32_t va, vb;       // the vertices' versions when it was made
     V3 target;
+    std::uint64_t place;        // place_key(target, the edge's midpoint)
+    // Ties go by where the collapse is, not by vertex numbers: a mesh numbered otherwise (a
+    // tiled run's) collapses the same edges in the same order.
     bool operator>(const Candidate& o) const {
         if (cost != o.cost) return cost > o.cost;
+        if (place != o.place) return place > o.place;
         return a != o.a ? a > o.a : b > o.b;
     }
 };
@@ -185,49 +207,74 @@ class Decimator {
 
   private:
     /// Face planes (area-weighted) and, along the open border, planes through each border edge
-    /// perpendicular to its face.
+    /// perpendicular to its face. Each vertex sums its faces' planes in the order of the faces'
+    /// centroids (not their numbers), so that the sums do not depend on how the mesh is
+    /// numbered.
     void build_quadrics() {
-        for (std::size_t f = 0; f < faces_.size(); ++f) {
-            const Triangle& t = faces_[f];
-            const V3 n2 = cross(sub(p_[std::size_t(t[1])], p_[std::size_t(t[0])]),
-                                sub(p_[std::size_t(t[2])], p_[std::size_t(t[0])]));
-            const double l = std::sqrt(dot(n2, n2));
-            if (!(l > 0.0)) continue;
-            const V3 n = {n2[0] / l, n2[1] / l, n2[2] / l};
-            Quadric q;
-            q.add_plane(n, -dot(n, p_[std::size_t(t[0])]), 0.5 * l);
-            for (std::int32_t v : t) q_[std::size_t(v)] += q;
-        }
         const std::vector<std::uint64_t> border = detail::border_edge_keys(faces_);
+        std::vector<V3> centre(faces_.size());
         for (std::size_t f = 0; f < faces_.size(); ++f) {
             const Triangle& t = faces_[f];
             for (int k = 0; k < 3; ++k) {
-                const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
-                if (!std::binary_search(border.begin(), border.end(), detail::edge_key(a, b))) continue;
-                border_[std::size_t(a)] = border_[std::size_t(b)] = 1;
-                const V3 e = sub(p_[std::size_t(b)], p_[std::size_t(a)]);
-                const V3 fn = cross(e, sub(p_[std::size_t(t[std::size_t((k + 2) % 3)])], p_[std::size_t(a)]));
-                V3 m = cross(e, fn);
-                const double l = std::sqrt(dot(m, m));
-                if (!(l > 0.0)) continue;
-                m = {m[0] / l, m[1] / l, m[2] / l};
-                Quadric q;
-                q.add_plane(m, -dot(m, p_[std::size_t(a)]), o_.border_weight * dot(e, e));
-                q_[std::size_t(a)] += q;
-                q_[std::size_t(b)] += q;
+                centre[f][std::size_t(k)] = p_[std::size_t(t[0])][std::size_t(k)] +
+                                            p_[std::size_t(t[1])][std::size_t(k)] +
+                                            p_[std::size_t(t[2])][std::size_t(k)];
             }
+        }
+        std::vector<std::int32_t> faces;
+        for (std::size_t v = 0; v < p_.size(); ++v) {
+            faces = around_[v];
+            std::sort(faces.begin(), faces.end(), [&](std::int32_t f, std::int32_t g) {
+                return centre[std::size_t(f)] != centre[std::size_t(g)]
+                           ? centre[std::size_t(f)] < centre[std::size_t(g)]
+                           : f < g;
+            });
+            for (std::int32_t f : faces) add_face_quadrics(std::int32_t(v), faces_[std::size_t(f)], border);
         }
     }
 
+    /// Adds to v's quadric the plane of face t and the border planes of t's edges at v.
+    void add_face_quadrics(std::int32_t v, const Triangle& t,
+                           const std::vector<std::uint64_t>& border) {
+        const V3 n2 = cross(sub(p_[std::size_t(t[1])], p_[std::size_t(t[0])]),
+                            sub(p_[std::size_t(t[2])], p_[std::size_t(t[0])]));
+        const double l = std::sqrt(dot(n2, n2));
+        if (l > 0.0) {
+            const V3 n = {n2[0] / l, n2[1] / l, n2[2] / l};
+            q_[std::size_t(v)].add_plane(n, -dot(n, p_[std::size_t(t[0])]), 0.5 * l);
+        }
+        for (int k = 0; k < 3; ++k) {
+            const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
+            if (a != v && b != v) continue;
+            if (!std::binary_search(border.begin(), border.end(), detail::edge_key(a, b))) continue;
+            border_[std::size_t(v)] = 1;
+            const V3 e = sub(p_[std::size_t(b)], p_[std::size_t(a)]);
+            const V3 fn = cross(e, sub(p_[std::size_t(t[std::size_t((k + 2) % 3)])], p_[std::size_t(a)]));
+            V3 m = cross(e, fn);
+            const double lm = std::sqrt(dot(m, m));
+            if (!(lm > 0.0)) continue;
+            m = {m[0] / lm, m[1] / lm, m[2] / lm};
+            q_[std::size_t(v)].add_plane(m, -dot(m, p_[std::size_t(a)]), o_.border_weight * dot(e, e));
+        }
+    }
+
+    /// Whether vertex i comes before j by position (by number only where they coincide).
+    bool before(std::int32_t i, std::int32_t j) const {
+        const V3& pi = p_[std::size_t(i)];
+        const V3& pj = p_[std::size_t(j)];
+        return pi != pj ? pi < pj : i < j;
+    }
+
     void push(std::int32_t a, std::int32_t b) {
-        if (a > b) std::swap(a, b);
+        if (before(b, a)) std::swap(a, b);
         Quadric q = q_[std::size_t(a)];
         q += q_[std::size_t(b)];
-        Candidate c{0.0, 0.0, a, b, version_[std::size_t(a)], version_[std::size_t(b)], {}};
+        Candidate c{0.0, 0.0, a, b, version_[std::size_t(a)], version_[std::size_t(b)], {}, 0};
         const V3& pa = p_[std::size_t(a)];
         const V3& pb = p_[std::size_t(b)];
         const V3 d = sub(pb, pa);
         const V3 mid = {pa[0] + 0.5 * d[0], pa[1] + 0.5 * d[1], pa[2] + 0.5 * d[2]};
+
         // Placement::free: the optimum, unless the quadric is (nearly) singular and it slides
         // away along a flat region (farther from the edge's midpoint than the edge is long).
         // Otherwise the best point of the edge, Q(a + t d) being a parabola in t.
@@ -240,6 +287,7 @@ class Decimator {
             c.target = {pa[0] + t * d[0], pa[1] + t * d[1], pa[2] + t * d[2]};
         }
         c.cost = q(c.target);
+        c.place = place_key(c.target, mid);
         c.error = std::sqrt(std::max(0.0, c.cost) / std::max(q.w, 1e-300));
         heap_.push(c);
     }

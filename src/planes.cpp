@@ -140,6 +140,12 @@ Plane fit_plane(const Mesh& m, const std::vector<std::int32_t>& faces, const V3&
     }
     std::sort(verts.begin(), verts.end());
     verts.erase(std::unique(verts.begin(), verts.end()), verts.end());
+    // Summed in the order of their positions, not their numbers (a tiled mesh numbers them
+    // otherwise and must get the same plane).
+    std::sort(verts.begin(), verts.end(), [&](std::int32_t a, std::int32_t b) {
+        const Vec3f &pa = m.vertices[std::size_t(a)], &pb = m.vertices[std::size_t(b)];
+        return pa != pb ? pa < pb : a < b;
+    });
     V3 c = V3::Zero();
     for (std::int32_t v : verts) c += vec(m.vertices[std::size_t(v)]);
     c /= double(verts.size());

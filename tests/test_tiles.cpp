@@ -241,3 +241,21 @@ TEST_CASE("tile jobs: prepared, run in any order and finished give the bytes of 
                     FormatError);
     CHECK_FALSE(file_exists(dir.file("bad.ply")));
 }
+
+TEST_CASE("tiles: planes and decimation after the tiles give the untiled mesh too", "[tiles]") {
+    const Shape shape = make_shape("lbracket");
+    const PointCloud sample = sample_uniform(shape.mesh, 15000, 6);
+    const double voxel = spacing_of(shape.area, 15000);
+    PipelineOptions o = options_at(voxel, Mesher::dc, 0);
+    for (const int variant : {0, 1, 2}) {
+        INFO("variant " << variant);
+        o.tile = 0;
+        o.planes.enabled = variant != 1;  // collapses of no cost everywhere inside the regions
+        o.decimate.ratio = variant != 0 ? 0.5 : 1.0;
+        const PipelineResult whole = run_on(sample, o);
+        o.tile = 24;
+        const PipelineResult tiled = run_on(sample, o);
+        if (o.planes.enabled) CHECK(whole.planes.planes.size() == 8);
+        check_same_mesh(whole.mesh, tiled.mesh, voxel);
+    }
+}

@@ -8,8 +8,10 @@
 // two vertices' common neighbours are exactly the edge's opposite vertices), so closed stays
 // closed, the genus and the number of pieces stay; open borders stay put (a quadric of the
 // plane through each border edge, perpendicular to its face, weighted by border_weight); vertex
-// colours follow the collapses (interpolated along the edge). Serial and deterministic (ties
-// broken by the edge's vertex numbers).
+// colours follow the collapses (interpolated along the edge). Serial and deterministic, also
+// under renumbering: ties between equal costs go by the collapse's position, an edge collapses
+// onto its endpoint that comes first by position, and quadrics are summed in the order of the
+// faces' centroids.
 #pragma once
 
 #include <cstddef>

@@ -165,7 +165,7 @@ void fill_and_close(PipelineResult& r, const PipelineOptions& options, const Vol
 }
 
 /// The stages after the mesh: clean > fill (and, with watertight, the closed volume in
-/// `frame`) > decimate.
+/// `frame`) > planes > decimate.
 void mesh_cleanup_stages(PipelineResult& r, const PipelineOptions& options, const Volume& frame,
                          const StageCallback& on_stage, const VolumeCallback& on_volume) {
     {
@@ -281,18 +281,21 @@ void tiled_cleanup_stages(PipelineResult& r, const PipelineOptions& options, dou
     mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
 }
 
-/// splat > close > mesh tile by tile (detail/tiles.h) on an oriented cloud, then the stages
-/// after the mesh. No volume is kept or handed to on_volume: no tile holds the whole of it.
-void tiled_stages(PipelineResult& r, const PointCloud& cloud, const SplatOptions& splat_options,
-                  const PipelineOptions& options, const StageCallback& on_stage,
-                  const VolumeCallback& on_volume) {
+/// splat > close > mesh tile by tile (detail/tiles.h) on an oriented cloud (freed after the
+/// tiles when `consume`), then the stages after the mesh. No volume is kept or handed to
+/// on_volume: no tile holds the whole of it.
+void tiled_stages(PipelineResult& r, PointCloud& cloud, bool consume,
+                  const SplatOptions& splat_options, const PipelineOptions& options,
+                  const StageCallback& on_stage, const VolumeCallback& on_volume) {
     {
         StageClock clock(r.timings, on_stage, "tiles");
         detail::TiledResult tiled =
             detail::tiled_surface(cloud, tiled_options(options, splat_options, sample_spacing(r)));
         take_tiled(r, std::move(tiled));
     }
-    tiled_cleanup_stages(r, options, splat_options.voxel_size, cloud.origin, on_stage, on_volume);
+    const Vec3d origin = cloud.origin;
+    if (consume) cloud = PointCloud{};
+    tiled_cleanup_stages(r, options, splat_options.voxel_size, origin, on_stage, on_volume);
 }
 
 /// splat(); a refusal for the memory budget also suggests tiles.
@@ -367,8 +370,7 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
     in_arena(options.threads, [&] {
         const SplatOptions splat_options = point_stages(r, cloud, options, on_stage);
         if (options.tile != 0) {
-            tiled_stages(r, cloud, splat_options, options, on_stage, on_volume);
-            if (consume) cloud = PointCloud{};
+            tiled_stages(r, cloud, consume, splat_options, options, on_stage, on_volume);
             return;
         }
         {

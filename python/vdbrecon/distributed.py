@@ -62,8 +62,10 @@ def run(input, output=None, *, client, tile=-1, workdir=None, voxel=None, progre
     workdir = _path(workdir, "workdir")
     try:
         job = _v.prepare_tiles(input, workdir, o)
+        # Not pure: a second run with the same job directory and options reads new files, and
+        # must not be handed the first run's pieces. A lost piece is recomputed either way.
         futures = client.map(_run_tile, [workdir] * job.tiles, range(job.tiles),
-                             [options] * job.tiles, pure=True)
+                             [options] * job.tiles, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         pieces = [None] * job.tiles
         done = 0

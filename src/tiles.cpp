@@ -28,7 +28,6 @@
 #include <cmath>
 #include <cstdint>
 #include <numeric>
-#include <sstream>
 
 #include "detail/io_common.h"
 #include "detail/mesh_common.h"
@@ -243,7 +242,6 @@ ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& optio
     }
     ++stats.tiles;
     stats.max_tile_points = std::max(stats.max_tile_points, part.size());
-    stats.max_tile_bytes = std::max(stats.max_tile_bytes, s.memory_bytes);
     stats.splat.active_voxels += s.active_voxels;
     stats.splat.leaves += s.leaves;
     stats.splat.updates += s.updates;

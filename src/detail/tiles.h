@@ -37,7 +37,6 @@ struct TiledResult {
     CloseResult close;  ///< statistics only: sums over the tiles
     std::size_t tiles = 0;            ///< tiles that held samples near them
     std::size_t max_tile_points = 0;  ///< samples of the largest tile (its own and its halo)
-    std::size_t max_tile_bytes = 0;   ///< memory of the largest tile's grids
     int tile = 0;                     ///< the tile edge used, voxels
     int halo = 0;                     ///< voxels of samples around a tile, each side
 };

@@ -10,7 +10,6 @@
 #include <algorithm>
 #include <cstring>
 #include <string_view>
-#include <type_traits>
 
 #include "detail/io_common.h"
 #include "detail/tiles.h"
@@ -64,11 +63,11 @@ class Reader {
         at_ += n * sizeof(T);
         return v;
     }
+    /// Appends an array written by Bytes::put_vector to v.
     template <typename T>
-    Column<T> get_column() {
-        Column<T> c;
-        c.edit() = get_vector<T>();
-        return c;
+    void append_to(std::vector<T>& v) {
+        const std::vector<T> more = get_vector<T>();
+        v.insert(v.end(), more.begin(), more.end());
     }
     void tag(const char (&t)[8]) {
         need(8);
@@ -107,7 +106,6 @@ struct Plan {
     Vec3d origin{0.0, 0.0, 0.0};
     double sample_spacing = 0.0;
     TileSetup setup;
-    std::uint8_t scales = 0, colors = 0, confidences = 0;
     std::uint64_t points = 0;
     std::vector<TileKey> tiles;    ///< to visit, in order
     std::vector<TileKey> buckets;  ///< occupied, sorted (bucket-<j>.bin)
@@ -121,9 +119,6 @@ std::string plan_bytes(const Plan& p) {
     b.put(p.sample_spacing);
     b.put(p.setup.frame);
     b.put(p.setup.grid);
-    b.put(p.scales);
-    b.put(p.colors);
-    b.put(p.confidences);
     b.put(p.points);
     b.put_vector(p.tiles);
     b.put_vector(p.buckets);
@@ -141,9 +136,6 @@ Plan read_plan(const std::string& dir) {
     p.sample_spacing = r.get<double>();
     p.setup.frame = r.get<KernelFrame>();
     p.setup.grid = r.get<TileGrid>();
-    p.scales = r.get<std::uint8_t>();
-    p.colors = r.get<std::uint8_t>();
-    p.confidences = r.get<std::uint8_t>();
     p.points = r.get<std::uint64_t>();
     p.tiles = r.get_vector<TileKey>();
     p.buckets = r.get_vector<TileKey>();
@@ -167,45 +159,30 @@ TiledOptions tile_options(const Plan& plan, const TiledOptions& given) {
 
 /// Tile t's samples from the buckets around it, in the whole cloud's order.
 PointCloud read_tile_samples(const std::string& dir, const Plan& plan, const TileKey& t) {
-    struct Row {
-        std::uint32_t index;
-        std::size_t bucket, at;
-    };
-    std::vector<Row> rows;
-    std::vector<PointCloud> parts;
+    PointCloud loaded;  // the buckets' samples, one bucket after another
+    std::vector<std::uint32_t> index;  // ... and their rows in the whole cloud
     for_each_bucket_near(plan.buckets, t, plan.setup.grid, [&](std::size_t j) {
         const std::string path = bucket_path(dir, j);
         const std::string bytes = read_file(path);
         Reader r(bytes, path);
         r.tag(kBucketTag);
-        const std::vector<std::uint32_t> index = r.get_vector<std::uint32_t>();
-        PointCloud c;
-        c.positions = r.get_column<Vec3f>();
-        c.normals = r.get_column<Vec3f>();
-        c.scales = r.get_column<float>();
-        c.colors = r.get_column<Vec3f>();
-        c.confidences = r.get_column<float>();
-        for (std::size_t i = 0; i < index.size(); ++i) {
-            if (in_halo(kernel_centre(c, i, plan.voxel), t, plan.setup.grid)) {
-                rows.push_back({index[i], parts.size(), i});
-            }
-        }
-        parts.push_back(std::move(c));
+        r.append_to(index);
+        r.append_to(loaded.positions.edit());
+        r.append_to(loaded.normals.edit());
+        r.append_to(loaded.scales.edit());
+        r.append_to(loaded.colors.edit());
+        r.append_to(loaded.confidences.edit());
     });
-    std::sort(rows.begin(), rows.end(),
-              [](const Row& a, const Row& b) { return a.index < b.index; });
-    PointCloud out;
-    out.origin = plan.origin;
-    auto& pos = out.positions.edit();
-    auto& nrm = out.normals.edit();
-    for (const Row& w : rows) {
-        const PointCloud& c = parts[w.bucket];
-        pos.push_back(c.positions[w.at]);
-        nrm.push_back(c.normals[w.at]);
-        if (plan.scales) out.scales.edit().push_back(c.scales[w.at]);
-        if (plan.colors) out.colors.edit().push_back(c.colors[w.at]);
-        if (plan.confidences) out.confidences.edit().push_back(c.confidences[w.at]);
+    std::vector<std::uint32_t> rows;
+    for (std::size_t i = 0; i < index.size(); ++i) {
+        if (in_halo(kernel_centre(loaded, i, plan.voxel), t, plan.setup.grid)) {
+            rows.push_back(std::uint32_t(i));
+        }
     }
+    std::sort(rows.begin(), rows.end(),
+              [&](std::uint32_t a, std::uint32_t b) { return index[a] < index[b]; });
+    PointCloud out = subset(loaded, rows);
+    out.origin = plan.origin;
     return out;
 }
 
@@ -219,9 +196,6 @@ std::size_t write_tile_job(const PointCloud& cloud, const TiledOptions& options,
     plan.voxel = options.splat.voxel_size;
     plan.origin = cloud.origin;
     plan.sample_spacing = options.sample_spacing;
-    plan.scales = cloud.has_scales();
-    plan.colors = cloud.has_colors();
-    plan.confidences = cloud.has_confidences();
     plan.points = cloud.size();
     const Buckets b = bucket_points(cloud, plan.voxel, plan.setup.grid);
     plan.tiles = tiles_to_visit(cloud, b, plan.setup.grid, plan.voxel);
@@ -229,22 +203,15 @@ std::size_t write_tile_job(const PointCloud& cloud, const TiledOptions& options,
     for (std::size_t j = 0; j < b.keys.size(); ++j) {
         const std::vector<std::uint32_t> index(b.order.begin() + std::ptrdiff_t(b.begin[j]),
                                                b.order.begin() + std::ptrdiff_t(b.begin[j + 1]));
+        const PointCloud rows = subset(cloud, index);
         Bytes out;
         out.str().append(kBucketTag, 8);
         out.put_vector(index);
-        auto column = [&](const auto& c) {
-            using T = std::decay_t<decltype(c[0])>;
-            std::vector<T> v;
-            if (!c.empty()) {
-                for (std::uint32_t i : index) v.push_back(c[i]);
-            }
-            out.put_vector(v);
-        };
-        column(cloud.positions);
-        column(cloud.normals);
-        column(cloud.scales);
-        column(cloud.colors);
-        column(cloud.confidences);
+        out.put_vector(rows.positions);
+        out.put_vector(rows.normals);
+        out.put_vector(rows.scales);
+        out.put_vector(rows.colors);
+        out.put_vector(rows.confidences);
         write_file(bucket_path(dir, j), out.str());
     }
     write_file(plan_path(dir), plan_bytes(plan));  // last: a job with a plan is whole

@@ -28,6 +28,7 @@
 #include <cmath>
 #include <cstdint>
 #include <numeric>
+#include <type_traits>
 
 #include "detail/io_common.h"
 #include "detail/mesh_common.h"
@@ -124,27 +125,6 @@ std::vector<std::uint32_t> tile_points(const PointCloud& cloud, const Buckets& b
     return idx;
 }
 
-template <typename T>
-Column<T> pick(const Column<T>& c, const std::vector<std::uint32_t>& idx) {
-    Column<T> out;
-    if (c.empty()) return out;
-    std::vector<T>& v = out.edit();
-    v.reserve(idx.size());
-    for (std::uint32_t i : idx) v.push_back(c[i]);
-    return out;
-}
-
-PointCloud subset(const PointCloud& cloud, const std::vector<std::uint32_t>& idx) {
-    PointCloud s;
-    s.positions = pick(cloud.positions, idx);
-    s.normals = pick(cloud.normals, idx);
-    s.colors = pick(cloud.colors, idx);
-    s.scales = pick(cloud.scales, idx);
-    s.confidences = pick(cloud.confidences, idx);
-    s.origin = cloud.origin;
-    return s;
-}
-
 /// Whether tile t owns the triangle: the tile of its centroid (from the exact sum of its
 /// points' coordinates, which every tile that meshes it computes alike).
 bool owns(const TileKey& t, const RawSurface& raw, const Triangle& tri, const TileGrid& g) {
@@ -189,6 +169,25 @@ ClassifiedSurface tile_piece(const Volume& volume, const MeshOptions& options, R
 }
 
 }  // namespace
+
+PointCloud subset(const PointCloud& cloud, const std::vector<std::uint32_t>& idx) {
+    auto pick = [&](const auto& column) {
+        using T = std::decay_t<decltype(column[0])>;
+        std::vector<T> v;
+        if (column.empty()) return v;
+        v.reserve(idx.size());
+        for (std::uint32_t i : idx) v.push_back(column[i]);
+        return v;
+    };
+    PointCloud s;
+    s.positions = pick(cloud.positions);
+    s.normals = pick(cloud.normals);
+    s.colors = pick(cloud.colors);
+    s.scales = pick(cloud.scales);
+    s.confidences = pick(cloud.confidences);
+    s.origin = cloud.origin;
+    return s;
+}
 
 void append(ClassifiedSurface& all, ClassifiedSurface&& piece) {
     const auto offset = std::int32_t(all.points.size());

@@ -116,6 +116,9 @@ std::vector<TileKey> tiles_to_visit(const PointCloud& cloud, const Buckets& b, c
 ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& options,
                                const TileSetup& setup, const TileKey& t, TiledResult& stats);
 
+/// The rows `idx` of a cloud, in that order, with every column it has (and its origin).
+PointCloud subset(const PointCloud& cloud, const std::vector<std::uint32_t>& idx);
+
 /// Appends a tile's piece to the pieces so far (finish_surface welds them).
 void append(ClassifiedSurface& all, ClassifiedSurface&& piece);
 

@@ -267,10 +267,11 @@ void weld_coincident(ClassifiedSurface& s) {
         return ka != kb ? ka < kb : a < b;
     });
     std::vector<std::int32_t> to;  // (duplicate, first) pairs
-    for (std::size_t j = 1; j < used.size(); ++j) {
-        if (key(used[j]) != key(used[j - 1])) continue;
-        std::size_t first = j - 1;
-        while (first > 0 && key(used[first - 1]) == key(used[j])) --first;
+    for (std::size_t j = 1, first = 0; j < used.size(); ++j) {
+        if (key(used[j]) != key(used[first])) {
+            first = j;  // a new position
+            continue;
+        }
         to.push_back(used[j]);
         to.push_back(used[first]);
     }

@@ -212,37 +212,46 @@ class Decimator {
     /// numbered.
     void build_quadrics() {
         const std::vector<std::uint64_t> border = detail::border_edge_keys(faces_);
-        std::vector<V3> centre(faces_.size());
+        // Per face its plane (unit normal, offset, weight = area; weight 0 when degenerate) and
+        // the sum of its corners, the key its vertices order it by.
+        struct FacePlane {
+            V3 n, centre;
+            double d, w;
+        };
+        std::vector<FacePlane> plane(faces_.size());
         for (std::size_t f = 0; f < faces_.size(); ++f) {
             const Triangle& t = faces_[f];
+            const V3 &p0 = p_[std::size_t(t[0])], &p1 = p_[std::size_t(t[1])],
+                     &p2 = p_[std::size_t(t[2])];
+            FacePlane& fp = plane[f];
             for (int k = 0; k < 3; ++k) {
-                centre[f][std::size_t(k)] = p_[std::size_t(t[0])][std::size_t(k)] +
-                                            p_[std::size_t(t[1])][std::size_t(k)] +
-                                            p_[std::size_t(t[2])][std::size_t(k)];
+                fp.centre[std::size_t(k)] =
+                    p0[std::size_t(k)] + p1[std::size_t(k)] + p2[std::size_t(k)];
             }
+            const V3 n2 = cross(sub(p1, p0), sub(p2, p0));
+            const double l = std::sqrt(dot(n2, n2));
+            fp.w = l > 0.0 ? 0.5 * l : 0.0;
+            fp.n = l > 0.0 ? V3{n2[0] / l, n2[1] / l, n2[2] / l} : V3{0.0, 0.0, 0.0};
+            fp.d = -dot(fp.n, p0);
         }
         std::vector<std::int32_t> faces;
         for (std::size_t v = 0; v < p_.size(); ++v) {
             faces = around_[v];
             std::sort(faces.begin(), faces.end(), [&](std::int32_t f, std::int32_t g) {
-                return centre[std::size_t(f)] != centre[std::size_t(g)]
-                           ? centre[std::size_t(f)] < centre[std::size_t(g)]
-                           : f < g;
+                const V3 &cf = plane[std::size_t(f)].centre, &cg = plane[std::size_t(g)].centre;
+                return cf != cg ? cf < cg : f < g;
             });
-            for (std::int32_t f : faces) add_face_quadrics(std::int32_t(v), faces_[std::size_t(f)], border);
+            for (std::int32_t f : faces) {
+                const FacePlane& fp = plane[std::size_t(f)];
+                if (fp.w > 0.0) q_[v].add_plane(fp.n, fp.d, fp.w);
+                add_border_quadrics(std::int32_t(v), faces_[std::size_t(f)], border);
+            }
         }
     }
 
-    /// Adds to v's quadric the plane of face t and the border planes of t's edges at v.
-    void add_face_quadrics(std::int32_t v, const Triangle& t,
-                           const std::vector<std::uint64_t>& border) {
-        const V3 n2 = cross(sub(p_[std::size_t(t[1])], p_[std::size_t(t[0])]),
-                            sub(p_[std::size_t(t[2])], p_[std::size_t(t[0])]));
-        const double l = std::sqrt(dot(n2, n2));
-        if (l > 0.0) {
-            const V3 n = {n2[0] / l, n2[1] / l, n2[2] / l};
-            q_[std::size_t(v)].add_plane(n, -dot(n, p_[std::size_t(t[0])]), 0.5 * l);
-        }
+    /// Adds to v's quadric the border planes of face t's edges at v.
+    void add_border_quadrics(std::int32_t v, const Triangle& t,
+                             const std::vector<std::uint64_t>& border) {
         for (int k = 0; k < 3; ++k) {
             const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
             if (a != v && b != v) continue;

@@ -172,6 +172,9 @@ void print_help() {
         << fmt(d.planes.distance) << "]\n"
         << "  --plane-min-area A     smaller regions are no plane, square voxels ["
         << fmt(d.planes.min_area) << "]\n"
+        << "  --texture              textures for the planar regions from the points' colours\n"
+        << "                         (turns --planes on): OUT.obj + OUT.mtl + OUT.texture.png [off]\n"
+        << "  --texel T              texture texel edge, world units [half a voxel]\n"
         << "  --watertight           a closed, manifold, one-piece mesh: keep the largest piece,\n"
         << "                         fill every hole; its volume goes to <out>.closed.vdb [off]\n"
         << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
@@ -434,6 +437,11 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.planes.distance = parse_number(a, args.value(a));
     } else if (a == "--plane-min-area") {
         o.planes.min_area = parse_number(a, args.value(a));
+    } else if (a == "--texture") {
+        o.texture.enabled = true;
+        o.planes.enabled = true;
+    } else if (a == "--texel") {
+        o.texture.texel = parse_number(a, args.value(a));
     } else if (a == "--mesher") {
         o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
     } else if (a == "--adaptivity") {
@@ -587,6 +595,12 @@ void report(const RunResult& r, const PipelineOptions& o,
               << " onto corners; " << p.planes.faces_before << " -> " << p.planes.faces_after
               << " faces\n";
         }
+        if (!p.texture.empty()) {
+            s << "vdbrecon: texture: " << p.texture.regions << " regions in a " << p.texture.width
+              << " x " << p.texture.height << " atlas, texel " << p.texture.texel << "; "
+              << p.texture.points << " points coloured " << p.texture.texels_seen << " of "
+              << p.texture.texels << " texels (the rest interpolated)\n";
+        }
         if (p.holes.loops > 0) {
             s << "vdbrecon: fill: " << p.holes.filled << " of " << p.holes.loops
               << " holes filled (" << p.holes.added_faces << " faces; largest " << p.holes.largest_filled
@@ -617,6 +631,8 @@ void report(const RunResult& r, const PipelineOptions& o,
         if (!r.vdb_path.empty()) std::cout << "volume: " << r.vdb_path << "\n";
         if (!o.preview_path.empty()) std::cout << "preview: " << o.preview_path << "\n";
         if (!r.closed_vdb_path.empty()) std::cout << "closed volume: " << r.closed_vdb_path << "\n";
+        if (!r.material_path.empty()) std::cout << "material: " << r.material_path << "\n";
+        if (!r.texture_path.empty()) std::cout << "texture: " << r.texture_path << "\n";
     }
 }
 

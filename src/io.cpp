@@ -13,6 +13,7 @@
 #include <mutex>
 #include <set>
 #include <sstream>
+#include <unordered_map>
 #include <utility>
 
 #include "detail/io_common.h"
@@ -549,13 +550,12 @@ Mesh read_mesh(const std::string& path) {
 // ---------------------------------------------------------------------------------------------
 // Writers
 
+namespace detail {
+
 namespace {
 
-void write_obj(const std::string& path, const Mesh& mesh, const WriteOptions& options) {
-    detail::AtomicFile file(path);
-    detail::ByteWriter out(file.stream());
-    out.put("# vdbrecon mesh\n");
-    for (const std::string& c : options.comments) out.put("# " + c + "\n");
+/// The vertex lines of an OBJ: positions (with colours when the mesh has them), then normals.
+void put_obj_vertices(ByteWriter& out, const Mesh& mesh) {
     const bool far = mesh.origin != Vec3d{0, 0, 0};
     const bool colors = mesh.colors.size() == mesh.vertices.size() && !mesh.colors.empty();
     std::string line;
@@ -563,35 +563,96 @@ void write_obj(const std::string& path, const Mesh& mesh, const WriteOptions& op
         line = "v";
         for (int a = 0; a < 3; ++a) {
             line += ' ';
-            line += far ? detail::format_number(mesh.origin[a] + double(mesh.vertices[i][a]))
-                        : detail::format_number(mesh.vertices[i][a]);
+            line += far ? format_number(mesh.origin[a] + double(mesh.vertices[i][a]))
+                        : format_number(mesh.vertices[i][a]);
         }
         if (colors) {
-            for (int a = 0; a < 3; ++a) line += ' ' + detail::format_number(mesh.colors[i][a]);
+            for (int a = 0; a < 3; ++a) line += ' ' + format_number(mesh.colors[i][a]);
         }
         line += '\n';
         out.put(line);
     }
-    const bool normals = mesh.normals.size() == mesh.vertices.size() && !mesh.normals.empty();
-    if (normals) {
+    if (mesh.normals.size() == mesh.vertices.size()) {
         for (const Vec3f& n : mesh.normals) {
-            out.put("vn " + detail::format_number(n[0]) + ' ' + detail::format_number(n[1]) + ' ' +
-                    detail::format_number(n[2]) + '\n');
+            out.put("vn " + format_number(n[0]) + ' ' + format_number(n[1]) + ' ' +
+                    format_number(n[2]) + '\n');
         }
     }
-    for (const Triangle& t : mesh.faces) {
-        line = "f";
+}
+
+/// `vt` lines for the textured corners; returns each corner's index (1-based; 0: none). A vertex
+/// with the same coordinates in several faces gets one line.
+std::vector<std::array<std::size_t, 3>> put_obj_uvs(ByteWriter& out, const Mesh& mesh,
+                                                    const ObjMaterials& m) {
+    std::vector<std::array<std::size_t, 3>> index(mesh.faces.size(), {0, 0, 0});
+    std::unordered_map<std::uint64_t, std::size_t> seen;  // (vertex, u, v) hash -> first line
+    std::vector<std::pair<std::int32_t, std::array<float, 2>>> lines;
+    for (std::size_t f = 0; f < mesh.faces.size(); ++f) {
         for (int c = 0; c < 3; ++c) {
-            const std::string idx = std::to_string(t[c] + 1);
-            line += ' ' + idx;
-            if (normals) line += "//" + idx;
+            const std::array<float, 2>& uv = (*m.uv)[f][std::size_t(c)];
+            if (std::isnan(uv[0])) continue;
+            const std::int32_t v = mesh.faces[f][std::size_t(c)];
+            std::uint32_t bu, bv;
+            std::memcpy(&bu, &uv[0], 4);
+            std::memcpy(&bv, &uv[1], 4);
+            const std::uint64_t key = (std::uint64_t(std::uint32_t(v)) * 0x9E3779B97F4A7C15ull) ^
+                                      (std::uint64_t(bu) << 32 | bv);
+            auto [it, fresh] = seen.emplace(key, lines.size() + 1);
+            if (!fresh && (lines[it->second - 1].first != v || lines[it->second - 1].second != uv)) {
+                fresh = true;  // a hash collision: its own line
+                it->second = lines.size() + 1;
+            }
+            if (fresh) {
+                lines.push_back({v, uv});
+                out.put("vt " + format_number(uv[0]) + ' ' + format_number(uv[1]) + '\n');
+            }
+            index[f][std::size_t(c)] = it->second;
         }
-        line += '\n';
-        out.put(line);
+    }
+    return index;
+}
+
+}  // namespace
+
+void write_obj_file(const std::string& path, const Mesh& mesh, const WriteOptions& options,
+                    const ObjMaterials* materials) {
+    AtomicFile file(path);
+    ByteWriter out(file.stream());
+    out.put("# vdbrecon mesh\n");
+    for (const std::string& c : options.comments) out.put("# " + c + "\n");
+    if (materials) out.put("mtllib " + materials->mtl_name + "\n");
+    put_obj_vertices(out, mesh);
+    const bool normals = mesh.normals.size() == mesh.vertices.size() && !mesh.normals.empty();
+    std::vector<std::array<std::size_t, 3>> uv;
+    if (materials) uv = put_obj_uvs(out, mesh, *materials);
+    // Faces without texture coordinates first (the plain material), then the textured ones.
+    for (int pass = 0; pass < (materials ? 2 : 1); ++pass) {
+        bool first = true;
+        for (std::size_t f = 0; f < mesh.faces.size(); ++f) {
+            const bool textured = materials && uv[f][0] != 0;
+            if (textured != (pass == 1)) continue;
+            if (first && materials) {
+                out.put(pass == 0 ? "usemtl vdbrecon_surface\n" : "usemtl vdbrecon_texture\n");
+            }
+            first = false;
+            std::string line = "f";
+            for (int c = 0; c < 3; ++c) {
+                const std::string idx = std::to_string(mesh.faces[f][std::size_t(c)] + 1);
+                line += ' ' + idx;
+                if (textured) line += '/' + std::to_string(uv[f][std::size_t(c)]);
+                if (normals) line += (textured ? "/" : "//") + idx;
+            }
+            line += '\n';
+            out.put(line);
+        }
     }
     out.flush();
     file.commit();
 }
+
+}  // namespace detail
+
+namespace {
 
 void write_xyz(const std::string& path, const PointCloud& cloud) {
     detail::AtomicFile file(path);
@@ -631,7 +692,7 @@ void write_mesh(const std::string& path, const Mesh& mesh, const WriteOptions& o
                           c ? mesh.colors : Span<Vec3f>(), {}, {}, &mesh.faces, options,
                           mesh.regions);
     } else if (ext == "obj") {
-        write_obj(path, mesh, options);
+        detail::write_obj_file(path, mesh, options);
     } else {
         throw InvalidArgument("output '" + path +
                               "': unknown mesh extension (use .ply or .obj)");

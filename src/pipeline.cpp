@@ -44,6 +44,13 @@ void PipelineOptions::validate() const {
     preview.validate();
     if (decimate.ratio != 1.0 || decimate.max_error != 0.0) decimate.validate();
     if (planes.enabled) planes.validate();
+    if (texture.enabled) {
+        texture.validate();
+        if (!planes.enabled) {
+            throw InvalidArgument("texture: textures are made for planar regions; enable the "
+                                  "planes stage too (CLI --planes)");
+        }
+    }
     if (tile < -1 || tile > 65536) {
         throw InvalidArgument("tile = " + std::to_string(tile) +
                               ": must be in 0..65536 voxels (0 = untiled, -1 = automatic)");
@@ -309,6 +316,14 @@ SplatResult splat_or_suggest_tiles(const PointCloud& cloud, const SplatOptions& 
     }
 }
 
+/// The planar regions' textures from the (kept) cloud's colours, when asked for.
+void texture_stage(PipelineResult& r, const PointCloud& cloud, const PipelineOptions& options,
+                   const StageCallback& on_stage) {
+    if (!options.texture.enabled || r.mesh.faces.empty()) return;
+    StageClock clock(r.timings, on_stage, "texture");
+    r.texture = texture_regions(r.mesh, r.planes.planes, cloud, options.texture, r.voxel_size);
+}
+
 /// reconstruct(); `consume`: free the cloud after the splat.
 /// The stages on the points: outliers > normals and scales > the voxel (chosen when
 /// options.splat has none); returns the splat's options with that voxel.
@@ -366,11 +381,16 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
                                  const StageCallback& on_stage, const VolumeCallback& on_volume) {
     options.validate();
     if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
+    if (options.texture.enabled && cloud.colors.size() != cloud.size()) {
+        throw InvalidArgument("texture: the input points have no colours to make textures from");
+    }
+    consume &= !options.texture.enabled;  // the texture stage reads the points' colours
     PipelineResult r;
     in_arena(options.threads, [&] {
         const SplatOptions splat_options = point_stages(r, cloud, options, on_stage);
         if (options.tile != 0) {
             tiled_stages(r, cloud, consume, splat_options, options, on_stage, on_volume);
+            texture_stage(r, cloud, options, on_stage);
             return;
         }
         {
@@ -386,6 +406,7 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
         }
         if (consume) cloud = PointCloud{};
         mesh_stages(r, options, on_stage, on_volume);
+        texture_stage(r, cloud, options, on_stage);
     });
     if (r.mesh.faces.empty()) {
         log_warning("reconstruct: the surface is empty (no valid cell crosses zero)");
@@ -426,6 +447,21 @@ RunResult run_to_files(const std::string& input, const std::string& output,
         out.vdb_path = stage_volume_path(out.mesh_path, "splat");
         if (options.close.enabled() || options.watertight) {
             out.closed_vdb_path = stage_volume_path(out.mesh_path, "closed");
+        }
+    }
+    if (options.texture.enabled) {
+        if (ext != "obj") {
+            throw InvalidArgument("output '" + out.mesh_path + "': a textured mesh is an OBJ with "
+                                  "a material file and an atlas; name the output .obj");
+        }
+        out.material_path = texture_mtl_path(out.mesh_path);
+        out.texture_path = texture_png_path(out.mesh_path);
+        for (const std::string& p : {out.material_path, out.texture_path}) {
+            if (same_file(input, p) || p == options.preview_path) {
+                throw InvalidArgument("output '" + p + "' (the texture's) is the input or the "
+                                      "preview; refusing to overwrite it");
+            }
+            detail::check_writable(p);
         }
     }
     // Fail before the work, not after it.
@@ -488,8 +524,13 @@ RunResult run_to_files(const std::string& input, const std::string& output,
         std::ostringstream c;
         c << "vdbrecon " << version() << " from " << input << ", voxel " << out.result.voxel_size;
         w.comments.insert(w.comments.begin(), c.str());
-        const std::string mesh_temp = staged.stage(out.mesh_path);
-        in_arena(options.threads, [&] { write_mesh(mesh_temp, out.result.mesh, w); });
+        if (options.texture.enabled) {
+            detail::write_textured(staged, out.mesh_path, out.result.mesh, out.result.texture, w);
+            if (out.result.texture.empty()) out.texture_path.clear();
+        } else {
+            const std::string mesh_temp = staged.stage(out.mesh_path);
+            in_arena(options.threads, [&] { write_mesh(mesh_temp, out.result.mesh, w); });
+        }
     }
     if (!options.preview_path.empty()) {
         StageClock clock(timings, on_stage, "preview");
@@ -533,6 +574,9 @@ PipelineResult reconstruct_volume(Volume volume, const PipelineOptions& options,
                                   const StageCallback& on_stage, const VolumeCallback& on_volume) {
     options.validate();
     if (volume.empty()) throw InvalidArgument("reconstruct: the volume is empty");
+    if (options.texture.enabled) {
+        throw InvalidArgument("texture: needs the input points' colours; a volume has none");
+    }
     PipelineResult r;
     r.voxel_size = volume.voxel_size;
     r.volume = std::move(volume);
@@ -548,6 +592,10 @@ TileJob prepare_tiles(const std::string& input, const std::string& dir,
     options.validate();
     if (options.tile == 0) {
         throw InvalidArgument("prepare_tiles: options.tile is 0; give a tile edge, or -1 (auto)");
+    }
+    if (options.texture.enabled) {
+        throw InvalidArgument("texture: not with tile jobs (the tiles do not keep the points' "
+                              "colours); use --tile in one process");
     }
     TileJob job;
     job.dir = dir;
@@ -579,6 +627,10 @@ std::string run_tile(const std::string& dir, std::size_t index, const PipelineOp
 RunResult finish_tiles(const std::string& input, const std::string& output, const std::string& dir,
                        const std::vector<std::string>& pieces, const PipelineOptions& options,
                        const StageCallback& on_stage) {
+    if (options.texture.enabled) {
+        throw InvalidArgument("texture: not with tile jobs (the tiles do not keep the points' "
+                              "colours); use --tile in one process");
+    }
     PipelineOptions o = options;
     if (o.tile == 0) o.tile = -1;  // a tiled run's outputs: no .vdb
     auto compute = [&](RunResult&, std::vector<StageTiming>&, const VolumeCallback& write_vdb) {

@@ -1,4 +1,4 @@
-// Preview pictures (see preview.h): a small z-buffer rasteriser, PNG through zlib, EXR through
+// Preview pictures (see preview.h): a small z-buffer rasteriser, PNG through detail/png.h, EXR through
 // OpenEXR.
 #include "vdbrecon/preview.h"
 
@@ -6,7 +6,6 @@
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfOutputFile.h>
-#include <zlib.h>
 
 #include <algorithm>
 #include <array>
@@ -15,6 +14,7 @@
 
 #include "detail/io_common.h"
 #include "detail/mesh_graph.h"
+#include "detail/png.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
 
@@ -258,55 +258,19 @@ Image render_preview(const Mesh& mesh, const PreviewOptions& options) {
 
 namespace {
 
-void put_u32(std::string& s, std::uint32_t v) {
-    for (int sh = 24; sh >= 0; sh -= 8) s.push_back(char((v >> sh) & 0xff));
-}
-
-void png_chunk(std::string& out, const char* type, const std::string& data) {
-    put_u32(out, std::uint32_t(data.size()));
-    std::string body(type, 4);
-    body += data;
-    out += body;
-    put_u32(out, std::uint32_t(crc32(0L, reinterpret_cast<const Bytef*>(body.data()), uInt(body.size()))));
-}
-
 /// 8-bit RGB PNG over a light background (the picture in the README).
 void write_png(const std::string& path, const Image& img) {
     const double background = 0.92;  // sRGB-encoded grey
     const double bg_lin = srgb_to_linear(background);
-    std::string raw;
-    raw.reserve(std::size_t(img.height) * (std::size_t(img.width) * 3 + 1));
-    for (int y = 0; y < img.height; ++y) {
-        raw.push_back('\0');  // filter: none
-        for (int x = 0; x < img.width; ++x) {
-            const std::size_t o = std::size_t(y) * std::size_t(img.width) + std::size_t(x);
-            const double a = img.alpha[o];
-            for (int ch = 0; ch < 3; ++ch) {
-                const double c = img.rgb[o * 3 + std::size_t(ch)] + (1.0 - a) * bg_lin;
-                raw.push_back(char(std::lround(255.0 * linear_to_srgb(c))));
-            }
+    std::vector<std::uint8_t> rgb(std::size_t(img.height) * std::size_t(img.width) * 3);
+    for (std::size_t o = 0; o < std::size_t(img.height) * std::size_t(img.width); ++o) {
+        const double a = img.alpha[o];
+        for (std::size_t ch = 0; ch < 3; ++ch) {
+            const double c = img.rgb[o * 3 + ch] + (1.0 - a) * bg_lin;
+            rgb[o * 3 + ch] = std::uint8_t(std::lround(255.0 * linear_to_srgb(c)));
         }
     }
-    uLongf size = compressBound(uLong(raw.size()));
-    std::string z(size, '\0');
-    if (compress2(reinterpret_cast<Bytef*>(z.data()), &size,
-                  reinterpret_cast<const Bytef*>(raw.data()), uLong(raw.size()), 6) != Z_OK) {
-        throw IoError(detail::where(path, "cannot compress the PNG data"));
-    }
-    z.resize(size);
-    std::string out("\x89PNG\r\n\x1a\n", 8);
-    std::string ihdr;
-    put_u32(ihdr, std::uint32_t(img.width));
-    put_u32(ihdr, std::uint32_t(img.height));
-    ihdr += std::string("\x08\x02\x00\x00\x00", 5);  // 8 bits, RGB, deflate, no filter, no interlace
-    png_chunk(out, "IHDR", ihdr);
-    png_chunk(out, "IDAT", z);
-    png_chunk(out, "IEND", "");
-    detail::AtomicFile file(path);
-    detail::ByteWriter w(file.stream());
-    w.put(out);
-    w.flush();
-    file.commit();
+    detail::write_png_rgb8(path, img.width, img.height, rgb.data());
 }
 
 /// Linear float R, G, B, A and Z (depth, world units; +inf on the background).

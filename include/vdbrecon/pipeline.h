@@ -19,6 +19,7 @@
 #include "vdbrecon/outliers.h"
 #include "vdbrecon/planes.h"
 #include "vdbrecon/preview.h"
+#include "vdbrecon/texture.h"
 #include "vdbrecon/splat.h"
 #include "vdbrecon/types.h"
 #include "vdbrecon/volume.h"
@@ -55,6 +56,10 @@ struct PipelineOptions {
     PlaneOptions planes;
     /// QEM decimation of the final mesh (decimate.h); off while ratio is 1 and max_error 0.
     DecimateOptions decimate;
+    /// Textures for the planar regions from the points' colours (texture.h), after the
+    /// decimation; off by default. Needs `planes` enabled and points with colours; run() then
+    /// writes an OBJ with <out>.mtl and <out>.texture.png. Not for volumes or tile jobs.
+    TextureOptions texture;
     /// Write <out>.splat.vdb (and <out>.closed.vdb when closing) next to the mesh (not with
     /// `tile`: no stage volume is ever whole then).
     bool write_vdb = true;
@@ -106,6 +111,7 @@ struct PipelineResult {
     HoleFillResult holes;       ///< mesh moved into `mesh`; statistics kept
     PlaneResult planes;         ///< mesh moved into `mesh`; planes and statistics kept
     DecimateResult decimation;  ///< mesh moved into `mesh`; statistics kept (none: 0 faces)
+    TextureAtlas texture;       ///< the planar regions' atlas (empty without options.texture)
     double voxel_size = 0.0;    ///< the voxel used, world units
     bool voxel_chosen = false;  ///< true when it was picked automatically
     double spacing = 0.0;       ///< the median sample spacing it was picked from, world units
@@ -149,6 +155,8 @@ struct RunResult {
     std::string mesh_path;
     std::string vdb_path;       ///< <out>.splat.vdb; empty when no .vdb was written
     std::string closed_vdb_path;  ///< <out>.closed.vdb; empty without closing or .vdb output
+    std::string material_path;    ///< <out>.mtl with a texture, else empty
+    std::string texture_path;     ///< <out>.texture.png with a texture that has regions, else empty
     /// Memory of the grids written to the .vdb files (write_volume's sum), bytes; 0 without them.
     std::size_t vdb_grid_bytes = 0;
 };

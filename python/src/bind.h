@@ -207,6 +207,7 @@ void bind_clean(py::module_& m);     // clean_mesh
 void bind_holes(py::module_& m);     // fill_holes
 void bind_decimate(py::module_& m);  // decimate
 void bind_planes(py::module_& m);    // planar_regions
+void bind_texture(py::module_& m);   // texture_regions, write_textured_mesh (after bind_planes)
 void bind_eval(py::module_& m);      // evaluate, mesh_topology
 void bind_pipeline(py::module_& m);  // PipelineOptions, reconstruct, run
 void bind_fusion(py::module_& m);    // DepthOptions, _Fusion (after bind_pipeline)

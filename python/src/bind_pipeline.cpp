@@ -33,6 +33,9 @@ void bind_pipeline(py::module_& m) {
                 "PlaneOptions; off by default (planes_enabled=True, CLI --planes).")
         .nested("decimate", &PipelineOptions::decimate,
                 "DecimateOptions; off while ratio is 1 and max_error 0.")
+        .nested("texture", &PipelineOptions::texture,
+                "TextureOptions; off by default (texture_enabled=True with planes_enabled=True, "
+                "CLI --texture); run() then writes an OBJ, <out>.mtl and <out>.texture.png.")
         .nested("write", &PipelineOptions::write, "WriteOptions (run() only).")
         .field("fill_holes", &PipelineOptions::fill_holes,
                "Fill the mesh's boundary loops of at most this many edges (Liepa 03), count; "
@@ -93,6 +96,8 @@ void bind_pipeline(py::module_& m) {
                       "HoleFillResult (statistics; no mesh) of fill_holes / watertight.")
         .def_readonly("planes", &PipelineResult::planes,
                       "PlaneResult (planes and statistics; no mesh) of planes_enabled=True.")
+        .def_readonly("texture", &PipelineResult::texture,
+                      "TextureAtlas of texture_enabled=True (empty: width 0).")
         .def_readonly("clean_stats", &PipelineResult::clean_stats,
                       "CleanResult (statistics; no mesh).")
         .def_readonly("voxel_size", &PipelineResult::voxel_size, "The voxel used, world units.")
@@ -121,7 +126,11 @@ void bind_pipeline(py::module_& m) {
         .def_readonly("vdb_path", &RunResult::vdb_path,
                       "<out>.splat.vdb; empty when no .vdb was written.")
         .def_readonly("closed_vdb_path", &RunResult::closed_vdb_path,
-                      "<out>.closed.vdb; empty without closing or when no .vdb was written.");
+                      "<out>.closed.vdb; empty without closing or when no .vdb was written.")
+        .def_readonly("material_path", &RunResult::material_path,
+                      "<out>.mtl with texture_enabled, else empty.")
+        .def_readonly("texture_path", &RunResult::texture_path,
+                      "<out>.texture.png with texture_enabled and planar regions, else empty.");
 
     m.def("version", &version, "Library version, 'major.minor.patch'.");
     m.def(

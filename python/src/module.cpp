@@ -23,6 +23,7 @@ PYBIND11_MODULE(_vdbrecon, m) {
     bind_holes(m);
     bind_decimate(m);
     bind_planes(m);
+    bind_texture(m);
     bind_eval(m);
     bind_pipeline(m);
     bind_fusion(m);

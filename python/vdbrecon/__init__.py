@@ -80,6 +80,8 @@ from ._vdbrecon import (  # noqa: F401  (re-exported)
     SplatOptions,
     SplatResult,
     StageTiming,
+    TextureAtlas,
+    TextureOptions,
     TopologyStats,
     Volume,
     WriteOptions,
@@ -92,7 +94,8 @@ __version__ = _v.__version__
 __all__ = [
     "reconstruct", "run", "Fusion", "DepthOptions", "read_points", "read_mesh", "write_mesh", "write_points",
     "remove_outliers", "estimate_normals", "splat", "close", "extract_mesh", "clean_mesh",
-    "fill_holes", "decimate", "DecimateOptions", "DecimateResult", "planar_regions", "PlaneOptions", "PlaneResult", "Plane", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
+    "fill_holes", "decimate", "DecimateOptions", "DecimateResult", "planar_regions", "PlaneOptions", "PlaneResult", "Plane",
+    "texture_regions", "write_textured_mesh", "TextureOptions", "TextureAtlas", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
     "version", "stage_volume_path",
     "PointCloud", "Mesh", "Volume", "PipelineOptions", "ReadOptions", "WriteOptions",
     "OutlierOptions", "NormalOptions", "KnnOptions", "SplatOptions", "CloseOptions", "MeshOptions",
@@ -639,6 +642,30 @@ mesh: Mesh or mesh path.
 Returns a PlaneResult: .mesh (with .regions per face), .planes, .faces_before, .faces_after,
 .planar_faces, .edge_vertices, .corner_vertices.""",
           _struct_entries(PlaneOptions), [_pos("mesh"), _pos("voxel")])
+
+
+def texture_regions(mesh, planes, points, voxel, colors=None, **options):
+    return _v.texture_regions(_mesh(mesh, "mesh"), list(planes), _cloud(points, colors=colors),
+                              _fill(TextureOptions, options, "texture_regions"), voxel)
+
+
+_document(texture_regions, """Textures the planar regions of a mesh (its .regions, as
+planar_regions() or reconstruct(planes_enabled=True) leave them; `planes` that result's .planes)
+from the colours of the points (a PointCloud with colors, or (N, 3) positions with `colors`),
+as reconstruct(texture_enabled=True) does last. Lengths are in voxels of `voxel` (world units).
+
+Returns a TextureAtlas: .image ((H, W, 3) uint8), .uv ((F, 3, 2) per face corner, NaN outside
+the regions), .texel, .regions, .points, .texels, .texels_seen.""",
+          _struct_entries(TextureOptions), [_pos("mesh"), _pos("planes"), _pos("points"),
+                                            _pos("voxel"), _pos("colors", None)])
+
+
+def write_textured_mesh(path, mesh, atlas):
+    """Writes a Mesh with a TextureAtlas as an OBJ (`path`, .obj) with its material file
+    (<stem>.mtl) and the atlas picture (<stem>.texture.png), atomically."""
+    if not isinstance(mesh, Mesh):
+        raise TypeError(f"mesh: expected a vdbrecon.Mesh, got {type(mesh).__name__}")
+    _v.write_textured_mesh(_path(path), mesh, atlas)
 
 
 def evaluate(recon, reference, **options):

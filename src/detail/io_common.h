@@ -1,6 +1,7 @@
 // Internals shared by the readers and writers.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <cstdio>
 #include <string>
@@ -9,6 +10,10 @@
 
 #include "vdbrecon/io.h"
 #include "vdbrecon/types.h"
+
+namespace vdbrecon {
+struct TextureAtlas;
+}
 
 namespace vdbrecon::detail {
 
@@ -102,6 +107,22 @@ private:
     };
     std::vector<Entry> files_;
 };
+
+/// What an OBJ with materials adds to a plain one: `mtllib`, per face the texture coordinates
+/// of its corners (NaN for faces without: those use the plain material).
+struct ObjMaterials {
+    std::string mtl_name;  ///< the material file's name, beside the OBJ
+    const std::vector<std::array<std::array<float, 2>, 3>>* uv = nullptr;
+};
+
+/// Writes `mesh` as an OBJ at `path` (atomically), with `materials` when non-null.
+void write_obj_file(const std::string& path, const Mesh& mesh, const WriteOptions& options,
+                    const ObjMaterials* materials = nullptr);
+
+/// Stages an OBJ at `obj_path` with its material file and atlas (texture.h's paths) in `staged`
+/// and writes them there.
+void write_textured(StagedOutputs& staged, const std::string& obj_path, const Mesh& mesh,
+                    const TextureAtlas& atlas, const WriteOptions& options);
 
 /// Buffered writer on an AtomicFile's stream; errors surface at commit.
 class ByteWriter {

@@ -5,6 +5,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <cstdint>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -168,9 +169,19 @@ std::array<double, 2> texel_coords(const Rect& r, const V3& p, double texel, int
     return {pad + (dot(p, r.u_axis) - r.u0) / texel, pad + (r.v1 - dot(p, r.v_axis)) / texel};
 }
 
+/// The largest rectangle edge for `texel`, texels (padding included), in double: a texel far
+/// too small must not overflow an int.
+double largest_edge(const std::vector<Rect>& rects, double texel, int pad) {
+    double edge = 0.0;
+    for (const Rect& r : rects) {
+        edge = std::max({edge, std::ceil((r.u1 - r.u0) / texel), std::ceil((r.v1 - r.v0) / texel)});
+    }
+    return edge + 1 + 2 * pad;
+}
+
 /// Rectangle sizes for `texel`, packed on shelves, tallest first, into an atlas about as wide
-/// as it is tall. Returns the atlas size.
-std::array<int, 2> pack(std::vector<Rect>& rects, double texel, int pad) {
+/// as it is tall. Returns the atlas size. Every edge must fit an int (largest_edge).
+std::array<std::int64_t, 2> pack(std::vector<Rect>& rects, double texel, int pad) {
     double area = 0.0;
     int widest = 1;
     for (Rect& r : rects) {
@@ -186,8 +197,8 @@ std::array<int, 2> pack(std::vector<Rect>& rects, double texel, int pad) {
         if (rects[i].w != rects[j].w) return rects[i].w > rects[j].w;
         return i < j;
     });
-    const int width = std::max(widest, int(std::ceil(std::sqrt(area))));
-    int x = 0, y = 0, shelf = 0;
+    const std::int64_t width = std::max<std::int64_t>(widest, std::int64_t(std::ceil(std::sqrt(area))));
+    std::int64_t x = 0, y = 0, shelf = 0;
     for (std::size_t i : order) {
         Rect& r = rects[i];
         if (x + r.w > width) {
@@ -195,10 +206,10 @@ std::array<int, 2> pack(std::vector<Rect>& rects, double texel, int pad) {
             y += shelf;
             shelf = 0;
         }
-        r.x = x;
-        r.y = y;
+        r.x = int(std::min<std::int64_t>(x, INT32_MAX));
+        r.y = int(std::min<std::int64_t>(y, INT32_MAX));
         x += r.w;
-        shelf = std::max(shelf, r.h);
+        shelf = std::max<std::int64_t>(shelf, r.h);
     }
     return {width, y + shelf};
 }
@@ -353,11 +364,19 @@ double fit_texel(std::vector<Rect>& rects, const TextureOptions& o, double voxel
     const double asked = o.texel > 0.0 ? o.texel : 0.5 * voxel;
     double texel = asked;
     for (int attempt = 0;; ++attempt) {
-        size = pack(rects, texel, o.padding);
-        const int edge = std::max(size[0], size[1]);
-        if (edge <= o.max_size) break;
-        if (attempt == 60) throw NumericalError("texture: the regions do not fit any atlas");
-        texel *= std::max(1.05, double(edge) / double(o.max_size));
+        if (attempt == 100) throw NumericalError("texture: the regions do not fit any atlas");
+        const double largest = largest_edge(rects, texel, o.padding);
+        if (largest > o.max_size) {
+            texel *= std::max(1.05, largest / double(o.max_size));
+            continue;
+        }
+        const std::array<std::int64_t, 2> packed = pack(rects, texel, o.padding);
+        const std::int64_t edge = std::max(packed[0], packed[1]);
+        if (edge <= o.max_size) {
+            size = {int(packed[0]), int(packed[1])};
+            break;
+        }
+        texel *= std::max(1.05, std::sqrt(double(edge) / double(o.max_size)));
     }
     if (texel != asked) {
         std::ostringstream s;

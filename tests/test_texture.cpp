@@ -33,7 +33,8 @@ struct Textured {
     double voxel = 0.0;
 };
 
-Textured textured(const std::string& name, int threads = 0, int max_size = 8192) {
+Textured textured(const std::string& name, int threads = 0, int max_size = 8192,
+                  double texel = 0.0) {
     const Shape shape = make_shape(name);
     PointCloud sample = sample_uniform(shape.mesh, 60000, 5);
     std::vector<Vec3f> colors(sample.size());
@@ -46,6 +47,7 @@ Textured textured(const std::string& name, int threads = 0, int max_size = 8192)
     o.planes.enabled = true;
     o.texture.enabled = true;
     o.texture.max_size = max_size;
+    o.texture.texel = texel;
     o.threads = threads;
     t.r = reconstruct(sample, o);
     return t;
@@ -183,6 +185,10 @@ TEST_CASE("texture: the same atlas for any thread count; a texel too fine grows 
     CHECK(std::max(small.r.texture.width, small.r.texture.height) <= 128);
     CHECK(std::max(one.r.texture.width, one.r.texture.height) > 128);
     CHECK(small.r.texture.texel > 0.5 * small.voxel);
+    // An absurd texel (a 1e12-texel rectangle) grows to fit too.
+    const Textured tiny = textured("cube", 0, 256, 1e-12);
+    CHECK(std::max(tiny.r.texture.width, tiny.r.texture.height) <= 256);
+    CHECK(std::max(tiny.r.texture.width, tiny.r.texture.height) > 128);
 }
 
 TEST_CASE("texture: the OBJ, its material file and the PNG atlas", "[texture]") {

@@ -41,8 +41,8 @@ struct TextureOptions {
     double splat_sigma = 0.6;
     /// Texels around each region's rectangle, filled like the rest of it.
     int padding = 2;
-    /// Largest atlas edge, texels.
-    int max_size = 8192;
+    /// Largest atlas edge, texels (4096: 48 MB of 8-bit RGB, what engines take everywhere).
+    int max_size = 4096;
 
     /// Throws InvalidArgument naming the field when out of range.
     void validate() const;

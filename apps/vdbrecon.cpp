@@ -593,7 +593,7 @@ void report(const RunResult& r, const PipelineOptions& o,
               << p.planes.planar_faces << " of " << p.planes.faces_before << " faces), "
               << p.planes.edge_vertices << " vertices onto edges, " << p.planes.corner_vertices
               << " onto corners; " << p.planes.faces_before << " -> " << p.planes.faces_after
-              << " faces\n";
+              << " faces, " << p.planes.flips << " Delaunay flips\n";
         }
         if (!p.texture.empty()) {
             s << "vdbrecon: texture: " << p.texture.regions << " regions in a " << p.texture.width

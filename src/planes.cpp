@@ -8,6 +8,7 @@
 #include <cmath>
 #include <numeric>
 #include <string>
+#include <unordered_set>
 
 #include "detail/mesh_graph.h"
 #include "vdbrecon/decimate.h"
@@ -275,6 +276,149 @@ void snap_vertices(Mesh& m, const std::vector<std::int32_t>& region,
     }
 }
 
+/// A region's plane as a 2D frame (u, v, normal right-handed: counter-clockwise faces seen from
+/// outside stay counter-clockwise).
+struct Frame2 {
+    V3 u, v;
+    explicit Frame2(const Vec3d& normal) {
+        const V3 n(normal[0], normal[1], normal[2]);
+        int k = 0;
+        for (int i = 1; i < 3; ++i) {
+            if (std::fabs(n[i]) < std::fabs(n[k])) k = i;
+        }
+        u = V3::Unit(k).cross(n).normalized();
+        v = n.cross(u);
+    }
+    Eigen::Vector2d operator()(const Vec3f& p) const {
+        const V3 q = vec(p);
+        return {q.dot(u), q.dot(v)};
+    }
+};
+
+double orient(const Eigen::Vector2d& a, const Eigen::Vector2d& b, const Eigen::Vector2d& c) {
+    return (b - a).x() * (c - a).y() - (b - a).y() * (c - a).x();
+}
+
+/// > 0 when d lies inside the circle through a, b, c (counter-clockwise).
+double incircle(const Eigen::Vector2d& a, const Eigen::Vector2d& b, const Eigen::Vector2d& c,
+                const Eigen::Vector2d& d) {
+    const Eigen::Vector2d p = a - d, q = b - d, r = c - d;
+    return p.squaredNorm() * orient({0, 0}, q, r) - q.squaredNorm() * orient({0, 0}, p, r) +
+           r.squaredNorm() * orient({0, 0}, p, q);
+}
+
+/// An edge inside a region whose flip would make the pair of faces Delaunay (Lawson 1977).
+struct Flip {
+    std::array<double, 3> key;  ///< the edge's midpoint: the order flips are tried in
+    std::int32_t f, g;
+    int slot;  ///< the edge is f's corners slot, slot + 1
+};
+
+/// The flips one pass may make: edges between two faces of one region whose far corner lies
+/// strictly inside the other face's circumcircle (in the region's plane), where the quad is
+/// convex, the new diagonal is no edge yet, and all four corners lie within `tolerance` of the
+/// plane (so the surface moves by no more). Sorted by position, not by number.
+std::vector<Flip> flips_wanted(const Mesh& m, const std::vector<std::int32_t>& region,
+                               const std::vector<Plane>& planes, double tolerance) {
+    // The edges two faces of one region share (an edge used by more faces is left alone).
+    struct Side {
+        std::uint64_t key;
+        std::int32_t face, slot;
+    };
+    std::vector<Side> sides;
+    for (std::size_t f = 0; f < m.faces.size(); ++f) {
+        if (region[f] < 0) continue;
+        const Triangle& t = m.faces[f];
+        for (int k = 0; k < 3; ++k) {
+            sides.push_back({detail::edge_key(t[std::size_t(k)], t[std::size_t((k + 1) % 3)]),
+                             std::int32_t(f), k});
+        }
+    }
+    std::sort(sides.begin(), sides.end(), [](const Side& x, const Side& y) {
+        return x.key != y.key ? x.key < y.key : x.face < y.face;
+    });
+    std::vector<Flip> out;
+    for (std::size_t i = 0; i + 1 < sides.size(); ++i) {
+        if (sides[i].key != sides[i + 1].key ||
+            (i + 2 < sides.size() && sides[i + 2].key == sides[i].key) ||
+            (i > 0 && sides[i - 1].key == sides[i].key)) {
+            continue;  // not the first of exactly two
+        }
+        const std::size_t f = std::size_t(sides[i].face);
+        const int k = sides[i].slot;
+        const std::int32_t g = sides[i + 1].face, r = region[f];
+        if (region[std::size_t(g)] != r) continue;
+        const Plane& pl = planes[std::size_t(r)];
+        const Triangle& t = m.faces[f];
+        const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)],
+                           c = t[std::size_t((k + 2) % 3)];
+        std::int32_t e = -1;  // g's corner off the edge
+        for (std::int32_t x : m.faces[std::size_t(g)]) {
+            if (x != a && x != b) e = x;
+        }
+        bool flat = true;
+        for (std::int32_t x : {a, b, c, e}) {
+            const Vec3f& p = m.vertices[std::size_t(x)];
+            flat &= std::fabs(pl.normal[0] * p[0] + pl.normal[1] * p[1] + pl.normal[2] * p[2] -
+                              pl.offset) <= tolerance;
+        }
+        if (!flat) continue;
+        const Frame2 frame(pl.normal);
+        const Eigen::Vector2d pa = frame(m.vertices[std::size_t(a)]),
+                              pb = frame(m.vertices[std::size_t(b)]),
+                              pc = frame(m.vertices[std::size_t(c)]),
+                              pe = frame(m.vertices[std::size_t(e)]);
+        const double scale = std::max({(pa - pc).squaredNorm(), (pb - pc).squaredNorm(),
+                                       (pa - pe).squaredNorm(), (pb - pe).squaredNorm()});
+        // Strictly inside (ties stay as they are); the new faces (a, e, c) and (e, b, c)
+        // counter-clockwise (the quad a e b c convex).
+        if (!(incircle(pa, pb, pc, pe) > 1e-9 * scale * scale)) continue;
+        if (!(orient(pa, pe, pc) > 1e-9 * scale && orient(pe, pb, pc) > 1e-9 * scale)) continue;
+        const V3 mid = 0.5 * (vec(m.vertices[std::size_t(a)]) + vec(m.vertices[std::size_t(b)]));
+        out.push_back({{mid[0], mid[1], mid[2]}, std::int32_t(f), g, k});
+    }
+    std::sort(out.begin(), out.end(), [](const Flip& x, const Flip& y) { return x.key < y.key; });
+    return out;
+}
+
+/// Makes each region's triangulation its constrained Delaunay triangulation (the region's
+/// border and the vertices the collapses left are the constraints): Lawson's edge flips, in
+/// passes, each flipping in position order the edges found wanting at its start, skipping
+/// faces an earlier flip of the pass changed. Returns the number of flips.
+std::size_t delaunay_flips(Mesh& m, const std::vector<std::int32_t>& region,
+                           const std::vector<Plane>& planes, double tolerance) {
+    std::size_t flips = 0;
+    std::vector<Triangle>& faces = m.faces.edit();
+    std::unordered_set<std::uint64_t> edges;  // every edge of the mesh, kept up to date
+    for (const Triangle& t : faces) {
+        for (int k = 0; k < 3; ++k) {
+            edges.insert(detail::edge_key(t[std::size_t(k)], t[std::size_t((k + 1) % 3)]));
+        }
+    }
+    for (int pass = 0; pass < 1000; ++pass) {
+        const std::vector<Flip> wanted = flips_wanted(m, region, planes, tolerance);
+        if (wanted.empty()) break;
+        std::vector<char> touched(faces.size(), 0);
+        for (const Flip& w : wanted) {
+            if (touched[std::size_t(w.f)] || touched[std::size_t(w.g)]) continue;
+            const Triangle t = faces[std::size_t(w.f)];
+            const std::int32_t a = t[std::size_t(w.slot)], b = t[std::size_t((w.slot + 1) % 3)],
+                               c = t[std::size_t((w.slot + 2) % 3)];
+            std::int32_t e = -1;
+            for (std::int32_t x : faces[std::size_t(w.g)]) {
+                if (x != a && x != b) e = x;
+            }
+            if (!edges.insert(detail::edge_key(c, e)).second) continue;  // the diagonal exists
+            edges.erase(detail::edge_key(a, b));
+            faces[std::size_t(w.f)] = {a, e, c};
+            faces[std::size_t(w.g)] = {e, b, c};
+            touched[std::size_t(w.f)] = touched[std::size_t(w.g)] = 1;
+            ++flips;
+        }
+    }
+    return flips;
+}
+
 }  // namespace
 
 PlaneResult planar_regions(const Mesh& mesh, const PlaneOptions& options, double voxel) {
@@ -304,6 +448,8 @@ PlaneResult planar_regions(const Mesh& mesh, const PlaneOptions& options, double
     DecimateOptions dec;
     dec.max_error = options.max_error * voxel;
     r.mesh = decimate(m, dec).mesh;
+    r.flips = delaunay_flips(r.mesh, r.mesh.regions.to_vector(), r.planes,
+                             options.max_error * voxel);
     r.faces_after = r.mesh.faces.size();
     return r;
 }

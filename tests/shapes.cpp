@@ -209,6 +209,16 @@ Mesh cross() {
     return b.mesh();
 }
 
+/// A house: a prism over a gabled profile (walls, a roof of two planes meeting at the ridge,
+/// two pentagonal gable ends, a floor: seven planes).
+Mesh house() {
+    Builder b;
+    const Loop l = {{-0.4, -0.3}, {0.4, -0.3}, {0.4, 0.1}, {0.0, 0.4}, {-0.4, 0.1}};
+    prism(b, l, {0.0, 0.0}, -0.35, 0.35);
+    place(b.points(), 15);
+    return b.mesh();
+}
+
 /// A fan-shaped ruled part: a six-bladed star loft whose top is the bottom scaled by 0.75, so
 /// its sides are planar trapezoids slanted at different angles.
 Mesh fan_part() {
@@ -388,6 +398,8 @@ Shape make_shape(const std::string& name) {
         s.mesh = pocket();
     } else if (name == "cross") {
         s.mesh = cross();
+    } else if (name == "house") {
+        s.mesh = house();
     } else if (name == "sphere") {
         s.cad = false;
         s.mesh = star_sphere(6, [](const P3&) { return 0.45; });

@@ -26,8 +26,9 @@ struct Shape {
 std::vector<std::string> cad_shape_names();
 /// Names of the smooth shapes: sphere, torus, blob.
 std::vector<std::string> organic_shape_names();
-/// The shape of that name, about one unit across, rotated off the grid axes. Throws
-/// std::invalid_argument for an unknown name.
+/// The shape of that name, about one unit across, rotated off the grid axes; besides the names
+/// above, "house" (a gabled house: walls, a two-plane roof, gable ends, a floor; the planes
+/// tests only). Throws std::invalid_argument for an unknown name.
 Shape make_shape(const std::string& name);
 
 /// `n` points drawn uniformly by area on the mesh (seeded), each with its face's exact normal.

@@ -16,7 +16,10 @@
 //  4. the planar regions are re-triangulated with few triangles: quadric error edge collapses
 //     (decimate.h) that move the surface by at most `max_error`. A collapse inside a flat
 //     region, or along a straight crease, costs nothing; corners, open borders, the rest of the
-//     surface and the topology stay (the decimator's link condition and flip test).
+//     surface and the topology stay (the decimator's link condition and flip test); then
+//     Lawson's edge flips (C. Lawson, "Software for C1 surface interpolation", 1977) inside each
+//     region make its triangulation the constrained Delaunay triangulation of its border and
+//     the vertices left (no slivers where a polygon allows better), in position order.
 //
 // The region of every face of the result goes to Mesh::regions (-1: none). Deterministic.
 #pragma once
@@ -61,6 +64,7 @@ struct PlaneResult {
     std::size_t planar_faces = 0;      ///< faces in a region before the re-triangulation
     std::size_t edge_vertices = 0;     ///< vertices moved onto the line of two planes
     std::size_t corner_vertices = 0;   ///< vertices moved onto the point of three or more
+    std::size_t flips = 0;             ///< edge flips that made the regions Delaunay
 };
 
 /// Finds the planar regions of `mesh` (voxel: the unit of the options' lengths, world units).

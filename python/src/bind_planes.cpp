@@ -38,7 +38,9 @@ void bind_planes(py::module_& m) {
         .def_readonly("edge_vertices", &PlaneResult::edge_vertices,
                       "Vertices moved onto the line of two planes.")
         .def_readonly("corner_vertices", &PlaneResult::corner_vertices,
-                      "Vertices moved onto the point of three or more planes.");
+                      "Vertices moved onto the point of three or more planes.")
+        .def_readonly("flips", &PlaneResult::flips,
+                      "Edge flips that made the regions' triangulations Delaunay.");
 
     m.def(
         "planar_regions",

@@ -285,6 +285,8 @@ Layer raster_region(const Rect& r, const std::int32_t* points, std::size_t count
     const double inv2s2 = 1.0 / (2.0 * sigma * sigma);
     for (std::size_t k = 0; k < count; ++k) {
         const std::size_t i = std::size_t(points[k]);
+        const Vec3f& col = cloud.colors[i];
+        if (!(std::isfinite(col[0]) && std::isfinite(col[1]) && std::isfinite(col[2]))) continue;
         const Vec3f& q = cloud.positions[i];
         const V3 p{q[0] + shift[0], q[1] + shift[1], q[2] + shift[2]};
         const auto [sx, sy] = texel_coords(r, p, texel, o.padding);

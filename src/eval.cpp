@@ -116,9 +116,13 @@ struct MeshDistance::Impl {
                 const Vec3f& v = m.vertices[std::size_t(i)];
                 return V3{double(v[0]), double(v[1]), double(v[2])};
             };
-            a[f] = get(t[0]);
-            b[f] = get(t[1]);
-            c[f] = get(t[2]);
+            // Corners from the one first by position (orientation kept): a face's distances
+            // then do not depend on which corner the mesh lists first.
+            V3 p[3] = {get(t[0]), get(t[1]), get(t[2])};
+            const int first = p[1] < p[0] ? (p[2] < p[1] ? 2 : 1) : (p[2] < p[0] ? 2 : 0);
+            a[f] = p[first];
+            b[f] = p[(first + 1) % 3];
+            c[f] = p[(first + 2) % 3];
         }
         order.resize(nf);
         std::iota(order.begin(), order.end(), 0);
@@ -184,6 +188,17 @@ struct MeshDistance::Impl {
         return d2;
     }
 
+    /// Ties between faces at the same distance go to the face first by its corners' positions
+    /// (then by number, for coincident faces): the same face whatever the mesh's numbering.
+    bool before(std::size_t f, std::int32_t g) const {
+        if (g < 0) return true;
+        const std::size_t h = std::size_t(g);
+        if (a[f] != a[h]) return a[f] < a[h];
+        if (b[f] != b[h]) return b[f] < b[h];
+        if (c[f] != c[h]) return c[f] < c[h];
+        return f < h;
+    }
+
     double query(const V3& p, std::int32_t* face) const {
         double best = std::numeric_limits<double>::infinity();
         std::int32_t best_face = -1;
@@ -192,14 +207,14 @@ struct MeshDistance::Impl {
         stack[top++] = 0;
         while (top > 0) {
             const Node& n = nodes[std::size_t(stack[--top])];
-            if (box_dist2(n, p) >= best) continue;
+            if (box_dist2(n, p) > best) continue;  // equal: a tie may be inside
             if (n.left < 0) {
                 for (std::int32_t i = n.begin; i < n.end; ++i) {
                     const std::size_t f = std::size_t(order[std::size_t(i)]);
                     const V3 q = closest_on_triangle(p, a[f], b[f], c[f]);
                     const V3 d = sub(p, q);
                     const double d2 = dot(d, d);
-                    if (d2 < best || (d2 == best && std::int32_t(f) < best_face)) {
+                    if (d2 < best || (d2 == best && before(f, best_face))) {
                         best = d2;
                         best_face = std::int32_t(f);
                     }
@@ -211,11 +226,11 @@ struct MeshDistance::Impl {
             const double dl = box_dist2(l, p), dr = box_dist2(r, p);
             // Push the farther child first so the nearer one is visited next.
             if (dl < dr) {
-                if (dr < best) stack[top++] = n.right;
-                if (dl < best) stack[top++] = n.left;
+                if (dr <= best) stack[top++] = n.right;
+                if (dl <= best) stack[top++] = n.left;
             } else {
-                if (dl < best) stack[top++] = n.left;
-                if (dr < best) stack[top++] = n.right;
+                if (dl <= best) stack[top++] = n.left;
+                if (dr <= best) stack[top++] = n.right;
             }
         }
         if (face) *face = best_face;

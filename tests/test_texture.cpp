@@ -34,7 +34,7 @@ struct Textured {
 };
 
 Textured textured(const std::string& name, int threads = 0, int max_size = 8192,
-                  double texel = 0.0) {
+                  double texel = 0.0, int tile = 0) {
     const Shape shape = make_shape(name);
     PointCloud sample = sample_uniform(shape.mesh, 60000, 5);
     std::vector<Vec3f> colors(sample.size());
@@ -48,6 +48,7 @@ Textured textured(const std::string& name, int threads = 0, int max_size = 8192,
     o.texture.enabled = true;
     o.texture.max_size = max_size;
     o.texture.texel = texel;
+    o.tile = tile;
     o.threads = threads;
     t.r = reconstruct(sample, o);
     return t;
@@ -174,7 +175,7 @@ TEST_CASE("texture: each face of a CAD part carries its colours where its coordi
     }
 }
 
-TEST_CASE("texture: the same atlas for any thread count; a texel too fine grows to fit",
+TEST_CASE("texture: the same atlas for any thread count and tiles; a texel too fine grows to fit",
           "[texture]") {
     const Textured one = textured("lbracket", 1), two = textured("lbracket", 2);
     CHECK(one.r.texture.rgb == two.r.texture.rgb);
@@ -185,6 +186,11 @@ TEST_CASE("texture: the same atlas for any thread count; a texel too fine grows 
     CHECK(std::max(small.r.texture.width, small.r.texture.height) <= 128);
     CHECK(std::max(one.r.texture.width, one.r.texture.height) > 128);
     CHECK(small.r.texture.texel > 0.5 * small.voxel);
+    // Tile by tile (another vertex and face numbering): the same atlas.
+    const Textured tiled = textured("lbracket", 0, 8192, 0.0, 16);
+    CHECK(tiled.r.tiles > 1);
+    CHECK(tiled.r.texture.rgb == one.r.texture.rgb);
+    CHECK(tiled.r.texture.points == one.r.texture.points);
     // An absurd texel (a 1e12-texel rectangle) grows to fit too.
     const Textured tiny = textured("cube", 0, 256, 1e-12);
     CHECK(std::max(tiny.r.texture.width, tiny.r.texture.height) <= 256);

@@ -209,31 +209,83 @@ std::vector<char> classify_points(const Volume& volume, const MeshOptions& optio
 
 /// Which unsupported faces to trim: the edge-connected regions of unsupported faces (a vertex
 /// weak or far) that hold a far vertex or an edge of the open border (an edge no other face
-/// shares). Faces in invalid cells must be gone already.
+/// shares). Faces in invalid cells must be gone already. Works on the unsupported faces'
+/// edges only (memory in proportion to them, not to the mesh: a 24 M face terrain had built
+/// every edge of the mesh twice over, 1.2 GB, to answer for its 27 k unsupported faces).
 std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::vector<char>& status,
                                 std::size_t npoints) {
     const std::size_t nf = tris.size();
-    std::vector<char> unsupported(nf, 0), trim(nf, 0);
-    bool any = false;
+    std::vector<char> trim(nf, 0);
+    // The unsupported faces' edges (key, face), sorted: faces with one key share that edge.
+    struct Side {
+        std::uint64_t key;
+        std::int32_t face;
+    };
+    std::vector<Side> sides;
+    std::vector<char> mine(npoints, 0);  // the points of unsupported faces
+    std::vector<std::int32_t> slot(nf, -1), face_of;  // unsupported faces, numbered in order
     for (std::size_t f = 0; f < nf; ++f) {
-        for (std::int32_t v : tris[f]) unsupported[f] |= status[std::size_t(v)] != kSupported;
-        any |= unsupported[f] != 0;
-    }
-    if (!any) return trim;
-    const std::vector<std::uint64_t> border = border_edge_keys(tris);
-    const std::vector<std::int32_t> label = face_components(tris, npoints, &unsupported);
-    std::vector<char> seeded(nf, 0);
-    for (std::size_t f = 0; f < nf; ++f) {
-        if (!unsupported[f]) continue;
-        bool seed = false;
+        const Triangle& t = tris[f];
+        bool unsupported = false;
+        for (std::int32_t v : t) unsupported |= status[std::size_t(v)] != kSupported;
+        if (!unsupported) continue;
+        slot[f] = std::int32_t(face_of.size());
+        face_of.push_back(std::int32_t(f));
         for (int k = 0; k < 3; ++k) {
-            const std::int32_t a = tris[f][k], b = tris[f][(k + 1) % 3];
-            seed |= status[std::size_t(a)] == kFar;
-            seed |= std::binary_search(border.begin(), border.end(), edge_key(a, b));
+            mine[std::size_t(t[k])] = 1;
+            if (t[k] != t[(k + 1) % 3]) sides.push_back({edge_key(t[k], t[(k + 1) % 3]), std::int32_t(f)});
         }
-        if (seed) seeded[std::size_t(label[f])] = 1;
     }
-    for (std::size_t f = 0; f < nf; ++f) trim[f] = unsupported[f] && seeded[std::size_t(label[f])];
+    if (face_of.empty()) return trim;
+    std::sort(sides.begin(), sides.end(), [](const Side& a, const Side& b) {
+        return a.key != b.key ? a.key < b.key : a.face < b.face;
+    });
+    // How many faces of the whole mesh use each of those edges (1: the open border).
+    std::vector<std::uint64_t> keys;
+    for (std::size_t i = 0; i < sides.size(); ++i) {
+        if (i == 0 || sides[i].key != sides[i - 1].key) keys.push_back(sides[i].key);
+    }
+    std::vector<std::uint32_t> uses(keys.size(), 0);
+    for (const Triangle& t : tris) {
+        for (int k = 0; k < 3; ++k) {
+            const std::int32_t a = t[k], b = t[(k + 1) % 3];
+            if (a == b || !mine[std::size_t(a)] || !mine[std::size_t(b)]) continue;
+            const auto it = std::lower_bound(keys.begin(), keys.end(), edge_key(a, b));
+            if (it != keys.end() && *it == edge_key(a, b)) ++uses[std::size_t(it - keys.begin())];
+        }
+    }
+    // Regions: union-find over the unsupported faces, joined where they share an edge; roots
+    // are the smallest number, so the labels do not depend on the order of the unions.
+    std::vector<std::int32_t> parent(face_of.size());
+    std::iota(parent.begin(), parent.end(), std::int32_t(0));
+    auto find = [&](std::int32_t x) {
+        while (parent[std::size_t(x)] != x) {
+            parent[std::size_t(x)] = parent[std::size_t(parent[std::size_t(x)])];
+            x = parent[std::size_t(x)];
+        }
+        return x;
+    };
+    std::vector<char> seeded(face_of.size(), 0);
+    for (std::size_t i = 0, e = 0; i < sides.size(); ++i) {
+        if (i > 0 && sides[i].key != sides[i - 1].key) ++e;
+        const std::int32_t me = slot[std::size_t(sides[i].face)];
+        if (uses[e] == 1) seeded[std::size_t(me)] = 1;  // on the open border
+        if (i > 0 && sides[i].key == sides[i - 1].key) {
+            const std::int32_t ra = find(me), rb = find(slot[std::size_t(sides[i - 1].face)]);
+            if (ra != rb) parent[std::size_t(std::max(ra, rb))] = std::min(ra, rb);
+        }
+    }
+    for (std::size_t j = 0; j < face_of.size(); ++j) {
+        for (std::int32_t v : tris[std::size_t(face_of[j])]) {
+            if (status[std::size_t(v)] == kFar) seeded[j] = 1;
+        }
+    }
+    for (std::size_t j = 0; j < face_of.size(); ++j) {
+        if (seeded[j]) seeded[std::size_t(find(std::int32_t(j)))] = 1;
+    }
+    for (std::size_t j = 0; j < face_of.size(); ++j) {
+        trim[std::size_t(face_of[j])] = seeded[std::size_t(find(std::int32_t(j)))];
+    }
     return trim;
 }
 

@@ -288,20 +288,20 @@ void tiled_cleanup_stages(PipelineResult& r, const PipelineOptions& options, dou
     mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
 }
 
-/// splat > close > mesh tile by tile (detail/tiles.h) on an oriented cloud (freed after the
-/// tiles when `consume`), then the stages after the mesh. No volume is kept or handed to
+/// splat > close > mesh tile by tile (detail/tiles.h) on an oriented cloud (freed once the
+/// tiles are meshed, before their pieces are welded, when `consume`), then the stages after
+/// the mesh. No volume is kept or handed to
 /// on_volume: no tile holds the whole of it.
 void tiled_stages(PipelineResult& r, PointCloud& cloud, bool consume,
                   const SplatOptions& splat_options, const PipelineOptions& options,
                   const StageCallback& on_stage, const VolumeCallback& on_volume) {
+    const Vec3d origin = cloud.origin;
     {
         StageClock clock(r.timings, on_stage, "tiles");
-        detail::TiledResult tiled =
-            detail::tiled_surface(cloud, tiled_options(options, splat_options, sample_spacing(r)));
+        detail::TiledResult tiled = detail::tiled_surface(
+            cloud, tiled_options(options, splat_options, sample_spacing(r)), consume);
         take_tiled(r, std::move(tiled));
     }
-    const Vec3d origin = cloud.origin;
-    if (consume) cloud = PointCloud{};
     tiled_cleanup_stages(r, options, splat_options.voxel_size, origin, on_stage, on_volume);
 }
 

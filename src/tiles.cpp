@@ -309,7 +309,7 @@ TileSetup tile_setup(const PointCloud& cloud, const TiledOptions& options) {
     return setup;
 }
 
-TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options) {
+TiledResult tiled_surface(PointCloud& cloud, const TiledOptions& options, bool release) {
     TileSetup setup = tile_setup(cloud, options);
     TileGrid& g = setup.grid;
     for (;;) {
@@ -320,8 +320,10 @@ TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options) 
             ClassifiedSurface all = all_tiles(cloud, options, setup, result);
             result.splat.sigma_median = setup.frame.sigma_median;
             result.splat.points = cloud.size();
+            const Vec3d origin = cloud.origin;
+            if (release) cloud = PointCloud{};
             result.mesh =
-                finish_surface(std::move(all), options.splat.voxel_size, cloud.origin, options.mesh);
+                finish_surface(std::move(all), options.splat.voxel_size, origin, options.mesh);
             return result;
         } catch (const InvalidArgument& e) {
             // A tile over the memory budget: with an automatic edge, half as large (the

@@ -124,8 +124,10 @@ void append(ClassifiedSurface& all, ClassifiedSurface&& piece);
 
 /// The mesh of `cloud` (oriented; scales and colours used as by splat()) reconstructed tile by
 /// tile: the same faces on the same vertices as splat > close_volume > extract_mesh of the
-/// whole cloud, in another order. Throws InvalidArgument for a solid closing.
-TiledResult tiled_surface(const PointCloud& cloud, const TiledOptions& options);
+/// whole cloud, in another order. With `release`, the cloud is emptied once every tile is
+/// meshed: welding the pieces does not need it, and its memory then serves the weld. Throws
+/// InvalidArgument for a solid closing.
+TiledResult tiled_surface(PointCloud& cloud, const TiledOptions& options, bool release = false);
 
 // ---- Tile jobs (tile_jobs.cpp): the same tiles in other processes --------------------------
 

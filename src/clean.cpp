@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "detail/mesh_graph.h"
+#include "detail/release.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -92,7 +93,7 @@ void taubin(Mesh& m, const CleanOptions& o) {
 
 }  // namespace
 
-CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
+CleanResult clean_mesh(Mesh&& mesh, const CleanOptions& options) {
     options.validate();
     for (const Triangle& t : mesh.faces) {
         for (std::int32_t i : t) {
@@ -106,14 +107,14 @@ CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
     const std::size_t nf = mesh.faces.size();
 
     // Edge-connected components, by size.
-    const std::vector<std::int32_t> label = detail::face_components(mesh.faces, mesh.vertices.size());
-    std::vector<std::size_t> size(nf, 0);
+    std::vector<std::int32_t> label = detail::face_components(mesh.faces, mesh.vertices.size());
+    std::vector<std::int32_t> size(nf, 0);
     for (std::size_t f = 0; f < nf; ++f) ++size[std::size_t(label[f])];
     std::size_t largest = 0;
     for (std::size_t f = 0; f < nf; ++f) {
         if (size[f] > 0) {
             ++r.components_before;
-            largest = std::max(largest, size[f]);
+            largest = std::max(largest, std::size_t(size[f]));
         }
     }
     const double min_faces = std::max(double(options.min_component_faces),
@@ -121,45 +122,58 @@ CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
     for (std::size_t f = 0; f < nf; ++f) {
         if (size[f] > 0 && double(size[f]) < min_faces) {
             ++r.removed_components;
-            r.removed_faces += size[f];
+            r.removed_faces += std::size_t(size[f]);
         }
     }
 
-    // Keep faces of large components, then the vertices they use, in input order. The arrays
-    // are sized first: growing them by doubling would hold up to twice the mesh at the peak.
+    // Keep faces of large components, then the vertices they use, in input order: compacted in
+    // place (the kept ones only move down), so no second copy of the mesh joins the peak.
+    r.mesh = std::move(mesh);
     Mesh& out = r.mesh;
-    out.origin = mesh.origin;
-    auto kept = [&](std::size_t f) { return double(size[std::size_t(label[f])]) >= min_faces; };
-    std::vector<Triangle>& faces = out.faces.edit();
-    faces.reserve(nf - r.removed_faces);
-    for (std::size_t f = 0; f < nf; ++f) {
-        if (kept(f)) faces.push_back(mesh.faces[f]);
+    if (r.removed_faces > 0) {
+        std::vector<Triangle>& faces = out.faces.edit();
+        const bool regions = out.regions.size() == nf;
+        std::vector<std::int32_t>* reg = regions ? &out.regions.edit() : nullptr;
+        std::size_t kept = 0;
+        for (std::size_t f = 0; f < nf; ++f) {
+            if (double(size[std::size_t(label[f])]) < min_faces) continue;
+            if (reg) (*reg)[kept] = (*reg)[f];
+            faces[kept++] = faces[f];
+        }
+        faces.resize(kept);
+        if (reg) reg->resize(kept);
     }
+    detail::release(label);
+    detail::release(size);
     std::size_t nv = 0;
-    const std::vector<std::int32_t> remap =
-        detail::compact_vertices(faces, mesh.vertices.size(), &nv);
-    const bool normals = mesh.normals.size() == mesh.vertices.size();
-    const bool colors = mesh.colors.size() == mesh.vertices.size();
-    out.vertices.resize(nv);
-    if (normals) out.normals.resize(nv);
-    if (colors) out.colors.resize(nv);
-    Vec3f* v = out.vertices.edit().data();
-    Vec3f* n = normals ? out.normals.edit().data() : nullptr;
-    Vec3f* c = colors ? out.colors.edit().data() : nullptr;
-    for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
-        const std::int32_t j = remap[i];
-        if (j < 0) continue;
-        v[j] = mesh.vertices[i];
-        if (n) n[j] = mesh.normals[i];
-        if (c) c[j] = mesh.colors[i];
+    const std::size_t before = out.vertices.size();
+    const std::vector<std::int32_t> remap = detail::compact_vertices(out.faces.edit(), before, &nv);
+    if (nv < before) {
+        // remap[i] <= i (order kept): moving each vertex down in increasing i overwrites only
+        // vertices already moved.
+        auto compact = [&](Column<Vec3f>& column) {
+            if (column.size() != before) return;
+            std::vector<Vec3f>& v = column.edit();
+            for (std::size_t i = 0; i < before; ++i) {
+                if (remap[i] >= 0) v[std::size_t(remap[i])] = v[i];
+            }
+            v.resize(nv);
+        };
+        compact(out.vertices);
+        compact(out.normals);
+        compact(out.colors);
     }
-    r.removed_vertices = mesh.vertices.size() - out.vertices.size();
+    r.removed_vertices = before - out.vertices.size();
 
     if (options.smooth_iterations > 0 && !out.faces.empty()) {
         taubin(out, options);
         r.smoothed_iterations = options.smooth_iterations;
     }
     return r;
+}
+
+CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
+    return clean_mesh(Mesh(mesh), options);  // a borrowed array is copied only when changed
 }
 
 }  // namespace vdbrecon

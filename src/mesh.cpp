@@ -256,23 +256,14 @@ std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::ve
     }
     // Regions: union-find over the unsupported faces, joined where they share an edge; roots
     // are the smallest number, so the labels do not depend on the order of the unions.
-    std::vector<std::int32_t> parent(face_of.size());
-    std::iota(parent.begin(), parent.end(), std::int32_t(0));
-    auto find = [&](std::int32_t x) {
-        while (parent[std::size_t(x)] != x) {
-            parent[std::size_t(x)] = parent[std::size_t(parent[std::size_t(x)])];
-            x = parent[std::size_t(x)];
-        }
-        return x;
-    };
+    MinUnionFind sets(face_of.size());
     std::vector<char> seeded(face_of.size(), 0);
     for (std::size_t i = 0, e = 0; i < sides.size(); ++i) {
         if (i > 0 && sides[i].key != sides[i - 1].key) ++e;
         const std::int32_t me = slot[std::size_t(sides[i].face)];
         if (uses[e] == 1) seeded[std::size_t(me)] = 1;  // on the open border
         if (i > 0 && sides[i].key == sides[i - 1].key) {
-            const std::int32_t ra = find(me), rb = find(slot[std::size_t(sides[i - 1].face)]);
-            if (ra != rb) parent[std::size_t(std::max(ra, rb))] = std::min(ra, rb);
+            sets.unite(me, slot[std::size_t(sides[i - 1].face)]);
         }
     }
     for (std::size_t j = 0; j < face_of.size(); ++j) {
@@ -280,11 +271,12 @@ std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::ve
             if (status[std::size_t(v)] == kFar) seeded[j] = 1;
         }
     }
+    const std::vector<std::int32_t> label = std::move(sets).labels();
     for (std::size_t j = 0; j < face_of.size(); ++j) {
-        if (seeded[j]) seeded[std::size_t(find(std::int32_t(j)))] = 1;
+        if (seeded[j]) seeded[std::size_t(label[j])] = 1;
     }
     for (std::size_t j = 0; j < face_of.size(); ++j) {
-        trim[std::size_t(face_of[j])] = seeded[std::size_t(find(std::int32_t(j)))];
+        trim[std::size_t(face_of[j])] = seeded[std::size_t(label[j])];
     }
     return trim;
 }

@@ -57,16 +57,7 @@ VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count) {
 std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count,
                                           const std::vector<char>* only) {
     const std::size_t nf = faces.size();
-    // Union-find whose roots are the smallest index, so labels do not depend on union order.
-    std::vector<std::int32_t> parent(nf);
-    std::iota(parent.begin(), parent.end(), std::int32_t(0));
-    auto find = [&](std::int32_t x) {
-        while (parent[std::size_t(x)] != x) {
-            parent[std::size_t(x)] = parent[std::size_t(parent[std::size_t(x)])];
-            x = parent[std::size_t(x)];
-        }
-        return x;
-    };
+    MinUnionFind sets(nf);
     // A face g around a that holds both ends of an edge (a, b) of face f has that edge too.
     const VertexFaces vf = vertex_faces(faces, vertex_count);
     const std::vector<std::size_t>& first = vf.first;
@@ -84,13 +75,11 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vert
                 if (only && !(*only)[std::size_t(g)]) continue;
                 const Triangle& u = faces[std::size_t(g)];
                 if (u[0] != b && u[1] != b && u[2] != b) continue;
-                const std::int32_t ra = find(std::int32_t(f)), rb = find(g);
-                if (ra != rb) parent[std::size_t(std::max(ra, rb))] = std::min(ra, rb);
+                sets.unite(std::int32_t(f), g);
             }
         }
     }
-    for (std::size_t f = 0; f < nf; ++f) parent[f] = find(std::int32_t(f));
-    return parent;
+    return std::move(sets).labels();
 }
 
 std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::size_t vertex_count,

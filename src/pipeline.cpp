@@ -179,7 +179,7 @@ void mesh_cleanup_stages(PipelineResult& r, const PipelineOptions& options, cons
         StageClock clock(r.timings, on_stage, "clean");
         CleanOptions clean = options.clean;
         if (options.watertight) clean.min_component_ratio = 1.0;  // one piece
-        r.clean_stats = clean_mesh(r.mesh, clean);
+        r.clean_stats = clean_mesh(std::move(r.mesh), clean);
         r.mesh = std::move(r.clean_stats.mesh);
         r.clean_stats.mesh = Mesh{};
     }

@@ -49,9 +49,11 @@ struct CleanResult {
     int smoothed_iterations = 0;         ///< Taubin iterations applied
 };
 
-/// Removes small components and optionally smooths. Vertex attributes (normals, colours) follow
-/// their vertices; after smoothing, normals are recomputed from the faces (area-weighted).
-/// Deterministic: kept faces and vertices stay in their input order.
+/// Removes small components and optionally smooths. Vertex attributes (normals, colours) and
+/// face regions follow their vertices and faces; after smoothing, normals are recomputed from
+/// the faces (area-weighted). Deterministic: kept faces and vertices stay in their input order.
 CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options = {});
+/// The same on a mesh the caller gives up: compacted in place, without a copy.
+CleanResult clean_mesh(Mesh&& mesh, const CleanOptions& options = {});
 
 }  // namespace vdbrecon

@@ -354,6 +354,16 @@ std::string StagedOutputs::stage(const std::string& final_path) {
     return files_.back().temp;
 }
 
+std::string StagedOutputs::final_names(std::string message) const {
+    for (const Entry& e : files_) {
+        for (std::size_t at = message.find(e.temp); at != std::string::npos;
+             at = message.find(e.temp, at + e.final.size())) {
+            message.replace(at, e.temp.size(), e.final);
+        }
+    }
+    return message;
+}
+
 void StagedOutputs::commit_all() {
     for (Entry& e : files_) {
         struct stat st {};

@@ -428,6 +428,12 @@ PipelineResult reconstruct(PointCloud&& cloud, const PipelineOptions& options,
 
 namespace detail {
 
+namespace {
+void write_outputs(RunResult& out, const PipelineOptions& options, const std::string& input,
+                   StagedOutputs& staged, std::vector<StageTiming>& timings,
+                   const StageCallback& on_stage);
+}  // namespace
+
 RunResult run_to_files(const std::string& input, const std::string& output,
                        const PipelineOptions& options, const StageCallback& on_stage,
                        const RunCompute& compute) {
@@ -509,6 +515,10 @@ RunResult run_to_files(const std::string& input, const std::string& output,
               << ". Hint: a larger --voxel, or more data";
             throw NumericalError(s.str());
         }
+    } catch (const IoError& e) {
+        const std::string named = staged.final_names(e.what());
+        if (named != e.what()) throw IoError(named);  // writing a .vdb file: it names that
+        detail::rethrow_naming(input, e);
     } catch (const Error& e) {
         detail::rethrow_naming(input, e);
     } catch (const std::bad_alloc&) {
@@ -518,6 +528,23 @@ RunResult run_to_files(const std::string& input, const std::string& output,
         throw NumericalError(input + ": " + e.what());
     }
     timings.insert(timings.end(), out.result.timings.begin(), out.result.timings.end());
+    try {
+        write_outputs(out, options, input, staged, timings, on_stage);
+    } catch (const IoError& e) {
+        throw IoError(staged.final_names(e.what()));
+    }
+    if (vdb) timings.push_back({"vdb (in the background)", vdb_seconds, peak_rss_mb()});
+    out.result.timings = std::move(timings);
+    return out;
+}
+
+namespace {
+
+/// The mesh (with its texture) and the preview under their staged names, then all renamed
+/// into place.
+void write_outputs(RunResult& out, const PipelineOptions& options, const std::string& input,
+                   StagedOutputs& staged, std::vector<StageTiming>& timings,
+                   const StageCallback& on_stage) {
     {
         StageClock clock(timings, on_stage, "write");
         WriteOptions w = options.write;
@@ -538,10 +565,9 @@ RunResult run_to_files(const std::string& input, const std::string& output,
                     render_preview(out.result.mesh, options.preview));
     }
     staged.commit_all();
-    if (vdb) timings.push_back({"vdb (in the background)", vdb_seconds, peak_rss_mb()});
-    out.result.timings = std::move(timings);
-    return out;
 }
+
+}  // namespace
 
 }  // namespace detail
 

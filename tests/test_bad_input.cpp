@@ -760,6 +760,17 @@ TEST_CASE("bad input: output in a missing or read-only directory", "[cli][bad_in
         const Refusal r = run_refused(w, in, "", 3, out);
         REQUIRE(r.error == out + ": cannot write: is a directory");
     }
+    SECTION("a directory that takes no files: the error names the output, not a temporary") {
+        // /proc passes the directory checks as root but refuses to create a file; others are
+        // refused by the checks. Either way the message names an output that was asked for
+        // (the mesh or its .splat.vdb, whichever is written first).
+        const std::string out = "/proc/vdbrecon_out.ply";
+        const Refusal r = run_refused(w, in, "", 3, out);
+        CAPTURE(r.error);
+        REQUIRE((r.error.rfind(out + ": cannot ", 0) == 0 ||
+                 r.error.rfind("/proc/vdbrecon_out.splat.vdb: cannot ", 0) == 0));
+        REQUIRE(r.error.find("staged") == std::string::npos);
+    }
 }
 
 TEST_CASE("bad input: an interrupted run removes its temporary files", "[cli][bad_input]") {

@@ -99,6 +99,9 @@ public:
     std::string stage(const std::string& final_path);
     /// Renames every staged file that was written onto its final path. Throws IoError.
     void commit_all();
+    /// `message` with every temporary name replaced by its final path (errors from writers
+    /// name the file they were given, which the user never asked for).
+    std::string final_names(std::string message) const;
 
 private:
     struct Entry {

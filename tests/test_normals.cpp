@@ -344,16 +344,25 @@ TEST_CASE("normals do not depend on the thread count", "[normals]") {
     REQUIRE(a.scales == b.scales);
 }
 
-TEST_CASE("bunny scans: estimated normals agree with the scanner's", "[normals][data]") {
-    const std::string path = shared_data("stanford_bunny/bun_scans_aligned.ply");
-    if (path.empty()) return;
-    PointCloud c = read_points(path).cloud;
+namespace {
+
+/// The share of the cloud's normals that estimate_normals, given the positions alone, points
+/// the same way (dot > 0).
+double agreeing_estimates(PointCloud c) {
     const std::vector<Vec3f> truth = c.normals.to_vector();
     c.normals.clear();
     const NormalResult n = estimate_normals(c, {});
     std::size_t agree = 0;
     for (std::size_t i = 0; i < truth.size(); ++i) agree += dot(truth[i], n.normals[i]) > 0.0;
-    const double fraction = double(agree) / double(truth.size());
+    return double(agree) / double(truth.size());
+}
+
+}  // namespace
+
+TEST_CASE("bunny scans: estimated normals agree with the scanner's", "[normals][data]") {
+    const std::string path = shared_data("stanford_bunny/bun_scans_aligned.ply");
+    if (path.empty()) return;
+    const double fraction = agreeing_estimates(read_points(path).cloud);
     INFO("agreeing normals: " << fraction);
     REQUIRE(fraction >= 0.99);
 }
@@ -363,14 +372,7 @@ TEST_CASE("orientation crosses edges sharper than 90 degrees: the fan part's bla
     // The fan's six blades end in 40-degree wedges: Hoppe's rule (neighbouring normals agree
     // when n_i . n_j > 0) turned one face of each tip against the other, and with it 69 % of
     // the points; comparing n_j with n_i mirrored at the chord's bisecting plane leaves 0.3 %.
-    const Shape shape = make_shape("fan");
-    PointCloud c = sample_uniform(shape.mesh, 200000, 1);
-    const std::vector<Vec3f> truth = c.normals.to_vector();
-    c.normals.clear();
-    const NormalResult n = estimate_normals(c, {});
-    std::size_t agree = 0;
-    for (std::size_t i = 0; i < truth.size(); ++i) agree += dot(truth[i], n.normals[i]) > 0.0;
-    const double fraction = double(agree) / double(truth.size());
+    const double fraction = agreeing_estimates(sample_uniform(make_shape("fan").mesh, 200000, 1));
     INFO("agreeing normals: " << fraction);
     CHECK(fraction >= 0.99);
 }

@@ -216,30 +216,23 @@ std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::ve
                                 std::size_t npoints) {
     const std::size_t nf = tris.size();
     std::vector<char> trim(nf, 0);
-    // The unsupported faces' edges (key, face), sorted: faces with one key share that edge.
-    struct Side {
-        std::uint64_t key;
-        std::int32_t face;
-    };
-    std::vector<Side> sides;
     std::vector<char> mine(npoints, 0);  // the points of unsupported faces
     std::vector<std::int32_t> slot(nf, -1), face_of;  // unsupported faces, numbered in order
     for (std::size_t f = 0; f < nf; ++f) {
-        const Triangle& t = tris[f];
         bool unsupported = false;
-        for (std::int32_t v : t) unsupported |= status[std::size_t(v)] != kSupported;
+        for (std::int32_t v : tris[f]) unsupported |= status[std::size_t(v)] != kSupported;
         if (!unsupported) continue;
         slot[f] = std::int32_t(face_of.size());
         face_of.push_back(std::int32_t(f));
-        for (int k = 0; k < 3; ++k) {
-            mine[std::size_t(t[k])] = 1;
-            if (t[k] != t[(k + 1) % 3]) sides.push_back({edge_key(t[k], t[(k + 1) % 3]), std::int32_t(f)});
-        }
+        for (std::int32_t v : tris[f]) mine[std::size_t(v)] = 1;
     }
     if (face_of.empty()) return trim;
-    std::sort(sides.begin(), sides.end(), [](const Side& a, const Side& b) {
-        return a.key != b.key ? a.key < b.key : a.face < b.face;
-    });
+    // The unsupported faces' edges, sorted: faces with one key share that edge. A degenerate
+    // edge (a, a) joins nothing.
+    std::vector<EdgeSide> sides = sorted_sides(tris, [&](std::size_t f) { return slot[f] >= 0; });
+    sides.erase(std::remove_if(sides.begin(), sides.end(),
+                               [](const EdgeSide& e) { return (e.key >> 32) == (e.key & 0xffffffffu); }),
+                sides.end());
     // How many faces of the whole mesh use each of those edges (1: the open border).
     std::vector<std::uint64_t> keys;
     for (std::size_t i = 0; i < sides.size(); ++i) {

@@ -54,8 +54,7 @@ VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count) {
     return r;
 }
 
-std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count,
-                                          const std::vector<char>* only) {
+std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count) {
     const std::size_t nf = faces.size();
     MinUnionFind sets(nf);
     // A face g around a that holds both ends of an edge (a, b) of face f has that edge too.
@@ -63,7 +62,6 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vert
     const std::vector<std::size_t>& first = vf.first;
     const std::vector<std::int32_t>& around = vf.around;
     for (std::size_t f = 0; f < nf; ++f) {
-        if (only && !(*only)[f]) continue;
         const Triangle& t = faces[f];
         for (int k = 0; k < 3; ++k) {
             const std::size_t a = std::size_t(t[k]);
@@ -72,7 +70,6 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vert
             for (std::size_t j = first[a]; j < first[a + 1]; ++j) {
                 const std::int32_t g = around[j];
                 if (std::size_t(g) <= f) continue;  // each pair once
-                if (only && !(*only)[std::size_t(g)]) continue;
                 const Triangle& u = faces[std::size_t(g)];
                 if (u[0] != b && u[1] != b && u[2] != b) continue;
                 sets.unite(std::int32_t(f), g);

@@ -56,12 +56,6 @@ FaceData face_data(const Mesh& m) {
     d.centre.resize(nf);
     d.area.resize(nf);
     d.across.assign(nf, {-1, -1, -1});
-    struct Side {
-        std::uint64_t key;
-        std::int32_t face, slot;
-    };
-    std::vector<Side> sides;
-    sides.reserve(3 * nf);
     for (std::size_t f = 0; f < nf; ++f) {
         const Triangle& t = m.faces[f];
         const V3 a = vec(m.vertices[std::size_t(t[0])]), b = vec(m.vertices[std::size_t(t[1])]),
@@ -70,23 +64,12 @@ FaceData face_data(const Mesh& m) {
         d.area[f] = 0.5 * n.norm();
         d.normal[f] = d.area[f] > 0.0 ? V3(n / n.norm()) : V3::Zero();
         d.centre[f] = (a + b + c) / 3.0;
-        for (int k = 0; k < 3; ++k) {
-            sides.push_back({detail::edge_key(t[std::size_t(k)], t[std::size_t((k + 1) % 3)]),
-                             std::int32_t(f), k});
-        }
     }
-    std::sort(sides.begin(), sides.end(), [](const Side& x, const Side& y) {
-        return x.key != y.key ? x.key < y.key : x.face < y.face;
-    });
-    for (std::size_t i = 0; i < sides.size();) {
-        std::size_t j = i;
-        while (j < sides.size() && sides[j].key == sides[i].key) ++j;
-        if (j - i == 2) {  // a manifold edge
-            d.across[std::size_t(sides[i].face)][std::size_t(sides[i].slot)] = sides[i + 1].face;
-            d.across[std::size_t(sides[i + 1].face)][std::size_t(sides[i + 1].slot)] = sides[i].face;
-        }
-        i = j;
-    }
+    detail::manifold_pairs(detail::sorted_sides(m.faces, [](std::size_t) { return true; }),
+                           [&](const detail::EdgeSide& x, const detail::EdgeSide& y) {
+                               d.across[std::size_t(x.face)][std::size_t(x.slot)] = y.face;
+                               d.across[std::size_t(y.face)][std::size_t(y.slot)] = x.face;
+                           });
     return d;
 }
 
@@ -321,48 +304,29 @@ struct Flip {
 std::vector<Flip> flips_wanted(const Mesh& m, const std::vector<std::int32_t>& region,
                                const std::vector<Plane>& planes, double tolerance) {
     // The edges two faces of one region share (an edge used by more faces is left alone).
-    struct Side {
-        std::uint64_t key;
-        std::int32_t face, slot;
-    };
-    std::vector<Side> sides;
-    for (std::size_t f = 0; f < m.faces.size(); ++f) {
-        if (region[f] < 0) continue;
-        const Triangle& t = m.faces[f];
-        for (int k = 0; k < 3; ++k) {
-            sides.push_back({detail::edge_key(t[std::size_t(k)], t[std::size_t((k + 1) % 3)]),
-                             std::int32_t(f), k});
-        }
-    }
-    std::sort(sides.begin(), sides.end(), [](const Side& x, const Side& y) {
-        return x.key != y.key ? x.key < y.key : x.face < y.face;
-    });
     std::vector<Flip> out;
-    for (std::size_t i = 0; i + 1 < sides.size(); ++i) {
-        if (sides[i].key != sides[i + 1].key ||
-            (i + 2 < sides.size() && sides[i + 2].key == sides[i].key) ||
-            (i > 0 && sides[i - 1].key == sides[i].key)) {
-            continue;  // not the first of exactly two
-        }
-        const std::size_t f = std::size_t(sides[i].face);
-        const int k = sides[i].slot;
-        const std::int32_t g = sides[i + 1].face, r = region[f];
-        if (region[std::size_t(g)] != r) continue;
+    const auto regional = [&](std::size_t f) { return region[f] >= 0; };
+    detail::manifold_pairs(detail::sorted_sides(m.faces, regional), [&](const detail::EdgeSide& x,
+                                                                        const detail::EdgeSide& y) {
+        const std::size_t f = std::size_t(x.face);
+        const int k = x.slot;
+        const std::int32_t g = y.face, r = region[f];
+        if (region[std::size_t(g)] != r) return;
         const Plane& pl = planes[std::size_t(r)];
         const Triangle& t = m.faces[f];
         const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)],
                            c = t[std::size_t((k + 2) % 3)];
         std::int32_t e = -1;  // g's corner off the edge
-        for (std::int32_t x : m.faces[std::size_t(g)]) {
-            if (x != a && x != b) e = x;
+        for (std::int32_t v : m.faces[std::size_t(g)]) {
+            if (v != a && v != b) e = v;
         }
         bool flat = true;
-        for (std::int32_t x : {a, b, c, e}) {
-            const Vec3f& p = m.vertices[std::size_t(x)];
+        for (std::int32_t v : {a, b, c, e}) {
+            const Vec3f& p = m.vertices[std::size_t(v)];
             flat &= std::fabs(pl.normal[0] * p[0] + pl.normal[1] * p[1] + pl.normal[2] * p[2] -
                               pl.offset) <= tolerance;
         }
-        if (!flat) continue;
+        if (!flat) return;
         const Frame2 frame(pl.normal);
         const Eigen::Vector2d pa = frame(m.vertices[std::size_t(a)]),
                               pb = frame(m.vertices[std::size_t(b)]),
@@ -372,11 +336,11 @@ std::vector<Flip> flips_wanted(const Mesh& m, const std::vector<std::int32_t>& r
                                        (pa - pe).squaredNorm(), (pb - pe).squaredNorm()});
         // Strictly inside (ties stay as they are); the new faces (a, e, c) and (e, b, c)
         // counter-clockwise (the quad a e b c convex).
-        if (!(incircle(pa, pb, pc, pe) > 1e-9 * scale * scale)) continue;
-        if (!(orient(pa, pe, pc) > 1e-9 * scale && orient(pe, pb, pc) > 1e-9 * scale)) continue;
+        if (!(incircle(pa, pb, pc, pe) > 1e-9 * scale * scale)) return;
+        if (!(orient(pa, pe, pc) > 1e-9 * scale && orient(pe, pb, pc) > 1e-9 * scale)) return;
         const V3 mid = 0.5 * (vec(m.vertices[std::size_t(a)]) + vec(m.vertices[std::size_t(b)]));
         out.push_back({{mid[0], mid[1], mid[2]}, std::int32_t(f), g, k});
-    }
+    });
     std::sort(out.begin(), out.end(), [](const Flip& x, const Flip& y) { return x.key < y.key; });
     return out;
 }

@@ -30,6 +30,42 @@ inline std::uint64_t edge_key(std::int32_t a, std::int32_t b) {
     return (std::uint64_t(std::uint32_t(a)) << 32) | std::uint32_t(b);
 }
 
+/// One face's edge (its corners slot and slot + 1), under the undirected edge's key.
+struct EdgeSide {
+    std::uint64_t key;
+    std::int32_t face, slot;
+};
+
+/// The edges of the faces that `take(f)` accepts, sorted by (key, face): the faces that share
+/// an edge come together, in face order.
+template <typename Take>
+std::vector<EdgeSide> sorted_sides(Span<Triangle> faces, Take take) {
+    std::vector<EdgeSide> sides;
+    for (std::size_t f = 0; f < faces.size(); ++f) {
+        if (!take(f)) continue;
+        const Triangle& t = faces[f];
+        for (int k = 0; k < 3; ++k) {
+            sides.push_back({edge_key(t[std::size_t(k)], t[std::size_t((k + 1) % 3)]),
+                             std::int32_t(f), k});
+        }
+    }
+    std::sort(sides.begin(), sides.end(), [](const EdgeSide& x, const EdgeSide& y) {
+        return x.key != y.key ? x.key < y.key : x.face < y.face;
+    });
+    return sides;
+}
+
+/// Calls visit(first, second) for each edge that exactly two of the sorted sides share.
+template <typename Visit>
+void manifold_pairs(const std::vector<EdgeSide>& sides, Visit visit) {
+    for (std::size_t i = 0; i < sides.size();) {
+        std::size_t j = i;
+        while (j < sides.size() && sides[j].key == sides[i].key) ++j;
+        if (j - i == 2) visit(sides[i], sides[i + 1]);
+        i = j;
+    }
+}
+
 /// The keys (edge_key) of the open border's edges, those one face uses, sorted.
 std::vector<std::uint64_t> border_edge_keys(Span<Triangle> faces);
 
@@ -71,10 +107,8 @@ class MinUnionFind {
 };
 
 /// Edge-connected components of the faces (two faces that share an edge belong together): per
-/// face, its component's label, the smallest face index in it. Linear time. With `only`, just
-/// the faces it marks are joined (every other face is a component of its own).
-std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count,
-                                          const std::vector<char>* only = nullptr);
+/// face, its component's label, the smallest face index in it. Linear time.
+std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count);
 
 /// The vertices the faces use, renumbered in their original order: rewrites the faces to the new
 /// numbers and returns, per old vertex, its new index (-1 where no face uses it); *used gets

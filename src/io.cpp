@@ -10,10 +10,10 @@
 #include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <mutex>
 #include <set>
 #include <sstream>
-#include <unordered_map>
 #include <utility>
 
 #include "detail/io_common.h"
@@ -60,6 +60,13 @@ std::string file_extension(const std::string& path) {
 }
 
 namespace detail {
+
+std::string path_stem(const std::string& path) {
+    const std::size_t slash = path.find_last_of('/');
+    const std::size_t dot = path.find_last_of('.');
+    if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return path;
+    return path.substr(0, dot);
+}
 
 std::string where(const std::string& path, const std::string& message) {
     return path + ": " + message;
@@ -595,28 +602,17 @@ void put_obj_vertices(ByteWriter& out, const Mesh& mesh) {
 std::vector<std::array<std::size_t, 3>> put_obj_uvs(ByteWriter& out, const Mesh& mesh,
                                                     const ObjMaterials& m) {
     std::vector<std::array<std::size_t, 3>> index(mesh.faces.size(), {0, 0, 0});
-    std::unordered_map<std::uint64_t, std::size_t> seen;  // (vertex, u, v) hash -> first line
-    std::vector<std::pair<std::int32_t, std::array<float, 2>>> lines;
+    std::map<std::array<std::uint32_t, 3>, std::size_t> line;  // (vertex, u bits, v bits)
     for (std::size_t f = 0; f < mesh.faces.size(); ++f) {
-        for (int c = 0; c < 3; ++c) {
-            const std::array<float, 2>& uv = (*m.uv)[f][std::size_t(c)];
+        for (std::size_t c = 0; c < 3; ++c) {
+            const std::array<float, 2>& uv = (*m.uv)[f][c];
             if (std::isnan(uv[0])) continue;
-            const std::int32_t v = mesh.faces[f][std::size_t(c)];
-            std::uint32_t bu, bv;
-            std::memcpy(&bu, &uv[0], 4);
-            std::memcpy(&bv, &uv[1], 4);
-            const std::uint64_t key = (std::uint64_t(std::uint32_t(v)) * 0x9E3779B97F4A7C15ull) ^
-                                      (std::uint64_t(bu) << 32 | bv);
-            auto [it, fresh] = seen.emplace(key, lines.size() + 1);
-            if (!fresh && (lines[it->second - 1].first != v || lines[it->second - 1].second != uv)) {
-                fresh = true;  // a hash collision: its own line
-                it->second = lines.size() + 1;
-            }
-            if (fresh) {
-                lines.push_back({v, uv});
-                out.put("vt " + format_number(uv[0]) + ' ' + format_number(uv[1]) + '\n');
-            }
-            index[f][std::size_t(c)] = it->second;
+            std::array<std::uint32_t, 3> key{std::uint32_t(mesh.faces[f][c]), 0, 0};
+            std::memcpy(&key[1], &uv[0], 4);
+            std::memcpy(&key[2], &uv[1], 4);
+            const auto [it, fresh] = line.emplace(key, line.size() + 1);
+            if (fresh) out.put("vt " + format_number(uv[0]) + ' ' + format_number(uv[1]) + '\n');
+            index[f][c] = it->second;
         }
     }
     return index;

@@ -82,13 +82,7 @@ double choose_voxel_size(const PointCloud& cloud, double spacing, const Pipeline
 }
 
 std::string stage_volume_path(const std::string& mesh_path, const std::string& stage) {
-    const std::size_t slash = mesh_path.find_last_of('/');
-    const std::size_t dot = mesh_path.find_last_of('.');
-    std::string stem = mesh_path;
-    if (dot != std::string::npos && (slash == std::string::npos || dot > slash)) {
-        stem = mesh_path.substr(0, dot);
-    }
-    return stem + "." + stage + ".vdb";
+    return detail::path_stem(mesh_path) + "." + stage + ".vdb";
 }
 
 [[noreturn]] void detail::rethrow_naming(const std::string& input, const Error& e) {

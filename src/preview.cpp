@@ -15,6 +15,7 @@
 #include "detail/io_common.h"
 #include "detail/mesh_graph.h"
 #include "detail/png.h"
+#include "detail/vec3.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
 
@@ -33,20 +34,14 @@ void PreviewOptions::validate() const {
 
 namespace {
 
-using V3 = std::array<double, 3>;
-
-V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-V3 add(const V3& a, const V3& b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
-V3 mul(const V3& a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
-double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-V3 cross(const V3& a, const V3& b) {
-    return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
-V3 unit(const V3& a) {
-    const double l = std::sqrt(dot(a, a));
-    return l > 0.0 ? mul(a, 1.0 / l) : a;
-}
-V3 v3(const Vec3f& p) { return {p[0], p[1], p[2]}; }
+using detail::add;
+using detail::cross;
+using detail::dot;
+using detail::mul;
+using detail::sub;
+using detail::unit;
+using detail::V3;
+V3 v3(const Vec3f& p) { return detail::widen(p); }
 
 double srgb_to_linear(double c) {
     return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);

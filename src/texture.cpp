@@ -12,6 +12,7 @@
 
 #include "detail/io_common.h"
 #include "detail/png.h"
+#include "detail/vec3.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
 #include "vdbrecon/log.h"
@@ -38,17 +39,11 @@ void TextureOptions::validate() const {
 
 namespace {
 
-using V3 = std::array<double, 3>;
-
-double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-V3 cross(const V3& a, const V3& b) {
-    return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
-V3 unit(const V3& a) {
-    const double l = std::sqrt(dot(a, a));
-    return {a[0] / l, a[1] / l, a[2] / l};
-}
-V3 v3(const Vec3f& p) { return {p[0], p[1], p[2]}; }
+using detail::cross;
+using detail::dot;
+using detail::unit;
+using detail::V3;
+V3 v3(const Vec3f& p) { return detail::widen(p); }
 
 /// Faces or vertices grouped by region, in index order: items of region r are
 /// items[start[r] .. start[r + 1]).
@@ -462,15 +457,11 @@ TextureAtlas texture_regions(const Mesh& mesh, const std::vector<Plane>& planes,
 }
 
 std::string texture_mtl_path(const std::string& obj_path) {
-    const std::size_t slash = obj_path.find_last_of('/');
-    const std::size_t dot = obj_path.find_last_of('.');
-    const bool ext = dot != std::string::npos && (slash == std::string::npos || dot > slash);
-    return (ext ? obj_path.substr(0, dot) : obj_path) + ".mtl";
+    return detail::path_stem(obj_path) + ".mtl";
 }
 
 std::string texture_png_path(const std::string& obj_path) {
-    const std::string mtl = texture_mtl_path(obj_path);
-    return mtl.substr(0, mtl.size() - 4) + ".texture.png";
+    return detail::path_stem(obj_path) + ".texture.png";
 }
 
 namespace detail {

@@ -47,6 +47,9 @@ Mesh finalize_mesh(RawPoints&& raw, const std::string& path);
 /// compared with their extent, then the box centre rounded to a power-of-two grid.
 Vec3d choose_origin(const double* xyz, std::size_t rows);
 
+/// `path` without its extension (the last '.' of its file name and what follows).
+std::string path_stem(const std::string& path);
+
 /// "file: message" — the prefix every reader error carries.
 std::string where(const std::string& path, const std::string& message);
 

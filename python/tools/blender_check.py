@@ -10,8 +10,12 @@ import json
 import sys
 import time
 
+import os
 import bpy
 from mathutils import Matrix, Vector
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from blender_common import add_camera, render_cycles  # noqa: E402
 
 argv = sys.argv[sys.argv.index("--") + 1:]
 vdb_path, png_path = argv[0], argv[1]
@@ -70,19 +74,9 @@ lo = Vector([min(c[i] for c in corners) for i in range(3)])
 hi = Vector([max(c[i] for c in corners) for i in range(3)])
 centre, size = (lo + hi) / 2, (hi - lo).length
 
-cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
-scene.collection.objects.link(cam)
 # Scans (the Stanford bunny) are y-up: look from +z, slightly from the right and above.
-location = centre + Vector((0.55, 0.45, 1.5)) * size * 0.95
-forward = (centre - location).normalized()
-right = forward.cross(Vector((0.0, 1.0, 0.0))).normalized()
-up = right.cross(forward)
-cam.matrix_world = Matrix((
-    (right.x, up.x, -forward.x, location.x),
-    (right.y, up.y, -forward.y, location.y),
-    (right.z, up.z, -forward.z, location.z),
-    (0.0, 0.0, 0.0, 1.0)))
-scene.camera = cam
+cam = add_camera(scene, centre + Vector((0.55, 0.45, 1.5)) * size * 0.95, centre,
+                 Vector((0.0, 1.0, 0.0)))
 sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
 sun.data.energy = 4.0
 sun.matrix_world = cam.matrix_world.to_3x3().to_4x4() @ Matrix.Rotation(0.6, 4, "X") @ \
@@ -92,16 +86,8 @@ world = bpy.data.worlds.new("world")
 world.color = (0.05, 0.05, 0.06)
 scene.world = world
 
-scene.render.engine = "CYCLES"
-scene.cycles.device = "CPU"
-scene.cycles.samples = samples
-scene.cycles.use_denoising = False  # Debian's Blender is built without OpenImageDenoise
-scene.render.resolution_x, scene.render.resolution_y = 480, 360
-scene.render.resolution_percentage = percent
-scene.render.image_settings.file_format = "PNG"
-scene.render.filepath = png_path
 start = time.time()
-bpy.ops.render.render(write_still=True)
+render_cycles(scene, png_path, samples, 480, 360, percent)
 
 print("BLENDER_CHECK " + json.dumps({
     "grids": grids,

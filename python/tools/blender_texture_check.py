@@ -12,8 +12,12 @@ line prefixed "BLENDER_TEXTURE ".
 import json
 import sys
 
+import os
 import bpy
-from mathutils import Matrix, Vector
+from mathutils import Vector
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from blender_common import add_camera, render_cycles  # noqa: E402
 
 argv = sys.argv[sys.argv.index("--") + 1:]
 obj_path = argv[0]
@@ -93,21 +97,10 @@ if png_path:
     lo = Vector([min(v.co[i] for v in me.vertices) for i in range(3)])
     hi = Vector([max(v.co[i] for v in me.vertices) for i in range(3)])
     centre, size = (lo + hi) / 2, (hi - lo).length
-    cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
-    scene.collection.objects.link(cam)
     # Camera-frame scans (x right, y down, z forward): look from the sensor's side (the
     # origin), far enough back for the whole mesh to fit the 50 mm lens's 40 degrees.
     view = (Vector((0.0, 0.0, 0.0)) - centre).normalized()
-    location = centre + view * (0.32 * size / 0.36)
-    forward = -view
-    right = forward.cross(Vector((0.0, -1.0, 0.0))).normalized()
-    up = right.cross(forward)
-    cam.matrix_world = Matrix((
-        (right.x, up.x, -forward.x, location.x),
-        (right.y, up.y, -forward.y, location.y),
-        (right.z, up.z, -forward.z, location.z),
-        (0.0, 0.0, 0.0, 1.0)))
-    scene.camera = cam
+    add_camera(scene, centre + view * (0.32 * size / 0.36), centre, Vector((0.0, -1.0, 0.0)))
     # The faces without texture show the vertex colours (the OBJ's `v x y z r g b`), which
     # the imported plain material does not read.
     if len(me.color_attributes):
@@ -124,16 +117,8 @@ if png_path:
     world = bpy.data.worlds.new("world")
     world.color = (0.9, 0.9, 0.9)  # even light from every side, the texture's own colours
     scene.world = world
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = cycles_samples
-    scene.cycles.use_denoising = False  # Debian's Blender is built without OpenImageDenoise
     scene.view_settings.view_transform = "Standard"
-    scene.render.resolution_x, scene.render.resolution_y = 640, 480
-    scene.render.resolution_percentage = percent
-    scene.render.image_settings.file_format = "PNG"
-    scene.render.filepath = png_path
-    bpy.ops.render.render(write_still=True)
+    render_cycles(scene, png_path, cycles_samples, 640, 480, percent)
     result["render"] = png_path
 
 print("BLENDER_TEXTURE " + json.dumps(result))

@@ -53,7 +53,7 @@ struct Groups {
 };
 
 /// Groups 0..owner.size() by owner (-1: none), keeping index order within a group.
-Groups group_by(const std::vector<std::int32_t>& owner, std::size_t groups) {
+Groups group_by(Span<std::int32_t> owner, std::size_t groups) {
     Groups g;
     g.start.assign(groups + 1, 0);
     for (std::int32_t o : owner) {
@@ -396,7 +396,7 @@ TextureAtlas texture_regions(const Mesh& mesh, const std::vector<Plane>& planes,
         log_warning("texture: the mesh has no planar region; it keeps its vertex colours");
         return atlas;
     }
-    const Groups faces = group_by(mesh.regions.to_vector(), regions);
+    const Groups faces = group_by(mesh.regions, regions);
     std::vector<Rect> rects(regions);
     tbb::parallel_for(std::size_t(0), regions, [&](std::size_t r) {
         std::vector<std::int32_t> verts;

@@ -380,8 +380,12 @@ TEST_CASE("orientation crosses edges sharper than 90 degrees: the fan part's bla
 TEST_CASE("estimated normals next to sharp edges take the point's own face", "[normals]") {
     // 50,000 uniform random samples of a rotated cube and an L-bracket: plain PCA blends both
     // faces for every point within k neighbours of an edge (4.9 % and 6.4 % of the points more
-    // than 10 degrees off, measured); the face normal of two-plane neighbourhoods leaves 1.7 %
-    // and 2.0 %, the points right at the edges and corners.
+    // than 10 degrees off, measured); the face normal of two-plane neighbourhoods left 1.7 %
+    // and 2.0 %; crisp faces (MSAC within a tenth of the tolerance, corners of three planes,
+    // points with fewer than half their neighbours on their face) 0.54 % and 0.67 %, mostly
+    // points right at an edge that take the other face's normal (90 degrees off, which is no
+    // error of their tangent plane). Orientation is counted where the normal is within 45
+    // degrees of the true one's line.
     for (const std::string name : {"cube", "lbracket"}) {
         const Shape shape = make_shape(name);
         PointCloud c = sample_uniform(shape.mesh, 50000, 8);
@@ -392,10 +396,10 @@ TEST_CASE("estimated normals next to sharp edges take the point's own face", "[n
         for (std::size_t i = 0; i < truth.size(); ++i) {
             const double d = dot(truth[i], n.normals[i]);
             off += std::fabs(d) < std::cos(10.0 * M_PI / 180.0);
-            flipped += d < 0.0;
+            flipped += d < -std::cos(45.0 * M_PI / 180.0);
         }
         INFO(name << ": " << off << " normals more than 10 degrees off, " << flipped << " flipped");
-        CHECK(double(off) / double(truth.size()) < 0.03);
-        CHECK(flipped < 20);
+        CHECK(double(off) / double(truth.size()) < 0.01);
+        CHECK(flipped < 10);
     }
 }

@@ -65,7 +65,8 @@ bool fit_plane(const Eigen::Vector3d* q, int m, const bool* take, bool with_poin
         const Eigen::Vector3d d = q[j] - mean;
         cov += d * d.transpose();
     }
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+    es.computeDirect(cov);  // closed form: several times faster than the iterative solver
     if (es.info() != Eigen::Success || !(es.eigenvalues()[1] > 1e-12 * es.eigenvalues()[2])) {
         return false;
     }
@@ -102,9 +103,10 @@ bool other_planes(const Patch& p, const Eigen::Vector3d& n, bool* rest,
         if (!fit_plane(p.q, p.m, rest, false, f) || f.rms > p.tol) {
             // The rest is not one plane: the plane through three of it with most inliers.
             int best = 0;
-            for (int a = 0; a < p.m; ++a) {
-                for (int b = a + 1; b < p.m && rest[a]; ++b) {
-                    for (int c = b + 1; c < p.m && rest[b]; ++c) {
+            const int near = std::min(p.m, 16);  // triples of the 16 nearest
+            for (int a = 0; a < near; ++a) {
+                for (int b = a + 1; b < near && rest[a]; ++b) {
+                    for (int c = b + 1; c < near && rest[b]; ++c) {
                         if (!rest[c]) continue;
                         Eigen::Vector3d u = (p.q[b] - p.q[a]).cross(p.q[c] - p.q[a]);
                         if (!(u.norm() > 0.0)) continue;
@@ -319,6 +321,34 @@ bool crisp_face(const Neighbourhood& h, const Eigen::Vector3d& pca, Eigen::Vecto
     return true;
 }
 
+/// Whether the point lies off a crisp plane that all but three of its neighbours lie on (by
+/// more than a tenth of the tolerance; the plane is a least-squares fit with the three farthest
+/// dropped one by one, to within a twentieth): a point of a face that few of its k neighbours
+/// share, next to an edge of a sampled part, whose PCA normal is then the other face's. A
+/// wider neighbourhood may show its own face (wider_look).
+bool beside_crisp_plane(const Neighbourhood& h) {
+    const Patch& p = h.patch;
+    if (p.m < 9) return false;
+    bool take[64];
+    std::fill(take, take + p.m, true);
+    FitPlane f;
+    for (int drop = 0; drop < 3; ++drop) {
+        if (!fit_plane(p.q, p.m, take, false, f)) return false;
+        int worst = -1;
+        double far = -1.0;
+        for (int j = 0; j < p.m; ++j) {
+            const double d = std::fabs(f.u.dot(p.q[j]) - f.offset);
+            if (take[j] && d > far) {
+                far = d;
+                worst = j;
+            }
+        }
+        take[worst] = false;
+    }
+    return fit_plane(p.q, p.m, take, false, f) && f.rms <= 0.05 * p.tol &&
+           std::fabs(f.offset) > 0.1 * p.tol;
+}
+
 /// Next to a sharp edge or corner the k neighbours of a point span two or three faces and their
 /// PCA normal blends them. There the point's own face is the plane through it that most
 /// neighbours lie on (within a tenth of their mean distance), found by a deterministic RANSAC
@@ -329,12 +359,13 @@ bool crisp_face(const Neighbourhood& h, const Eigen::Vector3d& pca, Eigen::Vecto
 /// within the tolerance, 20 degrees or more off the first. A noisy but smooth patch (or
 /// overlapping scans) keeps its PCA normal. `variation` is the PCA's lambda_0 / sum lambda.
 bool face_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k, const Eigen::Vector3d& pca,
-                 double variation, Eigen::Vector3d& n, bool& crisp) {
+                 double variation, Eigen::Vector3d& n, bool& crisp, bool* wider) {
     const Neighbourhood h(pts, i, nb, k);
     if (crisp_face(h, pca, n)) {
         crisp = true;
         return true;
     }
+    if (wider) *wider = beside_crisp_plane(h);
     if (variation <= 0.02) return false;
     const Patch& p = h.patch;
     n = h.best_plane([&](const Eigen::Vector3d& v) { return double(h.inliers(v)); });
@@ -360,7 +391,7 @@ bool face_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k, const Eig
 
 /// PCA normal of point i and its neighbours; next to a sharp edge, its face's (face_normal).
 bool neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
-                          Vec3f& normal, float& doubt) {
+                          Vec3f& normal, float& doubt, bool* wider = nullptr) {
     Eigen::Vector3d ev, n;
     if (!detail::neighbourhood_pca(pts, i, nb, k, ev, n)) return false;
     // Degenerate: all points coincide, or they lie on a line (two vanishing eigenvalues).
@@ -373,7 +404,7 @@ bool neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
     Eigen::Vector3d face;
     const double v = ev[0] / (ev[0] + ev[1] + ev[2]);
     bool crisp = false;
-    if (v > 0.002 && face_normal(pts, i, nb, k, n, v, face, crisp)) n = face;
+    if (v > 0.002 && face_normal(pts, i, nb, k, n, v, face, crisp, wider)) n = face;
     doubt = crisp ? 0.0f : float(v);
     normal = {float(n[0]), float(n[1]), float(n[2])};
     return std::isfinite(normal[0]) && std::isfinite(normal[1]) && std::isfinite(normal[2]);
@@ -595,6 +626,45 @@ bool estimates_all(const PointCloud& cloud, const NormalOptions& options) {
     return options.mode == NormalMode::estimate || !cloud.has_normals();
 }
 
+/// The points flagged `wider` (beside_crisp_plane) look again with their 3k nearest among the
+/// neighbours of their neighbours (no second search): where those show the point's own crisp
+/// face (crisp_face), its normal replaces the PCA one.
+void wider_look(Span<Vec3f> pts, const KnnResult& knn, int k, const std::vector<char>& wider,
+                std::vector<Vec3f>& normals, std::vector<float>& doubt) {
+    const int wide = std::min(3 * k, 64);
+    if (wide <= k) return;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, pts.size(), 4096),
+                      [&](const tbb::blocked_range<std::size_t>& b) {
+        std::vector<std::pair<float, int>> ring;
+        std::vector<int> nb;
+        for (std::size_t i = b.begin(); i < b.end(); ++i) {
+            if (!wider[i]) continue;
+            ring.clear();
+            for (int j = 0; j < k; ++j) {
+                const int a = knn.neighbours(i)[j];
+                ring.push_back({KnnResult::squared_distance(pts[i], pts[std::size_t(a)]), a});
+                for (int l = 0; l < k; ++l) {
+                    const int c = knn.neighbours(std::size_t(a))[l];
+                    if (std::size_t(c) == i) continue;
+                    ring.push_back({KnnResult::squared_distance(pts[i], pts[std::size_t(c)]), c});
+                }
+            }
+            std::sort(ring.begin(), ring.end());
+            ring.erase(std::unique(ring.begin(), ring.end()), ring.end());
+            const int m = std::min<int>(wide, int(ring.size()));
+            if (m <= k) continue;
+            nb.resize(std::size_t(m));
+            for (int j = 0; j < m; ++j) nb[std::size_t(j)] = ring[std::size_t(j)].second;
+            Eigen::Vector3d ev, pca, n;
+            if (!detail::neighbourhood_pca(pts, i, nb.data(), m, ev, pca)) continue;
+            const Neighbourhood h(pts, i, nb.data(), m);
+            if (!crisp_face(h, pca.normalized(), n)) continue;
+            normals[i] = {float(n[0]), float(n[1]), float(n[2])};
+            if (!doubt.empty()) doubt[i] = 0.0f;
+        }
+    });
+}
+
 /// The normals of the points with needs[i] (`needed` of them), from their k nearest (knn) PCA
 /// (neighbourhood_normal), oriented towards the viewpoint or by orient_mst; degenerate
 /// neighbourhoods get no normal (0, 0, 0). Fills the counts of `result`.
@@ -602,7 +672,7 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
                      int k, const std::vector<char>& needs, std::size_t needed,
                      bool estimate_all, NormalResult& result) {
     const std::size_t n = cloud.size();
-    std::vector<char> degenerate(n, 0);
+    std::vector<char> degenerate(n, 0), wider(n, 0);
     std::vector<float> doubt(options.viewpoint ? 0 : n, 0.0f);
     std::vector<Vec3f>& normals = result.normals.edit();
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
@@ -611,15 +681,18 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
             if (!needs[i]) continue;
             Vec3f nrm;
             float v = 0.0f;
+            bool w = false;
             if (k >= 2 &&
-                neighbourhood_normal(cloud.positions, i, knn.neighbours(i), k, nrm, v)) {
+                neighbourhood_normal(cloud.positions, i, knn.neighbours(i), k, nrm, v, &w)) {
                 normals[i] = nrm;
                 if (!doubt.empty()) doubt[i] = v;
+                wider[i] = w;
             } else {
                 degenerate[i] = 1;
             }
         }
     });
+    wider_look(cloud.positions, knn, k, wider, normals, doubt);
     std::size_t bad = 0;
     for (std::size_t i = 0; i < n; ++i) {
         if (degenerate[i]) {

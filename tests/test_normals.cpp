@@ -382,7 +382,8 @@ TEST_CASE("estimated normals next to sharp edges take the point's own face", "[n
     // faces for every point within k neighbours of an edge (4.9 % and 6.4 % of the points more
     // than 10 degrees off, measured); the face normal of two-plane neighbourhoods left 1.7 %
     // and 2.0 %; crisp faces (MSAC within a tenth of the tolerance, corners of three planes,
-    // points with fewer than half their neighbours on their face) 0.34 % and 0.45 %, mostly
+    // points with fewer than half their neighbours on their face, a wider look where few of
+    // them are) 0.31 % and 0.39 %, mostly
     // points right at an edge that take the other face's normal (90 degrees off, which is no
     // error of their tangent plane). Orientation is counted where the normal is within 45
     // degrees of the true one's line.
@@ -399,7 +400,7 @@ TEST_CASE("estimated normals next to sharp edges take the point's own face", "[n
             flipped += d < -std::cos(45.0 * M_PI / 180.0);
         }
         INFO(name << ": " << off << " normals more than 10 degrees off, " << flipped << " flipped");
-        CHECK(double(off) / double(truth.size()) < 0.008);
+        CHECK(double(off) / double(truth.size()) < 0.006);
         CHECK(flipped < 10);
     }
 }

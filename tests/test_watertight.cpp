@@ -51,8 +51,8 @@ TEST_CASE("closed shapes come out closed with every mesher at 1x to 3x the spaci
 }
 
 // (CAD parts with estimated normals are not closed yet: over 60,000-point samples of the cube,
-// L-bracket and boss part (5 seeds, 1x and 1.5x the spacing, mc and dc) 343 boundary edges
-// remain, 779 before the crisp faces of normals.cpp; 64-300 on the fan part; issue 22.)
+// L-bracket and boss part (5 seeds, 1x and 1.5x the spacing, mc and dc) 267 boundary edges
+// remain, 779 before the crisp faces of normals.cpp; 64-269 on the fan part; issue 22.)
 TEST_CASE("smooth closed shapes with estimated normals come out closed", "[watertight]") {
     for (const std::string name : {"torus", "blob"}) {
         const Shape shape = make_shape(name);

@@ -737,6 +737,59 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
     }
 }
 
+/// The per-point scale, the mean distance to the k nearest neighbours (a file's positive scale
+/// stays in automatic mode): from the lists when there are (`have_lists`), else from the outlier
+/// stage's `spacing`, else from a batched search on `index` that also fills kth_sq.
+void fill_scales(const PointCloud& cloud, const NormalOptions& options, const KnnResult& knn,
+                 int k, bool have_lists, const std::vector<float>* spacing,
+                 const KnnIndex* index, std::vector<float>& kth_sq, NormalResult& result) {
+    const std::size_t n = cloud.size();
+    if (result.scales.empty()) result.scales.assign(n, 0.0f);
+    std::vector<float>& scales = result.scales.edit();
+    // A file's scale stays in automatic mode.
+    const auto keeps = [&](std::size_t i) {
+        return options.scale == ScaleMode::automatic && scales[i] > 0.0f;
+    };
+    // Mean distance from point i to its neighbours nb[0..k).
+    const auto scale = [&](std::size_t i, const int* nb, const float* d2) {
+        if (keeps(i)) return;
+        double s = 0.0;
+        for (int j = 0; j < k; ++j) {
+            s += std::sqrt(double(d2 ? d2[j]
+                                     : KnnResult::squared_distance(
+                                           cloud.positions[i],
+                                           cloud.positions[std::size_t(nb[j])])));
+        }
+        scales[i] = float(s / double(k));
+    };
+    if (have_lists) {
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                scale(i, knn.neighbours(i), knn.has_distances() ? knn.sq_dists(i) : nullptr);
+            }
+        });
+    } else if (spacing) {
+        for (std::size_t i = 0; i < n; ++i) {
+            if (!keeps(i)) scales[i] = (*spacing)[i];
+        }
+    } else {
+        index->visit_self_neighbours(
+            k, [&](const int* rows, std::size_t count, int, const int* idx) {
+                tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
+                                  [&](const tbb::blocked_range<std::size_t>& r) {
+                    for (std::size_t t = r.begin(); t < r.end(); ++t) {
+                        const std::size_t i = std::size_t(rows[t]);
+                        const int* nb = idx + t * std::size_t(k);
+                        scale(i, nb, nullptr);
+                        kth_sq[i] = KnnResult::squared_distance(
+                            cloud.positions[i], cloud.positions[std::size_t(nb[k - 1])]);
+                    }
+                });
+            });
+    }
+}
+
 NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions& options,
                                    const KnnResult* known, const std::vector<float>* spacing) {
     options.validate();
@@ -817,50 +870,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     if (needed > 0) estimate_needed(cloud, options, knn, k, needs, needed, estimate_all, result);
 
     if (need_scale) {
-        if (result.scales.empty()) result.scales.assign(n, 0.0f);
-        std::vector<float>& scales = result.scales.edit();
-        // A file's scale stays in automatic mode.
-        const auto keeps = [&](std::size_t i) {
-            return options.scale == ScaleMode::automatic && scales[i] > 0.0f;
-        };
-        // Mean distance from point i to its neighbours nb[0..k).
-        const auto scale = [&](std::size_t i, const int* nb, const float* d2) {
-            if (keeps(i)) return;
-            double s = 0.0;
-            for (int j = 0; j < k; ++j) {
-                s += std::sqrt(double(d2 ? d2[j]
-                                         : KnnResult::squared_distance(
-                                               cloud.positions[i],
-                                               cloud.positions[std::size_t(nb[j])])));
-            }
-            scales[i] = float(s / double(k));
-        };
-        if (have_lists) {
-            tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                              [&](const tbb::blocked_range<std::size_t>& r) {
-                for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                    scale(i, knn.neighbours(i), knn.has_distances() ? knn.sq_dists(i) : nullptr);
-                }
-            });
-        } else if (spacing) {
-            for (std::size_t i = 0; i < n; ++i) {
-                if (!keeps(i)) scales[i] = (*spacing)[i];
-            }
-        } else {
-            index->visit_self_neighbours(
-                k, [&](const int* rows, std::size_t count, int, const int* idx) {
-                    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
-                                      [&](const tbb::blocked_range<std::size_t>& r) {
-                        for (std::size_t t = r.begin(); t < r.end(); ++t) {
-                            const std::size_t i = std::size_t(rows[t]);
-                            const int* nb = idx + t * std::size_t(k);
-                            scale(i, nb, nullptr);
-                            kth_sq[i] = KnnResult::squared_distance(
-                                cloud.positions[i], cloud.positions[std::size_t(nb[k - 1])]);
-                        }
-                    });
-                });
-        }
+        fill_scales(cloud, options, knn, k, have_lists, spacing, index.get(), kth_sq, result);
     }
     median_scale();
     result.density_spacing = median_density_spacing(kth_sq, k);

@@ -344,6 +344,20 @@ TEST_CASE("normals do not depend on the thread count", "[normals]") {
     REQUIRE(a.scales == b.scales);
 }
 
+TEST_CASE("crisp faces and their orientation do not depend on the thread count", "[normals]") {
+    // The L-bracket's edges and corners go through the crisp-face analysis, the wider look and
+    // the orientation's flux test.
+    PointCloud c = sample_uniform(make_shape("lbracket").mesh, 30000, 5);
+    c.normals.clear();
+    NormalResult a, b;
+    {
+        tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+        a = estimate_normals(c, {});
+    }
+    b = estimate_normals(c, {});
+    REQUIRE(a.normals == b.normals);
+}
+
 namespace {
 
 /// The share of the cloud's normals that estimate_normals, given the positions alone, points

@@ -18,16 +18,22 @@ better() {
   [ -z "$2" ] || awk -v a="$1" -v b="$2" 'BEGIN {exit !(a < b)}'
 }
 
+# best_of LOG COMMAND...: runs COMMAND $REPEAT times under /usr/bin/time; sets WALL (s) and
+# RSS (MB) of the fastest run and leaves its stderr in LOG.
+best_of() {
+  local log=$1 best=""; shift
+  for ((k = 0; k < REPEAT; ++k)); do
+    /usr/bin/time -f "%e %M" -o "$OUT/time.txt" "$@" 2>"$OUT/try.log" >/dev/null
+    read -r w r < "$OUT/time.txt"
+    if better "$w" "$best"; then best=$w; WALL=$w; RSS=$((r / 1024)); cp "$OUT/try.log" "$log"; fi
+  done
+}
+
 # run LABEL THREADS ARGS...: leaves $OUT/LABEL.ply, $OUT/LABEL.THREADS.log (stderr of the best
 # run), $OUT/LABEL.json (eval at tau 0.5 mm and 1 mm) and sets WALL (s) and RSS (MB).
 run() {
   local label=$1 threads=$2; shift 2
-  local log=$OUT/$label.$threads.log best=""
-  for ((k = 0; k < REPEAT; ++k)); do
-    /usr/bin/time -f "%e %M" -o "$OUT/time.txt" "$BIN" "$BUNNY" -o "$OUT/$label.ply" --threads "$threads" "$@" 2>"$OUT/try.log" >/dev/null
-    read -r w r < "$OUT/time.txt"
-    if better "$w" "$best"; then best=$w; WALL=$w; RSS=$((r / 1024)); cp "$OUT/try.log" "$log"; fi
-  done
+  best_of "$OUT/$label.$threads.log" "$BIN" "$BUNNY" -o "$OUT/$label.ply" --threads "$threads" "$@"
   "$BIN" eval "$OUT/$label.ply" "$GT" --tau 0.0005,0.001 > "$OUT/$label.json"
 }
 

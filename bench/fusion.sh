@@ -26,21 +26,15 @@ echo
 echo "| tool | wall s | peak RSS MB | faces | pieces | boundary edges | F@1 voxel | Chamfer-L1 um |"
 echo "|---|---|---|---|---|---|---|---|"
 run_tool() {  # name, mesh, command...
-  local name=$1 mesh=$2 best="" rss=""
+  local name=$1 mesh=$2
   shift 2
-  for ((k = 0; k < REPEAT; ++k)); do
-    /usr/bin/time -f "%e %M" -o "$OUT/time.txt" "$@" >/dev/null 2>"$OUT/try.log"
-    read -r w r <"$OUT/time.txt"
-    if [ -z "$best" ] || /usr/bin/python3 -c "import sys; sys.exit(0 if $w < $best else 1)"; then
-      best=$w; rss=$r
-    fi
-  done
+  best_of "$OUT/best.log" "$@"
   "$BUILD/vdbrecon" eval "$mesh" "$REF" --tau "$VOXEL" >"$OUT/eval.json"
-  /usr/bin/python3 - "$OUT/eval.json" "$name" "$best" "$rss" <<'PY'
+  /usr/bin/python3 - "$OUT/eval.json" "$name" "$WALL" "$RSS" <<'PY'
 import json, sys
 e = json.load(open(sys.argv[1]))
 r = e["recon"]
-print(f"| {sys.argv[2]} | {float(sys.argv[3]):.2f} | {int(sys.argv[4]) // 1024} | {r['faces']} | "
+print(f"| {sys.argv[2]} | {float(sys.argv[3]):.2f} | {int(sys.argv[4])} | {r['faces']} | "
       f"{r['components']} | {r['boundary_edges']} | {e['fscore'][0]['fscore']:.4f} | "
       f"{e['chamfer_l1'] * 1e6:.1f} |")
 PY

@@ -12,21 +12,11 @@ OUT=bench/out/texture
 source bench/common.sh
 machine_line
 
-# best LABEL ARGS...: sets WALL (s), RSS (MB) and leaves the best run's log in $OUT/LABEL.log.
-best() {
-  local label=$1 b=""; shift
-  for ((k = 0; k < REPEAT; ++k)); do
-    /usr/bin/time -f "%e %M" -o "$OUT/time.txt" "$BIN" "$@" 2>"$OUT/try.log" >/dev/null
-    read -r w r < "$OUT/time.txt"
-    if better "$w" "$b"; then b=$w; WALL=$w; RSS=$((r / 1024)); cp "$OUT/try.log" "$OUT/$label.log"; fi
-  done
-}
-
 case_row() {
   local label=$1 input=$2 voxel=$3
-  best "$label.planes" "$input" -o "$OUT/$label.planes.obj" --voxel "$voxel" --no-vdb --planes
+  best_of "$OUT/$label.planes.log" "$BIN" "$input" -o "$OUT/$label.planes.obj" --voxel "$voxel" --no-vdb --planes
   local wp=$WALL rp=$RSS
-  best "$label.texture" "$input" -o "$OUT/$label.obj" --voxel "$voxel" --no-vdb --texture
+  best_of "$OUT/$label.texture.log" "$BIN" "$input" -o "$OUT/$label.obj" --voxel "$voxel" --no-vdb --texture
   local t
   t=$(grep -o "texture: [0-9]* regions in a [0-9]* x [0-9]* atlas, texel [0-9.e-]*; [0-9]* points coloured [0-9]* of [0-9]* texels" "$OUT/$label.texture.log")
   local stage

@@ -410,60 +410,58 @@ bool neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
     return std::isfinite(normal[0]) && std::isfinite(normal[1]) && std::isfinite(normal[2]);
 }
 
-/// How well the normal n_j at p_j agrees with n_i at p_i, in -1..1 (negative: one of them is
-/// flipped). On a circle through both points the normal at p_j is the one at p_i mirrored at
-/// the plane that bisects the chord e = p_j - p_i, so n_i is mirrored so before it is compared
-/// (the criterion of S. Koenig and S. Gumhold, "Consistent propagation of normal orientations
-/// in point clouds", VMV 2009). On flat ground this is Hoppe's n_i . n_j; unlike it, it stays
-/// near +1 across a sharp edge turning by more than 90 degrees (a 40-degree blade tip: n_i .
-/// n_j = -0.77), where Hoppe's rule flips one side.
-float agreement(const Vec3f& pi, const Vec3f& ni, const Vec3f& pj, const Vec3f& nj) {
-    const Vec3f e = {pj[0] - pi[0], pj[1] - pi[1], pj[2] - pi[2]};
-    const float len2 = dot(e, e);
-    if (!(len2 > 0.0f)) return dot(ni, nj);
-    const float inv = 1.0f / std::sqrt(len2);
-    const float ei = dot(ni, e) * inv, ej = dot(nj, e) * inv;
-    // A chord within 53 degrees of a normal is as likely to cross a layer of scanner noise
-    // (two misregistered scans of one surface) as a thin wall: the mirror would turn the layers
-    // against each other, so such pairs keep Hoppe's rule. Bunny scans: 99.31 % of estimated
-    // normals agree with the scanner's under Hoppe's rule, 93.9 % with the mirror everywhere,
-    // 99.28 % so; the fan part's blades: 31.1 %, 99.7 %, 99.7 %.
-    if (std::max(std::fabs(ei), std::fabs(ej)) > 0.6f) return dot(ni, nj);
-    return dot(ni, nj) - 2.0f * ei * ej;
-}
+/// Two readings of how the normal n_j at p_j agrees with n_i at p_i, each in -1..1 (negative:
+/// one of them is flipped): Hoppe's n_i . n_j, and the mirror's. On a circle through both
+/// points the normal at p_j is the one at p_i mirrored at the plane that bisects the chord
+/// e = p_j - p_i, so n_i is mirrored so before it is compared (the criterion of S. Koenig and
+/// S. Gumhold, "Consistent propagation of normal orientations in point clouds", VMV 2009). On
+/// flat ground both are alike; unlike Hoppe's, the mirror stays near +1 across a sharp edge
+/// turning by more than 90 degrees (a 40-degree blade tip: n_i . n_j = -0.77), where Hoppe's
+/// rule flips one side.
+struct Readings {
+    float hoppe, mirror;
+    /// The chord runs within 53 degrees of a normal: as likely to cross a layer of scanner
+    /// noise (two misregistered scans of one surface) as a thin wall, where the mirror would
+    /// turn the layers against each other.
+    bool cone;
 
-/// The cost of propagating the orientation from (pi, ni) to (pj, nj) in the spanning tree:
-/// 1 - |agreement|; where the chord runs within 53 degrees of a normal, 1 (the last resort)
-/// when Hoppe's rule and the mirror disagree in sign: across a thin wedge with crisp face
-/// normals (a 40-degree blade tip: Hoppe -0.77, mirror +1.0) as across layers of noise (Hoppe
-/// +0.95, mirror -0.9) one of them is wrong, and the tree goes round by surer edges where it
-/// can.
-float edge_cost(const Vec3f& pi, const Vec3f& ni, const Vec3f& pj, const Vec3f& nj) {
-    const float a = agreement(pi, ni, pj, nj);
-    const Vec3f e = {pj[0] - pi[0], pj[1] - pi[1], pj[2] - pi[2]};
-    const float len2 = dot(e, e);
-    if (len2 > 0.0f) {
+    Readings(const Vec3f& pi, const Vec3f& ni, const Vec3f& pj, const Vec3f& nj)
+        : hoppe(dot(ni, nj)), mirror(hoppe), cone(false) {
+        const Vec3f e = {pj[0] - pi[0], pj[1] - pi[1], pj[2] - pi[2]};
+        const float len2 = dot(e, e);
+        if (!(len2 > 0.0f)) return;
         const float inv = 1.0f / std::sqrt(len2);
         const float ei = dot(ni, e) * inv, ej = dot(nj, e) * inv;
-        const float mirror = dot(ni, nj) - 2.0f * ei * ej;
-        if (std::max(std::fabs(ei), std::fabs(ej)) > 0.6f) {
-            // Both rules in the cone: where they disagree in sign one of them is wrong; where
-            // they agree, the better fit measures the confidence (a 90-degree edge between
-            // crisp faces: Hoppe 0.1, mirror 1.0).
-            if ((mirror < 0.0f) != (a < 0.0f)) return 1.0f;
-            return 1.0f - std::min(1.0f, std::max(std::fabs(a), std::fabs(mirror)));
-        }
+        mirror = hoppe - 2.0f * ei * ej;
+        cone = std::max(std::fabs(ei), std::fabs(ej)) > 0.6f;
     }
-    return 1.0f - std::min(1.0f, std::fabs(a));
-}
+
+    /// The agreement the orientation follows: the mirror's, and in the cone Hoppe's. Bunny
+    /// scans: 99.31 % of estimated normals agree with the scanner's under Hoppe's rule,
+    /// 93.9 % with the mirror everywhere, 99.28 % so; the fan part's blades: 31.1 %, 99.7 %,
+    /// 99.7 %.
+    float agreement() const { return cone ? hoppe : mirror; }
+
+    /// The cost of propagating the orientation along this pair in the spanning tree:
+    /// 1 - |agreement|; in the cone, 1 (the last resort) when the readings disagree in sign
+    /// (across a thin wedge with crisp face normals -- a 40-degree blade tip: Hoppe -0.77,
+    /// mirror +1.0 -- as across layers of noise -- Hoppe +0.95, mirror -0.9 -- one of them is
+    /// wrong, and the tree goes round by surer edges where it can), else by the better fit
+    /// (a 90-degree edge between crisp faces: Hoppe 0.1, mirror 1.0).
+    float cost() const {
+        if (!cone) return 1.0f - std::min(1.0f, std::fabs(mirror));
+        if ((mirror < 0.0f) != (hoppe < 0.0f)) return 1.0f;
+        return 1.0f - std::min(1.0f, std::max(std::fabs(hoppe), std::fabs(mirror)));
+    }
+};
 
 /// Whether a component's normals point out of the volume it encloses: the flux of the normals,
 /// sum n . (p - c) over its points p (c: their centroid), is 3x the enclosed volume for a closed
 /// surface sampled uniformly with outward normals (the divergence theorem), whatever its shape.
 /// +1 or -1 where it is clear (a fifth or more of sum |n . (p - c)|), 0 where it is not (an
 /// open patch such as a terrain, whose seed's "up and out" then stands).
-double outward_flux(Span<Vec3f> pts, const std::vector<Vec3f>& normals,
-                    const std::vector<std::int32_t>& members) {
+int outward_flux(Span<Vec3f> pts, const std::vector<Vec3f>& normals,
+                 const std::vector<std::int32_t>& members) {
     Eigen::Vector3d c = Eigen::Vector3d::Zero();
     for (std::int32_t m : members) {
         const Vec3f& p = pts[std::size_t(m)];
@@ -478,8 +476,8 @@ double outward_flux(Span<Vec3f> pts, const std::vector<Vec3f>& normals,
         flux += f;
         total += std::fabs(f);
     }
-    if (!(std::fabs(flux) >= 0.2 * total) || total == 0.0) return 0.0;
-    return flux > 0.0 ? 1.0 : -1.0;
+    if (!(std::fabs(flux) >= 0.2 * total) || total == 0.0) return 0;
+    return flux > 0.0 ? 1 : -1;
 }
 
 /// The symmetric kNN graph in CSR form: point i's neighbours (its own and those that have it
@@ -509,7 +507,7 @@ std::vector<std::int32_t> symmetric_adjacency(const KnnResult& knn, std::size_t 
 }
 
 /// Hoppe-style orientation: Prim's minimum spanning tree over the symmetric kNN graph with edge
-/// cost edge_cost plus the endpoints' doubt (x10, at most 1), propagating the sign from the seed
+/// cost Readings::cost plus the endpoints' doubt (x10, at most 1), propagating the sign from the seed
 /// along tree edges. Points in state kFree are re-oriented; kFixed points (already oriented)
 /// seed their neighbourhoods; kExcluded points (no normal) take no part. A component grown from
 /// a free seed (the highest point, turned away from the centroid) is turned round as a whole
@@ -539,7 +537,7 @@ std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
             if (done[j] || state[j] != kFree) continue;
             // Through surer points first: a blended normal where the neighbourhood folds over
             // an edge is the least reliable, and as a leaf of the tree it turns only itself.
-            const float c = edge_cost(pts[i], normals[i], pts[j], normals[j]) +
+            const float c = Readings(pts[i], normals[i], pts[j], normals[j]).cost() +
                             std::min(1.0f, 10.0f * (doubt[i] + doubt[j]));
             heap.push({c, std::int32_t(j), std::int32_t(i)});
         }
@@ -554,7 +552,7 @@ std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
             done[j] = 1;
             members.push_back(std::int32_t(j));
             const std::size_t i = std::size_t(e.from);
-            if (agreement(pts[i], normals[i], pts[j], normals[j]) < 0.0f) {
+            if (Readings(pts[i], normals[i], pts[j], normals[j]).agreement() < 0.0f) {
                 flip(normals[j]);
                 ++flipped;
             }
@@ -602,7 +600,7 @@ std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
         const std::size_t before = flipped;
         push_neighbours(i);
         grow();
-        if (outward_flux(pts, normals, members) < 0.0) {
+        if (outward_flux(pts, normals, members) < 0) {
             for (std::int32_t m : members) flip(normals[std::size_t(m)]);
             flipped = before + members.size() - (flipped - before);
         }

@@ -328,6 +328,39 @@ void weld_coincident(ClassifiedSurface& s) {
     s.triangles.resize(kept);
 }
 
+/// The mesh's vertex normals: the normalised SDF gradient `grad` (per point before the
+/// compaction `remap`), or the area-weighted face normal where the gradient vanishes or points
+/// against it. The face normals are summed a block of vertices at a time: a mesh of tens of
+/// millions of vertices never holds all its sums (24 bytes a vertex).
+void vertex_normals(Mesh& mesh, std::vector<openvdb::Vec3f>&& grad,
+                    const std::vector<std::int32_t>& remap) {
+    // The gradients in vertex order, in place: remap increases and never exceeds the index.
+    for (std::size_t i = 0; i < remap.size(); ++i) {
+        if (remap[i] >= 0) grad[std::size_t(remap[i])] = grad[i];
+    }
+    const std::size_t nv = mesh.vertices.size();
+    std::vector<Vec3f>& normals = mesh.normals.edit();
+    normals.resize(nv);
+    constexpr std::size_t kBlock = std::size_t(1) << 21;
+    for (std::size_t first = 0; first < nv; first += kBlock) {
+        const std::size_t last = std::min(nv, first + kBlock);
+        const std::vector<std::array<double, 3>> face_n = face_normal_sums(mesh, first, last);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 16384),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t v = r.begin(); v < r.end(); ++v) {
+                openvdb::Vec3d g(grad[v]);
+                const auto& s = face_n[v - first];
+                const openvdb::Vec3d fn(s[0], s[1], s[2]);
+                if (!(g.length() > 1e-12) || g.dot(fn) < 0.0) g = fn;
+                const double len = g.length();
+                if (len > 0.0) g /= len;
+                normals[v] = {float(g[0]), float(g[1]), float(g[2])};
+            }
+        });
+    }
+    release(grad);
+}
+
 }  // namespace
 
 ClassifiedSurface classify_surface(const Volume& volume, const MeshOptions& options,
@@ -415,25 +448,9 @@ MeshResult finish_surface(ClassifiedSurface&& surface, double voxel, const Vec3d
         }
     }
     release(surface.colors);
+    release(surface.status);
     if (options.normals && !mesh.vertices.empty()) {
-        // Normalised SDF gradient; area-weighted face normals where it vanishes or disagrees.
-        const std::vector<std::array<double, 3>> face_n = face_normal_sums(mesh);
-        std::vector<Vec3f>& normals = mesh.normals.edit();
-        normals.resize(mesh.vertices.size());
-        const std::vector<openvdb::Vec3f>& grad = surface.grad;
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 16384),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                if (remap[i] < 0) continue;
-                const std::size_t v = std::size_t(remap[i]);
-                openvdb::Vec3d g(grad[i]);
-                const openvdb::Vec3d fn(face_n[v][0], face_n[v][1], face_n[v][2]);
-                if (!(g.length() > 1e-12) || g.dot(fn) < 0.0) g = fn;
-                const double len = g.length();
-                if (len > 0.0) g /= len;
-                normals[v] = {float(g[0]), float(g[1]), float(g[2])};
-            }
-        });
+        vertex_normals(mesh, std::move(surface.grad), remap);
     }
     return result;
 }

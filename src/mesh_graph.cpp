@@ -57,22 +57,44 @@ VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count) {
 std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count) {
     const std::size_t nf = faces.size();
     MinUnionFind sets(nf);
-    // A face g around a that holds both ends of an edge (a, b) of face f has that edge too.
-    const VertexFaces vf = vertex_faces(faces, vertex_count);
-    const std::vector<std::size_t>& first = vf.first;
-    const std::vector<std::int32_t>& around = vf.around;
-    for (std::size_t f = 0; f < nf; ++f) {
-        const Triangle& t = faces[f];
-        for (int k = 0; k < 3; ++k) {
-            const std::size_t a = std::size_t(t[k]);
-            const std::int32_t b = t[(k + 1) % 3];
-            if (std::int32_t(a) == b) continue;  // a degenerate edge joins nothing
-            for (std::size_t j = first[a]; j < first[a + 1]; ++j) {
-                const std::int32_t g = around[j];
-                if (std::size_t(g) <= f) continue;  // each pair once
-                const Triangle& u = faces[std::size_t(g)];
-                if (u[0] != b && u[1] != b && u[2] != b) continue;
-                sets.unite(std::int32_t(f), g);
+    // A face g around a that holds both ends of an edge (a, b) of face f has that edge too. The
+    // faces around each vertex (in face order) are listed for a range of vertices at a time, so
+    // that a large mesh never holds all 3 nf of them; the labels, the smallest face of each
+    // set, do not depend on the order of the unions.
+    constexpr std::size_t kCornersPerPass = std::size_t(1) << 24;
+    const std::size_t passes =
+        std::max<std::size_t>(1, (3 * nf + kCornersPerPass - 1) / kCornersPerPass);
+    const std::size_t span = std::max<std::size_t>(1, (vertex_count + passes - 1) / passes);
+    for (std::size_t lo = 0; lo < vertex_count; lo += span) {
+        const std::size_t hi = std::min(vertex_count, lo + span);
+        const auto in = [&](std::int32_t v) { return std::size_t(v) >= lo && std::size_t(v) < hi; };
+        std::vector<std::uint32_t> first(hi - lo + 1, 0);
+        for (const Triangle& t : faces) {
+            for (std::int32_t v : t) {
+                if (in(v)) ++first[std::size_t(v) - lo + 1];
+            }
+        }
+        for (std::size_t v = lo; v < hi; ++v) first[v - lo + 1] += first[v - lo];
+        std::vector<std::int32_t> around(first.back());
+        std::vector<std::uint32_t> fill(first.begin(), first.end() - 1);
+        for (std::size_t f = 0; f < nf; ++f) {
+            for (std::int32_t v : faces[f]) {
+                if (in(v)) around[fill[std::size_t(v) - lo]++] = std::int32_t(f);
+            }
+        }
+        for (std::size_t f = 0; f < nf; ++f) {
+            const Triangle& t = faces[f];
+            for (int k = 0; k < 3; ++k) {
+                const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
+                if (a == b || !in(a)) continue;  // a degenerate edge joins nothing
+                const std::size_t r = std::size_t(a) - lo;
+                for (std::uint32_t j = first[r]; j < first[r + 1]; ++j) {
+                    const std::int32_t g = around[j];
+                    if (std::size_t(g) <= f) continue;  // each pair once
+                    const Triangle& u = faces[std::size_t(g)];
+                    if (u[0] != b && u[1] != b && u[2] != b) continue;
+                    sets.unite(std::int32_t(f), g);
+                }
             }
         }
     }
@@ -97,8 +119,15 @@ std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::si
 }
 
 std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh) {
-    std::vector<std::array<double, 3>> sum(mesh.vertices.size(), {0.0, 0.0, 0.0});
+    return face_normal_sums(mesh, 0, mesh.vertices.size());
+}
+
+std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh, std::size_t first,
+                                                    std::size_t last) {
+    std::vector<std::array<double, 3>> sum(last - first, {0.0, 0.0, 0.0});
+    const auto in = [&](std::int32_t i) { return std::size_t(i) >= first && std::size_t(i) < last; };
     for (const Triangle& t : mesh.faces) {
+        if (!in(t[0]) && !in(t[1]) && !in(t[2])) continue;
         const Vec3f &pa = mesh.vertices[std::size_t(t[0])], &pb = mesh.vertices[std::size_t(t[1])],
                     &pc = mesh.vertices[std::size_t(t[2])];
         double u[3], v[3];
@@ -109,7 +138,8 @@ std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh) {
         const double n[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
                              u[0] * v[1] - u[1] * v[0]};
         for (std::int32_t i : t) {
-            for (int k = 0; k < 3; ++k) sum[std::size_t(i)][std::size_t(k)] += n[k];
+            if (!in(i)) continue;
+            for (int k = 0; k < 3; ++k) sum[std::size_t(i) - first][std::size_t(k)] += n[k];
         }
     }
     return sum;

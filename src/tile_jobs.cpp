@@ -7,7 +7,11 @@
 // Files: <dir>/plan.bin, <dir>/bucket-<j>.bin (occupied tile j's samples: their indices in the
 // whole cloud and their columns). Little-endian machine layout of plain values, each file
 // tagged, written under a temporary name and renamed into place.
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <string_view>
 
@@ -230,6 +234,10 @@ std::string run_tile_job(const std::string& dir, std::size_t index, const TiledO
     TiledResult stats;
     const ClassifiedSurface s =
         tile_surface(read_tile_samples(dir, plan, t), o, plan.setup, t, stats);
+    return piece_bytes(s, index, stats);
+}
+
+std::string piece_bytes(const ClassifiedSurface& s, std::size_t index, const TiledResult& stats) {
     Bytes b;
     b.str().append(kPieceTag, 8);
     b.put<std::uint64_t>(index);
@@ -246,6 +254,100 @@ std::string run_tile_job(const std::string& dir, std::size_t index, const TiledO
     return std::move(b.str());
 }
 
+namespace {
+
+/// Piece i read back (checked: its index, sizes that agree, faces on its points), its
+/// statistics added to `stats`.
+ClassifiedSurface read_piece(std::string_view bytes, std::size_t i, TiledResult& stats,
+                             const std::string& what) {
+    Reader r(bytes, what + " " + std::to_string(i));
+    r.tag(kPieceTag);
+    if (r.get<std::uint64_t>() != i) throw InvalidArgument(what + ": pieces out of order");
+    ClassifiedSurface s;
+    s.points = r.get_vector<openvdb::Vec3f>();
+    s.triangles = r.get_vector<Triangle>();
+    s.status = r.get_vector<char>();
+    s.grad = r.get_vector<openvdb::Vec3f>();
+    s.colors = r.get_vector<openvdb::Vec3f>();
+    s.dropped_faces = r.get<std::uint64_t>();
+    stats.tiles += r.get<std::uint64_t>();
+    stats.max_tile_points = std::max<std::size_t>(stats.max_tile_points, r.get<std::uint64_t>());
+    stats.splat.active_voxels += r.get<std::uint64_t>();
+    stats.splat.leaves += r.get<std::uint64_t>();
+    const std::size_t np = s.points.size();
+    bool ok = s.status.size() == np && s.grad.size() == np &&
+              (s.colors.empty() || s.colors.size() == np);
+    for (const Triangle& t : s.triangles) {
+        for (std::int32_t v : t) ok = ok && v >= 0 && std::size_t(v) < np;
+    }
+    if (!ok) throw FormatError(what + " " + std::to_string(i) + ": inconsistent");
+    return s;
+}
+
+}  // namespace
+
+ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledResult& stats,
+                              const std::string& what) {
+    std::string buffer;
+    std::size_t points = 0, triangles = 0, colors = 0;
+    for (std::size_t i = 0; i < n; ++i) {  // the sizes first
+        TiledResult ignored;
+        const ClassifiedSurface s = read_piece(source(i, buffer), i, ignored, what);
+        points += s.points.size();
+        triangles += s.triangles.size();
+        colors += s.colors.size();
+    }
+    ClassifiedSurface all;
+    all.points.reserve(points);
+    all.status.reserve(points);
+    all.grad.reserve(points);
+    all.colors.reserve(colors);
+    all.triangles.reserve(triangles);
+    for (std::size_t i = 0; i < n; ++i) append(all, read_piece(source(i, buffer), i, stats, what));
+    return all;
+}
+
+PieceSpool::PieceSpool() {
+    const char* env = std::getenv("TMPDIR");
+    dir_ = env && *env ? env : "/tmp";
+    std::string name = dir_ + "/vdbrecon-pieces-XXXXXX";
+    const int fd = ::mkstemp(name.data());
+    if (fd < 0) {
+        throw IoError("tiles: cannot make a temporary file for the tiles' pieces in " + dir_ +
+                      ": " + std::strerror(errno) + " (set TMPDIR to a writable directory)");
+    }
+    ::unlink(name.c_str());  // unnamed: gone when closed, also after a crash
+    file_ = ::fdopen(fd, "w+b");
+    if (!file_) {
+        ::close(fd);
+        throw IoError("tiles: cannot open a temporary file in " + dir_);
+    }
+}
+
+PieceSpool::~PieceSpool() {
+    if (file_) std::fclose(file_);
+}
+
+void PieceSpool::add(const ClassifiedSurface& piece) {
+    const std::string bytes = piece_bytes(piece, size(), TiledResult{});
+    if (::fseeko(file_, off_t(offsets_.back()), SEEK_SET) != 0 ||
+        std::fwrite(bytes.data(), 1, bytes.size(), file_) != bytes.size()) {
+        throw IoError("tiles: writing the tiles' pieces to a temporary file in " + dir_ +
+                      " failed (disk full?)");
+    }
+    offsets_.push_back(offsets_.back() + bytes.size());
+}
+
+std::string_view PieceSpool::get(std::size_t i, std::string& buffer) const {
+    buffer.resize(std::size_t(offsets_[i + 1] - offsets_[i]));
+    if (std::fflush(file_) != 0 || ::fseeko(file_, off_t(offsets_[i]), SEEK_SET) != 0 ||
+        std::fread(buffer.data(), 1, buffer.size(), file_) != buffer.size()) {
+        throw IoError("tiles: reading the tiles' pieces back from a temporary file in " + dir_ +
+                      " failed");
+    }
+    return buffer;
+}
+
 TiledResult finish_tile_job(const std::string& dir, const std::vector<std::string>& pieces,
                             const TiledOptions& options, double& voxel, Vec3d& origin) {
     const Plan plan = read_plan(dir);
@@ -257,32 +359,9 @@ TiledResult finish_tile_job(const std::string& dir, const std::vector<std::strin
     TiledResult result;
     result.tile = plan.setup.grid.n;
     result.halo = plan.setup.grid.halo;
-    ClassifiedSurface all;
-    for (std::size_t i = 0; i < pieces.size(); ++i) {
-        Reader r(pieces[i], "tile job piece " + std::to_string(i));
-        r.tag(kPieceTag);
-        if (r.get<std::uint64_t>() != i) throw InvalidArgument("tile job: pieces out of order");
-        ClassifiedSurface s;
-        s.points = r.get_vector<openvdb::Vec3f>();
-        s.triangles = r.get_vector<Triangle>();
-        s.status = r.get_vector<char>();
-        s.grad = r.get_vector<openvdb::Vec3f>();
-        s.colors = r.get_vector<openvdb::Vec3f>();
-        s.dropped_faces = r.get<std::uint64_t>();
-        result.tiles += r.get<std::uint64_t>();
-        result.max_tile_points = std::max<std::size_t>(result.max_tile_points,
-                                                       r.get<std::uint64_t>());
-        result.splat.active_voxels += r.get<std::uint64_t>();
-        result.splat.leaves += r.get<std::uint64_t>();
-        const std::size_t np = s.points.size();
-        bool ok = s.status.size() == np && s.grad.size() == np &&
-                  (s.colors.empty() || s.colors.size() == np);
-        for (const Triangle& t : s.triangles) {
-            for (std::int32_t v : t) ok = ok && v >= 0 && std::size_t(v) < np;
-        }
-        if (!ok) throw FormatError("tile job piece " + std::to_string(i) + ": inconsistent");
-        append(all, std::move(s));
-    }
+    ClassifiedSurface all = join_pieces(
+        pieces.size(), [&](std::size_t i, std::string&) { return std::string_view(pieces[i]); },
+        result, "tile job piece");
     result.splat.sigma_median = plan.setup.frame.sigma_median;
     result.splat.points = plan.points;
     voxel = plan.voxel;

@@ -261,17 +261,15 @@ ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& optio
 
 namespace {
 
-/// Every tile's piece, appended in tile order.
-ClassifiedSurface all_tiles(const PointCloud& cloud, const TiledOptions& options,
-                            const TileSetup& setup, TiledResult& stats) {
+/// Every tile's piece, in tile order, into the spool.
+void all_tiles(const PointCloud& cloud, const TiledOptions& options, const TileSetup& setup,
+               TiledResult& stats, PieceSpool& spool) {
     const double voxel = options.splat.voxel_size;
     const Buckets buckets = bucket_points(cloud, voxel, setup.grid);
-    ClassifiedSurface all;
     for (const TileKey& t : tiles_to_visit(cloud, buckets, setup.grid, voxel)) {
         const PointCloud part = subset(cloud, tile_points(cloud, buckets, t, setup.grid, voxel));
-        append(all, tile_surface(part, options, setup, t, stats));
+        spool.add(tile_surface(part, options, setup, t, stats));
     }
-    return all;
 }
 
 }  // namespace
@@ -317,11 +315,16 @@ TiledResult tiled_surface(PointCloud& cloud, const TiledOptions& options, bool r
         result.tile = g.n;
         result.halo = g.halo;
         try {
-            ClassifiedSurface all = all_tiles(cloud, options, setup, result);
+            PieceSpool spool;  // the pieces wait on disk while the cloud is in memory
+            all_tiles(cloud, options, setup, result, spool);
             result.splat.sigma_median = setup.frame.sigma_median;
             result.splat.points = cloud.size();
             const Vec3d origin = cloud.origin;
             if (release) cloud = PointCloud{};
+            TiledResult counted_already;
+            ClassifiedSurface all =
+                join_pieces(spool.size(), [&](std::size_t i, std::string& b) { return spool.get(i, b); },
+                            counted_already, "tiles: piece");
             result.mesh =
                 finish_surface(std::move(all), options.splat.voxel_size, origin, options.mesh);
             return result;

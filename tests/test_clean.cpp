@@ -90,6 +90,32 @@ TEST_CASE("clean: two faces touching at a vertex only are separate components", 
     REQUIRE(mesh_topology(m).components == 2);
 }
 
+TEST_CASE("clean: the components of a 3M-face mesh, found a range of vertices at a time", "[clean]") {
+    // A 1001 x 1501 grid of vertices (numbered row by row, so every band of columns has
+    // vertices in every range) whose column of quads x = 99, 199, ... is left out: 10 bands
+    // of 99 quads, each one piece; 2.97M faces make the component search take several passes.
+    const int w = 1001, h = 1501;
+    Mesh m;
+    std::vector<Vec3f>& v = m.vertices.edit();
+    for (int y = 0; y < h; ++y) {
+        for (int x = 0; x < w; ++x) v.push_back({float(x), float(y), 0.0f});
+    }
+    std::vector<Triangle>& f = m.faces.edit();
+    for (int y = 0; y + 1 < h; ++y) {
+        for (int x = 0; x + 1 < w; ++x) {
+            if (x % 100 == 99) continue;
+            const std::int32_t a = y * w + x, b = a + 1, c = a + w, d = c + 1;
+            f.push_back({a, b, d});
+            f.push_back({a, d, c});
+        }
+    }
+    REQUIRE(f.size() == 2970000);
+    const CleanResult r = clean_mesh(m);
+    CHECK(r.components_before == 10);
+    CHECK(r.removed_components == 0);
+    CHECK(r.mesh.faces.size() == f.size());
+}
+
 TEST_CASE("clean: Taubin smoothing removes noise and keeps a sphere's size", "[clean]") {
     const double r = 1.0, voxel = 0.05;
     const Mesh clean = sphere_mesh(r, voxel);

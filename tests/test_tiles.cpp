@@ -3,6 +3,7 @@
 // generated CAD parts (creases), smooth shapes with colours, a holed sphere closed by --close,
 // and the Stanford bunny scans.
 #include <algorithm>
+#include <cstdlib>
 #include <numeric>
 #include <random>
 
@@ -170,6 +171,24 @@ TEST_CASE("tiles are refused with a solid closing and out of range", "[tiles]") 
     o.close.solid_radius = 0;
     o.tile = -2;
     CHECK_THROWS_AS(run_on(sample, o), InvalidArgument);
+}
+
+TEST_CASE("tiles: no temporary directory for the pieces is a clear error", "[tiles]") {
+    const PointCloud sample = sample_sphere(4000, 1.0);
+    const char* old = std::getenv("TMPDIR");
+    const std::string saved = old ? old : "";
+    ::setenv("TMPDIR", "/nonexistent-vdbrecon-dir", 1);
+    try {
+        run_on(sample, options_at(0.1, Mesher::mc, 16));
+        FAIL("no error");
+    } catch (const IoError& e) {
+        CHECK(std::string(e.what()).find("/nonexistent-vdbrecon-dir") != std::string::npos);
+    }
+    if (old) {
+        ::setenv("TMPDIR", saved.c_str(), 1);
+    } else {
+        ::unsetenv("TMPDIR");
+    }
 }
 
 TEST_CASE("bunny scans: tiles of 48 voxels give the untiled mesh", "[tiles][data]") {

@@ -107,7 +107,8 @@ class MinUnionFind {
 };
 
 /// Edge-connected components of the faces (two faces that share an edge belong together): per
-/// face, its component's label, the smallest face index in it. Linear time.
+/// face, its component's label, the smallest face index in it. Linear time (a few passes over
+/// the faces for a large mesh, a range of vertices at a time).
 std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count);
 
 /// The vertices the faces use, renumbered in their original order: rewrites the faces to the new
@@ -118,5 +119,10 @@ std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::si
 
 /// Per vertex, the sum of the (unnormalised, so area-weighted) normals of the faces around it.
 std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh);
+
+/// The same sums for the vertices first .. last - 1 only (entry v - first), each summed in face
+/// order as above, bit for bit: a large mesh's sums a block of vertices at a time.
+std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh, std::size_t first,
+                                                    std::size_t last);
 
 }  // namespace vdbrecon::detail

@@ -8,7 +8,10 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <cstdio>
+#include <functional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "detail/mesh_common.h"
@@ -140,6 +143,39 @@ std::size_t write_tile_job(const PointCloud& cloud, const TiledOptions& options,
 /// Tile `index`'s piece of the surface (bytes), from the job in `dir`: the piece the in-memory
 /// run makes of it. The options must give the plan's halo (the same closing).
 std::string run_tile_job(const std::string& dir, std::size_t index, const TiledOptions& options);
+
+/// Tile `index`'s piece as bytes, with the tile's statistics (the answer of run_tile_job).
+std::string piece_bytes(const ClassifiedSurface& piece, std::size_t index,
+                        const TiledResult& stats);
+
+/// Piece i's bytes (piece_bytes), read into `buffer` where they are not in memory already.
+using PieceSource = std::function<std::string_view(std::size_t i, std::string& buffer)>;
+
+/// Pieces 0 .. n - 1 appended in order into one surface, each array sized exactly first (so the
+/// surface of a large run takes no more than it holds); their statistics added to `stats`.
+/// `what` names the pieces in errors.
+ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledResult& stats,
+                              const std::string& what);
+
+/// Tiles' pieces kept in an unnamed temporary file (in $TMPDIR, else /tmp) until they are
+/// joined, so that a tiled run holds the points or the surface, not both.
+class PieceSpool {
+  public:
+    PieceSpool();  ///< throws IoError when no temporary file can be made
+    ~PieceSpool();
+    PieceSpool(const PieceSpool&) = delete;
+    PieceSpool& operator=(const PieceSpool&) = delete;
+
+    void add(const ClassifiedSurface& piece);
+    std::size_t size() const { return offsets_.size() - 1; }
+    /// The pieces added, in order (PieceSource).
+    std::string_view get(std::size_t i, std::string& buffer) const;
+
+  private:
+    std::FILE* file_ = nullptr;
+    std::string dir_;
+    std::vector<std::uint64_t> offsets_{0};
+};
 
 /// Every tile's piece (in tile order) welded and finished: the in-memory run's mesh. Sets the
 /// job's voxel and origin.

@@ -1,4 +1,6 @@
 // Format dispatch, the local frame, atomic writes, and the OBJ / XYZ writers.
+#include <fcntl.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -115,6 +117,38 @@ std::string read_file(const std::string& path) {
     return content;
 }
 
+FileBytes::FileBytes(const std::string& path) {
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    struct stat st {};
+    if (fd >= 0 && ::fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0) {
+        void* m = ::mmap(nullptr, std::size_t(st.st_size), PROT_READ, MAP_PRIVATE, fd, 0);
+        if (m != MAP_FAILED) {
+            map_ = static_cast<const char*>(m);
+            size_ = std::size_t(st.st_size);
+        }
+    }
+    if (fd >= 0) ::close(fd);
+    if (!map_) copy_ = read_file(path);  // not mappable: read (and errors named) as before
+}
+
+FileBytes::~FileBytes() {
+    if (map_) ::munmap(const_cast<char*>(map_), size_);
+}
+
+std::string_view FileBytes::bytes() const {
+    return map_ ? std::string_view(map_, size_) : std::string_view(copy_);
+}
+
+void FileBytes::let_go(const char* upto) {
+    if (!map_ || upto < map_) return;
+    const auto page = std::size_t(::sysconf(_SC_PAGESIZE));
+    const std::size_t end = std::min(std::size_t(upto - map_), size_) / page * page;
+    if (end > released_) {
+        ::madvise(const_cast<char*>(map_) + released_, end - released_, MADV_DONTNEED);
+        released_ = end;
+    }
+}
+
 namespace {
 
 bool finite_row(const double* p) {
@@ -140,7 +174,11 @@ Vec3f local_point(const double* p, const Vec3d& origin, const std::string& path,
 
 }  // namespace
 
-Vec3d choose_origin(const double* xyz, std::size_t rows) {
+namespace {
+
+/// choose_origin over rows row(i) (std::array<double, 3>).
+template <typename Row>
+Vec3d origin_of_rows(std::size_t rows, const Row& row) {
     double lo[3], hi[3];
     for (int a = 0; a < 3; ++a) {
         lo[a] = std::numeric_limits<double>::infinity();
@@ -148,11 +186,12 @@ Vec3d choose_origin(const double* xyz, std::size_t rows) {
     }
     bool any = false;
     for (std::size_t i = 0; i < rows; ++i) {
-        if (!finite_row(xyz + 3 * i)) continue;  // rows the reader drops
+        const std::array<double, 3> p = row(i);
+        if (!finite_row(p.data())) continue;  // rows the reader drops
         any = true;
         for (int a = 0; a < 3; ++a) {
-            lo[a] = std::min(lo[a], xyz[3 * i + a]);
-            hi[a] = std::max(hi[a], xyz[3 * i + a]);
+            lo[a] = std::min(lo[a], p[std::size_t(a)]);
+            hi[a] = std::max(hi[a], p[std::size_t(a)]);
         }
     }
     if (!any) return {0.0, 0.0, 0.0};
@@ -174,6 +213,18 @@ Vec3d choose_origin(const double* xyz, std::size_t rows) {
         origin[a] = std::fabs(c) < std::ldexp(q, 52) ? std::round(c / q) * q : c;
     }
     return origin;
+}
+
+}  // namespace
+
+Vec3d choose_origin(const double* xyz, std::size_t rows) {
+    return origin_of_rows(rows, [&](std::size_t i) {
+        return std::array<double, 3>{xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
+    });
+}
+
+Vec3d choose_origin(const RawPoints& raw) {
+    return origin_of_rows(raw.rows(), [&](std::size_t i) { return raw.row(i); });
 }
 
 namespace {
@@ -200,11 +251,22 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
     // The local frame (from the finite rows), then one pass that drops rows with non-finite
     // coordinates, converts the others and compacts every attribute in place.
     PointCloud& cloud = result.cloud;
-    cloud.origin = options.local_frame ? choose_origin(raw.xyz.data(), rows) : Vec3d{0, 0, 0};
-    std::vector<Vec3f> positions(rows);
+    cloud.origin = options.local_frame ? choose_origin(raw) : Vec3d{0, 0, 0};
+    // Float rows become the positions in place (each row is read before it is overwritten).
+    const bool in_place = !raw.xyz_float.empty();
+    std::vector<Vec3f> positions;
+    if (in_place) {
+        positions = std::move(raw.xyz_float);
+    } else {
+        positions.resize(rows);
+    }
     std::size_t kept = 0, first_bad = rows;
     for (std::size_t i = 0; i < rows; ++i) {
-        const double* p = &raw.xyz[3 * i];
+        const std::array<double, 3> row =
+            in_place ? std::array<double, 3>{double(positions[i][0]), double(positions[i][1]),
+                                             double(positions[i][2])}
+                     : raw.row(i);
+        const double* p = row.data();
         if (!finite_row(p)) {
             if (options.non_finite == NonFinitePolicy::error) {
                 throw FormatError(where(path, "row " + std::to_string(i) +
@@ -232,6 +294,7 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         ++kept;
     }
     detail::release(raw.xyz);
+    detail::release(raw.xyz_float);
     positions.resize(kept);
     cloud.positions = std::move(positions);
     result.dropped_nonfinite = rows - kept;
@@ -291,16 +354,16 @@ Mesh finalize_mesh(RawPoints&& raw, const std::string& path) {
     Mesh mesh;
     const std::size_t rows = raw.rows();
     for (std::size_t i = 0; i < rows; ++i) {
-        if (!finite_row(&raw.xyz[3 * i])) {
+        if (!finite_row(raw.row(i).data())) {
             throw FormatError(where(path, "vertex " + std::to_string(i) +
                                               ": NaN or infinite coordinate"));
         }
     }
-    mesh.origin = choose_origin(raw.xyz.data(), rows);
+    mesh.origin = choose_origin(raw);
     std::vector<Vec3f>& vertices = mesh.vertices.edit();
     vertices.resize(rows);
     for (std::size_t i = 0; i < rows; ++i) {
-        vertices[i] = local_point(&raw.xyz[3 * i], mesh.origin, path, "vertex", i);
+        vertices[i] = local_point(raw.row(i).data(), mesh.origin, path, "vertex", i);
     }
     mesh.normals = take_rows(std::move(raw.normals), rows);
     mesh.colors = take_rows(std::move(raw.colors), rows);
@@ -504,7 +567,8 @@ Format detect_format(const std::string& path, std::string_view content) {
 
 /// Parses a whole file's bytes into raw rows; `want_faces` also reads faces (meshes).
 detail::RawPoints read_raw(std::string_view content, const std::string& path, bool want_faces,
-                           std::string& format, const std::vector<int>& classes = {}) {
+                           std::string& format, const std::vector<int>& classes = {},
+                           const detail::Consumed& consumed = {}) {
     if (content.empty()) throw FormatError(detail::where(path, "file is empty"));
     const Format f = detect_format(path, content);
     if (!classes.empty() && f != Format::las) {
@@ -520,7 +584,7 @@ detail::RawPoints read_raw(std::string_view content, const std::string& path, bo
             format = "pcd";
             return detail::read_pcd(path, content).raw;
         case Format::ply:
-            return detail::read_ply_raw(path, content, want_faces, format);
+            return detail::read_ply_raw(path, content, want_faces, format, consumed);
         case Format::xyz:
             if (want_faces) {
                 throw FormatError(detail::where(path, "a text point file holds no faces"));
@@ -554,9 +618,10 @@ ReadResult read_points(const std::string& path, const ReadOptions& options) {
     std::string format;
     detail::RawPoints raw;
     {
-        const std::string bytes = detail::read_file(path);
-        raw = read_raw(bytes, path, false, format, options.classes);
-    }  // the file's bytes are freed before the cloud is made from the rows
+        detail::FileBytes file(path);
+        raw = read_raw(file.bytes(), path, false, format, options.classes,
+                       [&](const char* upto) { file.let_go(upto); });
+    }  // the file's bytes are let go before the cloud is made from the rows
     return detail::finalize_points(std::move(raw), path, format, options);
 }
 

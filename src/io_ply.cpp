@@ -204,6 +204,7 @@ public:
           enc_(enc) {}
 
     std::size_t remaining() const { return std::size_t(end_ - p_); }
+    const char* here() const { return reinterpret_cast<const char*>(p_); }
 
     // Status of the last failed read.
     enum class Fail { none, eof, not_a_number };
@@ -396,7 +397,7 @@ void skip_element(const std::string& path, const Element& e, Cursor& c, Encoding
 }
 
 void read_vertices(const std::string& path, const Element& e, Cursor& c, Encoding enc,
-                   RawPoints& raw) {
+                   RawPoints& raw, const Consumed& consumed) {
     std::vector<Role> roles;
     bool has[int(Role::scan) + 1] = {};  // one per role (scan is the last)
     PlyType colour_type = PlyType::uint8;
@@ -423,14 +424,33 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
     const bool colors = has[int(Role::red)] && has[int(Role::green)] && has[int(Role::blue)];
     const double cscale = 1.0 / colour_scale(colour_type);
 
+    // Float coordinates are kept as floats (exact): half the memory of doubles.
+    bool float_xyz = true;
+    for (std::size_t k = 0; k < e.props.size(); ++k) {
+        const Role r = roles[k];
+        if (r == Role::x || r == Role::y || r == Role::z) {
+            float_xyz = float_xyz && e.props[k].type == PlyType::float32;
+        }
+    }
     const std::size_t n = std::size_t(e.count);
-    raw.xyz.resize(3 * n);
+    if (float_xyz) {
+        raw.xyz_float.resize(n);
+    } else {
+        raw.xyz.resize(3 * n);
+    }
     if (normals) raw.normals.resize(3 * n);
     if (colors) raw.colors.resize(3 * n);
     if (has[int(Role::scale)]) raw.scales.resize(n);
     if (has[int(Role::confidence)]) raw.confidences.resize(n);
     if (has[int(Role::scan)]) raw.scans.resize(n);
 
+    auto put_coordinate = [&](std::size_t row, int a, double v) {
+        if (float_xyz) {
+            raw.xyz_float[row][std::size_t(a)] = float(v);
+        } else {
+            raw.xyz[3 * row + std::size_t(a)] = v;
+        }
+    };
     auto read_row = [&](Cursor& cur, std::size_t row) {
         double v;
         for (std::size_t k = 0; k < e.props.size(); ++k) {
@@ -445,9 +465,9 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
             if (!cur.read(p.type, v)) fail_at(path, e, row, cur, enc);
             switch (roles[k]) {
                 case Role::ignore: break;
-                case Role::x: raw.xyz[3 * row] = v; break;
-                case Role::y: raw.xyz[3 * row + 1] = v; break;
-                case Role::z: raw.xyz[3 * row + 2] = v; break;
+                case Role::x: put_coordinate(row, 0, v); break;
+                case Role::y: put_coordinate(row, 1, v); break;
+                case Role::z: put_coordinate(row, 2, v); break;
                 case Role::nx: if (normals) raw.normals[3 * row] = float(v); break;
                 case Role::ny: if (normals) raw.normals[3 * row + 1] = float(v); break;
                 case Role::nz: if (normals) raw.normals[3 * row + 2] = float(v); break;
@@ -470,12 +490,19 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
         row_bytes += type_size(p.type);
     }
     if (fixed && c.remaining() / row_bytes >= n) {
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            Cursor cur = c;
-            cur.skip(r.begin() * row_bytes);
-            for (std::size_t row = r.begin(); row < r.end(); ++row) read_row(cur, row);
-        });
+        // A chunk of rows at a time, each chunk's bytes then handed to `consumed` (a mapped
+        // file lets their pages go: the file is not held in memory beside its rows).
+        constexpr std::size_t kChunk = std::size_t(1) << 20;
+        for (std::size_t first = 0; first < n; first += kChunk) {
+            const std::size_t last = std::min(n, first + kChunk);
+            tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 16384),
+                              [&](const tbb::blocked_range<std::size_t>& r) {
+                Cursor cur = c;
+                cur.skip(r.begin() * row_bytes);
+                for (std::size_t row = r.begin(); row < r.end(); ++row) read_row(cur, row);
+            });
+            if (consumed) consumed(c.here() + last * row_bytes);
+        }
         c.skip(n * row_bytes);
         return;
     }
@@ -530,7 +557,7 @@ void read_faces(const std::string& path, const Element& e, Cursor& c, Encoding e
 }  // namespace
 
 RawPoints read_ply_raw(const std::string& path, std::string_view content, bool want_faces,
-                       std::string& format) {
+                       std::string& format, const Consumed& consumed) {
     const Header h = parse_header(path, content);
     format = h.encoding == Encoding::ascii       ? "ply ascii"
              : h.encoding == Encoding::binary_le ? "ply binary_little_endian"
@@ -569,7 +596,7 @@ RawPoints read_ply_raw(const std::string& path, std::string_view content, bool w
     bool have_faces = false;
     for (const Element& e : h.elements) {
         if (&e == &*vertex) {
-            read_vertices(path, e, c, h.encoding, raw);
+            read_vertices(path, e, c, h.encoding, raw, consumed);
             if (!want_faces) break;
         } else if (want_faces && e.name == "face" && !have_faces) {
             read_faces(path, e, c, h.encoding, raw);

@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 
 #include "support.h"
@@ -379,6 +380,50 @@ TEST_CASE("georeferenced coordinates keep their precision in a local frame", "[i
     const ReadResult back = read_points(dir.file("geo.ply"));
     REQUIRE(back.cloud.origin == r.cloud.origin);
     REQUIRE(back.cloud.positions == r.cloud.positions);
+}
+
+TEST_CASE("PLY float coordinates: read in place, from a mapped file in chunks, as from doubles",
+          "[io]") {
+    // 1.1M rows (two chunks of the mapped reader), far from the origin (a local frame), with
+    // NaN rows; the same values written as doubles read to the same cloud.
+    const std::size_t n = 1100000;
+    const auto header = [&](const char* type) {
+        return std::string("ply\nformat binary_little_endian 1.0\nelement vertex ") +
+               std::to_string(n) + "\nproperty " + type + " x\nproperty " + type +
+               " y\nproperty " + type + " z\nproperty float nx\nproperty float ny\n"
+               "property float nz\nend_header\n";
+    };
+    std::string as_float = header("float"), as_double = header("double");
+    for (std::size_t i = 0; i < n; ++i) {
+        const float p[3] = {100000.0f + float(i % 1000) * 0.125f, -50000.0f + float(i / 1000),
+                            i % 99991 == 7 ? std::nanf("") : 20.0f + float(i % 7)};
+        for (float v : p) {
+            put_le(as_float, v);
+            put_le(as_double, double(v));
+        }
+        for (float v : {0.0f, 0.6f, 0.8f}) {
+            put_le(as_float, v);
+            put_le(as_double, v);
+        }
+    }
+    TempDir dir;
+    write_bytes(dir.file("f.ply"), as_float);
+    write_bytes(dir.file("d.ply"), as_double);
+    WarningCapture w;  // the NaN rows' warnings
+    const ReadResult f = read_points(dir.file("f.ply"));
+    const ReadResult d = read_points(dir.file("d.ply"));
+    const ReadResult m = read_points_from_memory(as_float, "f.ply");
+    REQUIRE(f.rows == n);
+    REQUIRE(f.dropped_nonfinite == 12);
+    REQUIRE(f.cloud.origin[0] != 0.0);
+    for (const ReadResult* r : {&d, &m}) {
+        REQUIRE(r->dropped_nonfinite == f.dropped_nonfinite);
+        REQUIRE(r->cloud.origin == f.cloud.origin);
+        require_same(r->cloud, f.cloud);
+    }
+    // Each kept row is its file value less the origin, rounded once.
+    const Vec3f& q = f.cloud.positions[5];
+    REQUIRE(q[0] == float(double(100000.0f + 5 * 0.125f) - f.cloud.origin[0]));
 }
 
 TEST_CASE("writes are atomic: failures leave no file behind", "[io]") {

@@ -4,6 +4,7 @@
 #include <array>
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -20,7 +21,9 @@ namespace vdbrecon::detail {
 /// Points as a reader produces them: double coordinates (before choosing a local frame) and
 /// optional attributes, each either empty or one entry per row.
 struct RawPoints {
-    std::vector<double> xyz;            ///< 3 per row
+    std::vector<double> xyz;            ///< 3 per row, or empty when xyz_float holds the rows
+    std::vector<Vec3f> xyz_float;       ///< the rows, when every coordinate came as a float
+                                        ///< (exact in single precision: half the memory)
     std::vector<float> normals;         ///< 3 per row or empty
     std::vector<float> colors;          ///< 3 per row or empty, 0..1
     std::vector<float> scales;          ///< 1 per row or empty
@@ -29,11 +32,41 @@ struct RawPoints {
     LasAttributes las;                  ///< LAS rows: 1 per row each, else empty
     std::vector<Triangle> faces;        ///< only for meshes
 
-    std::size_t rows() const { return xyz.size() / 3; }
+    std::size_t rows() const { return xyz_float.empty() ? xyz.size() / 3 : xyz_float.size(); }
+    /// Row i's coordinates.
+    std::array<double, 3> row(std::size_t i) const {
+        if (!xyz_float.empty()) {
+            const Vec3f& p = xyz_float[i];
+            return {double(p[0]), double(p[1]), double(p[2])};
+        }
+        return {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
+    }
 };
 
 /// The whole file in memory. Throws IoError naming the file (missing, a directory, unreadable).
 std::string read_file(const std::string& path);
+
+/// A file's bytes to parse: a regular file is mapped (its pages are the page cache's, and those
+/// parsed can be let go), anything else is read into memory (read_file, whose errors name the
+/// file). A mapped file that another process truncates while it is read ends the process with
+/// SIGBUS, as with any mapped reader.
+class FileBytes {
+  public:
+    explicit FileBytes(const std::string& path);
+    ~FileBytes();
+    FileBytes(const FileBytes&) = delete;
+    FileBytes& operator=(const FileBytes&) = delete;
+
+    std::string_view bytes() const;
+    /// The whole pages before `upto` leave memory (a mapped file's; a later read maps them in
+    /// again from the file, so this only ever costs time).
+    void let_go(const char* upto);
+
+  private:
+    const char* map_ = nullptr;
+    std::size_t size_ = 0, released_ = 0;
+    std::string copy_;
+};
 
 /// Drops non-finite rows (or throws, per options), normalises normals (zero/NaN ones become
 /// 0,0,0 and are counted), picks the local frame, and fills a ReadResult.
@@ -46,6 +79,7 @@ Mesh finalize_mesh(RawPoints&& raw, const std::string& path);
 /// Picks a local frame for coordinates: (0,0,0) unless the points are far from the origin
 /// compared with their extent, then the box centre rounded to a power-of-two grid.
 Vec3d choose_origin(const double* xyz, std::size_t rows);
+Vec3d choose_origin(const RawPoints& raw);
 
 /// `path` without its extension (the last '.' of its file name and what follows).
 std::string path_stem(const std::string& path);
@@ -154,9 +188,13 @@ bool parse_double(const char* b, const char* e, double& v);
 std::string format_number(float v);
 std::string format_number(double v);
 
-/// Reads a PLY file into raw rows; `want_faces` also reads the face element.
+/// Told that the bytes before a point of the content will not be read again.
+using Consumed = std::function<void(const char* upto)>;
+
+/// Reads a PLY file into raw rows; `want_faces` also reads the face element. `consumed` (may be
+/// empty) hears of the vertex rows read, a chunk at a time.
 RawPoints read_ply_raw(const std::string& path, std::string_view content, bool want_faces,
-                       std::string& format);
+                       std::string& format, const Consumed& consumed = {});
 /// Reads XYZ / PTS text.
 RawPoints read_xyz_raw(const std::string& path, std::string_view content);
 /// Reads OBJ (v, vn, f).

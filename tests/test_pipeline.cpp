@@ -130,6 +130,27 @@ TEST_CASE("a cloud borrowing the caller's arrays reconstructs like an owned one,
     REQUIRE(n.normals.data() == normals.data());
 }
 
+TEST_CASE("the cloud's normals, lent to the normal stage, come back to it, also when it fails",
+          "[pipeline]") {
+    PointCloud c = sample_sphere(3000, 1.0);
+    const std::vector<Vec3f> before = c.normals.to_vector();
+    const Vec3f* storage = c.normals.data();
+    PipelineOptions o;
+    o.splat.voxel_size = 0.1;
+    o.outliers.enabled = false;
+    REQUIRE(reconstruct(c, o).mesh.faces.size() > 100);
+    CHECK_FALSE(c.normals.borrowed());
+    CHECK(c.normals.data() == storage);  // the same array, never copied
+    CHECK(c.normals.to_vector() == before);
+    // One point: the stage cannot find its spacing and throws; the cloud keeps its normal.
+    PointCloud one;
+    one.positions = std::vector<Vec3f>{{0.0f, 0.0f, 0.0f}};
+    one.normals = std::vector<Vec3f>{{0.0f, 0.0f, 1.0f}};
+    REQUIRE_THROWS_AS(reconstruct(one, o), NumericalError);
+    CHECK_FALSE(one.normals.borrowed());
+    CHECK(one.normals.to_vector() == std::vector<Vec3f>{{0.0f, 0.0f, 1.0f}});
+}
+
 TEST_CASE("a lean run (volumes not kept, cloud given up) makes the same mesh", "[pipeline]") {
     // What the CLI does to lower its peak memory: the volumes are freed once meshed and written
     // (keep_volumes = false), the cloud after the splat (reconstruct(PointCloud&&)).

@@ -9,12 +9,15 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <string>
 
 #include "detail/pca.h"
 #include "detail/release.h"
+#include "detail/spool.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
+#include "vdbrecon/log.h"
 
 namespace vdbrecon {
 
@@ -71,25 +74,25 @@ Column<T> copy_borrowed(const Column<T>& v, const std::vector<char>& removed, st
 /// The element of rank n / 2 of v (what std::nth_element puts there), without a copy of v:
 /// values >= 0 order like their bit patterns, so a histogram of the top 16 bits finds the
 /// bucket that holds that rank, and only that bucket's values are copied and selected.
-double median_of(const std::vector<double>& v) {
+double median_of(const std::vector<float>& v) {
     const std::size_t n = v.size(), rank = n / 2;
-    constexpr int kShift = 64 - 16;
-    const auto bucket = [](double x) {
-        std::uint64_t bits;
+    constexpr int kShift = 32 - 16;
+    const auto bucket = [](float x) {
+        std::uint32_t bits;
         std::memcpy(&bits, &x, sizeof bits);
         return std::size_t(bits >> kShift);
     };
     std::vector<std::size_t> count(std::size_t(1) << 16, 0);
-    for (double x : v) ++count[bucket(x)];
+    for (float x : v) ++count[bucket(x)];
     std::size_t b = 0, below = 0;
     while (below + count[b] <= rank) below += count[b++];
-    std::vector<double> in;
+    std::vector<float> in;
     in.reserve(count[b]);
-    for (double x : v) {
+    for (float x : v) {
         if (bucket(x) == b) in.push_back(x);
     }
     std::nth_element(in.begin(), in.begin() + std::ptrdiff_t(rank - below), in.end());
-    return in[rank - below];
+    return double(in[rank - below]);
 }
 
 /// Rows whose neighbour lists wait for something of their neighbours (see classify), with the
@@ -173,7 +176,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     }
     // Per point: d_i (-1 until its batch is searched), and the statistical rule's verdict.
     enum : char { kUnknown, kFails, kPasses, kNoLocal };  // kNoLocal: coincident neighbours
-    std::vector<double> spacing(n, -1.0);
+    std::vector<float> spacing(n, -1.0f);  // float: 4 bytes a point of a large cloud
     std::vector<char> verdict(n, kUnknown);
     // For the spacing: its value from the first ks of all points, and whether one of those may
     // go (kTouched: one fails the statistical rule; else largest_code of their largest d_j).
@@ -215,14 +218,15 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
             const std::size_t m = std::size_t(nb[j]);
             if (verdict[m] == kUnknown) return false;
             fails = fails || verdict[m] == kFails;
-            most = std::max(most, spacing[m]);
+            most = std::max(most, double(spacing[m]));
         }
         near_code[i] = fails ? kTouched : std::max<std::uint16_t>(1, largest_code(most));
         return true;
     };
     Waiting for_spacing{ku, {}, {}}, for_verdicts{std::size_t(ks), {}, {}};
     std::vector<RowList> work, work_near;
-    // The lists of one batch, and of the rows still waiting, are all that is held of them.
+    // The lists of one batch (1/64 of the points), and of the rows still waiting, are all that
+    // is held of them.
     index.visit_self_neighbours(k, [&](const int* rows, std::size_t count, int, const int* idx) {
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 4096),
                           [&](const tbb::blocked_range<std::size_t>& rg) {
@@ -232,7 +236,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
                 // The sum over the first ks neighbours is a prefix of the one over all k.
                 const double first = add_distances(i, nb, 0, ks, 0.0);
                 if (ks > 0) first_spacing[i] = float(first / double(ks));
-                spacing[i] = add_distances(i, nb, ks, k, first) / k;
+                spacing[i] = float(add_distances(i, nb, ks, k, first) / k);
                 kth_sq[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k - 1])]);
                 if (hand_over.lists) std::copy_n(nb, ku, r.neighbours.indices.data() + i * ku);
             }
@@ -266,7 +270,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
             for_verdicts = std::move(near_still);
         }
         for_spacing = std::move(still);
-    });
+    }, std::max<std::size_t>(std::size_t(1) << 16, n / 64));  // 1/64: a large cloud's lists
     // After the last batch every d_j, and then every verdict, is known: nothing waits.
     if (!for_spacing.rows.empty() || !for_verdicts.rows.empty()) {
         throw Error("outliers: internal error: unresolved neighbour lists");
@@ -364,6 +368,53 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     r.spacing = std::move(first_spacing);  // input order; compacted with the cloud
 }
 
+/// The owned columns the neighbour search does not read (normals, colours, scales,
+/// confidences) wait in a spool while it runs, when they hold at least `min_bytes`
+/// (OutlierOptions::park_bytes): a 20M-point cloud's normals would otherwise sit beside its
+/// index and per-point tables. Borrowed columns stay. Where no temporary file can be made they
+/// stay in memory (a warning says so).
+class ParkedColumns {
+  public:
+    ParkedColumns(PointCloud& cloud, std::size_t min_bytes) : cloud_(cloud) {
+        std::size_t bytes = 0;
+        for_each([&](auto& c) { bytes += c.borrowed() ? 0 : c.size() * sizeof(c[0]); });
+        if (bytes == 0 || bytes < min_bytes) return;
+        try {
+            spool_ = std::make_unique<detail::Spool>("outliers: parking the cloud's columns");
+            for_each([&](auto& c) {
+                if (!c.borrowed()) {
+                    spool_->add_vector(c.edit());
+                    c.clear();
+                }
+            });
+        } catch (const IoError& e) {
+            restore();
+            log_warning(std::string(e.what()) + "; they stay in memory");
+        }
+    }
+    /// Puts the columns back (exactly sized).
+    void restore() {
+        if (!spool_) return;
+        std::size_t block = 0;
+        for_each([&](auto& c) {
+            using T = std::decay_t<decltype(c[0])>;
+            if (!c.borrowed() && block < spool_->size()) c = spool_->get_vector<T>(block++);
+        });
+        spool_.reset();
+    }
+
+  private:
+    template <typename Fn>
+    void for_each(Fn&& fn) {
+        fn(cloud_.normals);
+        fn(cloud_.colors);
+        fn(cloud_.scales);
+        fn(cloud_.confidences);
+    }
+    PointCloud& cloud_;
+    std::unique_ptr<detail::Spool> spool_;
+};
+
 }  // namespace
 
 OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options,
@@ -378,7 +429,11 @@ OutlierResult remove_outliers(PointCloud&& cloud, const OutlierOptions& options,
     OutlierResult r;
     r.removed.assign(cloud.size(), 0);
     if (options.enabled && cloud.size() >= std::size_t(options.k) + 1) {  // else nothing goes
-        classify(cloud, options, hand_over, r);
+        {
+            ParkedColumns parked(cloud, options.park_bytes);
+            classify(cloud, options, hand_over, r);
+            parked.restore();
+        }
         const std::size_t kept = cloud.size() - r.statistical - r.planarity;
         // Borrowed columns are copied first: if a copy fails, the cloud is still whole.
         Column<Vec3f> positions = copy_borrowed(cloud.positions, r.removed, kept);

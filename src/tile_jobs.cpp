@@ -7,11 +7,7 @@
 // Files: <dir>/plan.bin, <dir>/bucket-<j>.bin (occupied tile j's samples: their indices in the
 // whole cloud and their columns). Little-endian machine layout of plain values, each file
 // tagged, written under a temporary name and renamed into place.
-#include <unistd.h>
-
 #include <algorithm>
-#include <cerrno>
-#include <cstdlib>
 #include <cstring>
 #include <string_view>
 
@@ -305,47 +301,6 @@ ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledRes
     all.triangles.reserve(triangles);
     for (std::size_t i = 0; i < n; ++i) append(all, read_piece(source(i, buffer), i, stats, what));
     return all;
-}
-
-PieceSpool::PieceSpool() {
-    const char* env = std::getenv("TMPDIR");
-    dir_ = env && *env ? env : "/tmp";
-    std::string name = dir_ + "/vdbrecon-pieces-XXXXXX";
-    const int fd = ::mkstemp(name.data());
-    if (fd < 0) {
-        throw IoError("tiles: cannot make a temporary file for the tiles' pieces in " + dir_ +
-                      ": " + std::strerror(errno) + " (set TMPDIR to a writable directory)");
-    }
-    ::unlink(name.c_str());  // unnamed: gone when closed, also after a crash
-    file_ = ::fdopen(fd, "w+b");
-    if (!file_) {
-        ::close(fd);
-        throw IoError("tiles: cannot open a temporary file in " + dir_);
-    }
-}
-
-PieceSpool::~PieceSpool() {
-    if (file_) std::fclose(file_);
-}
-
-void PieceSpool::add(const ClassifiedSurface& piece) {
-    const std::string bytes = piece_bytes(piece, size(), TiledResult{});
-    if (::fseeko(file_, off_t(offsets_.back()), SEEK_SET) != 0 ||
-        std::fwrite(bytes.data(), 1, bytes.size(), file_) != bytes.size()) {
-        throw IoError("tiles: writing the tiles' pieces to a temporary file in " + dir_ +
-                      " failed (disk full?)");
-    }
-    offsets_.push_back(offsets_.back() + bytes.size());
-}
-
-std::string_view PieceSpool::get(std::size_t i, std::string& buffer) const {
-    buffer.resize(std::size_t(offsets_[i + 1] - offsets_[i]));
-    if (std::fflush(file_) != 0 || ::fseeko(file_, off_t(offsets_[i]), SEEK_SET) != 0 ||
-        std::fread(buffer.data(), 1, buffer.size(), file_) != buffer.size()) {
-        throw IoError("tiles: reading the tiles' pieces back from a temporary file in " + dir_ +
-                      " failed");
-    }
-    return buffer;
 }
 
 TiledResult finish_tile_job(const std::string& dir, const std::vector<std::string>& pieces,

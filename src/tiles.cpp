@@ -29,11 +29,13 @@
 #include <cstdint>
 #include <numeric>
 #include <type_traits>
+#include <unordered_map>
 
 #include "detail/io_common.h"
 #include "detail/mesh_common.h"
 #include "detail/mesh_graph.h"
 #include "detail/splat_frame.h"
+#include "detail/spool.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon::detail {
@@ -70,22 +72,32 @@ void sort_unique(std::vector<TileKey>& v) {
 }  // namespace
 
 Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g) {
-    Buckets b;
-    const std::size_t np = cloud.size();
-    std::vector<TileKey> tile(np);
-    for (std::size_t i = 0; i < np; ++i) tile[i] = tile_of(kernel_centre(cloud, i, voxel), g);
-    b.order.resize(np);
-    std::iota(b.order.begin(), b.order.end(), 0u);
-    std::stable_sort(b.order.begin(), b.order.end(),
-                     [&](std::uint32_t a, std::uint32_t c) { return tile[a] < tile[c]; });
-    for (std::size_t j = 0; j < np; ++j) {
-        const TileKey& k = tile[b.order[j]];
-        if (b.keys.empty() || b.keys.back() != k) {
-            b.keys.push_back(k);
-            b.begin.push_back(j);
+    // A counting sort by tile, stable (increasing index within a tile): two passes over the
+    // points and a table of the occupied tiles, no key stored per point.
+    struct Hash {
+        std::size_t operator()(const TileKey& k) const {
+            return std::size_t(k[0]) * 73856093u ^ std::size_t(k[1]) * 19349663u ^
+                   std::size_t(k[2]) * 83492791u;
         }
+    };
+    std::unordered_map<TileKey, std::size_t, Hash> slot;  // points per tile, then its bucket
+    const std::size_t np = cloud.size();
+    for (std::size_t i = 0; i < np; ++i) ++slot[tile_of(kernel_centre(cloud, i, voxel), g)];
+    Buckets b;
+    for (const auto& e : slot) b.keys.push_back(e.first);
+    std::sort(b.keys.begin(), b.keys.end());
+    b.begin.push_back(0);
+    for (std::size_t j = 0; j < b.keys.size(); ++j) {
+        std::size_t& s = slot[b.keys[j]];
+        b.begin.push_back(b.begin.back() + s);
+        s = j;
     }
-    b.begin.push_back(np);
+    std::vector<std::size_t> fill(b.begin.begin(), b.begin.end() - 1);
+    b.order.resize(np);
+    for (std::size_t i = 0; i < np; ++i) {
+        const std::size_t j = slot.find(tile_of(kernel_centre(cloud, i, voxel), g))->second;
+        b.order[fill[j]++] = std::uint32_t(i);
+    }
     return b;
 }
 
@@ -263,12 +275,12 @@ namespace {
 
 /// Every tile's piece, in tile order, into the spool.
 void all_tiles(const PointCloud& cloud, const TiledOptions& options, const TileSetup& setup,
-               TiledResult& stats, PieceSpool& spool) {
+               TiledResult& stats, Spool& spool) {
     const double voxel = options.splat.voxel_size;
     const Buckets buckets = bucket_points(cloud, voxel, setup.grid);
     for (const TileKey& t : tiles_to_visit(cloud, buckets, setup.grid, voxel)) {
         const PointCloud part = subset(cloud, tile_points(cloud, buckets, t, setup.grid, voxel));
-        spool.add(tile_surface(part, options, setup, t, stats));
+        spool.add(piece_bytes(tile_surface(part, options, setup, t, stats), spool.size(), {}));
     }
 }
 
@@ -315,16 +327,18 @@ TiledResult tiled_surface(PointCloud& cloud, const TiledOptions& options, bool r
         result.tile = g.n;
         result.halo = g.halo;
         try {
-            PieceSpool spool;  // the pieces wait on disk while the cloud is in memory
+            Spool spool("tiles: the tiles' pieces");  // on disk while the cloud is in memory
             all_tiles(cloud, options, setup, result, spool);
             result.splat.sigma_median = setup.frame.sigma_median;
             result.splat.points = cloud.size();
             const Vec3d origin = cloud.origin;
             if (release) cloud = PointCloud{};
             TiledResult counted_already;
+            const PieceSource source = [&](std::size_t i, std::string& b) {
+                return spool.get(i, b);
+            };
             ClassifiedSurface all =
-                join_pieces(spool.size(), [&](std::size_t i, std::string& b) { return spool.get(i, b); },
-                            counted_already, "tiles: piece");
+                join_pieces(spool.size(), source, counted_already, "tiles: piece");
             result.mesh =
                 finish_surface(std::move(all), options.splat.voxel_size, origin, options.mesh);
             return result;

@@ -1,4 +1,5 @@
 // Point outlier removal (outliers.h): a sphere with stray points, a cube whose corners must stay.
+#include <cstdlib>
 #include <random>
 
 #include "support.h"
@@ -167,6 +168,28 @@ TEST_CASE("outliers: the in-place removal keeps the same points as the copying o
         CHECK(r.planarity == copied.planarity);
         CHECK(r.removed == copied.removed);
         CHECK(r.cloud.positions.to_vector() == copied.cloud.positions.to_vector());
+    }
+    SECTION("columns parked in a temporary file during the search come back the same") {
+        OutlierOptions parking = o;
+        parking.park_bytes = 0;  // always
+        same(remove_outliers(c, parking, OutlierHandOver{true, 0}));
+        PointCloud mixed = c;  // a borrowed column stays where it is
+        mixed.scales = Column<float>::borrow(c.scales.data(), c.size());
+        same(remove_outliers(std::move(mixed), parking, OutlierHandOver{true, 0}));
+    }
+    SECTION("without a temporary directory the columns stay in memory") {
+        OutlierOptions parking = o;
+        parking.park_bytes = 0;
+        const char* old = std::getenv("TMPDIR");
+        const std::string saved = old ? old : "";
+        ::setenv("TMPDIR", "/nonexistent-vdbrecon-dir", 1);
+        const OutlierResult r = remove_outliers(c, parking, OutlierHandOver{true, 0});
+        if (old) {
+            ::setenv("TMPDIR", saved.c_str(), 1);
+        } else {
+            ::unsetenv("TMPDIR");
+        }
+        same(r);
     }
     SECTION("borrowed arrays are copied, never written") {
         PointCloud borrowed;

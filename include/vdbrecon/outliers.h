@@ -42,6 +42,11 @@ struct OutlierOptions {
     double planarity_spacing = 1.5;
     /// The neighbour search (the normal stage reuses its lists: give both the same).
     KnnOptions knn;
+    /// Memory only: while the search runs, the cloud's own columns it does not read (normals,
+    /// colours, scales, confidences) wait in an unnamed temporary file ($TMPDIR, else /tmp)
+    /// when they hold at least this many bytes (a 20M-point cloud's normals: 229 MiB; 0:
+    /// always, SIZE_MAX: never). Where no file can be made they stay in memory, with a warning.
+    std::size_t park_bytes = std::size_t(64) << 20;
 
     /// Throws InvalidArgument naming the field when out of range.
     void validate() const;

@@ -8,7 +8,6 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
-#include <cstdio>
 #include <functional>
 #include <string>
 #include <string_view>
@@ -156,26 +155,6 @@ using PieceSource = std::function<std::string_view(std::size_t i, std::string& b
 /// `what` names the pieces in errors.
 ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledResult& stats,
                               const std::string& what);
-
-/// Tiles' pieces kept in an unnamed temporary file (in $TMPDIR, else /tmp) until they are
-/// joined, so that a tiled run holds the points or the surface, not both.
-class PieceSpool {
-  public:
-    PieceSpool();  ///< throws IoError when no temporary file can be made
-    ~PieceSpool();
-    PieceSpool(const PieceSpool&) = delete;
-    PieceSpool& operator=(const PieceSpool&) = delete;
-
-    void add(const ClassifiedSurface& piece);
-    std::size_t size() const { return offsets_.size() - 1; }
-    /// The pieces added, in order (PieceSource).
-    std::string_view get(std::size_t i, std::string& buffer) const;
-
-  private:
-    std::FILE* file_ = nullptr;
-    std::string dir_;
-    std::vector<std::uint64_t> offsets_{0};
-};
 
 /// Every tile's piece (in tile order) welded and finished: the in-memory run's mesh. Sets the
 /// job's voxel and origin.

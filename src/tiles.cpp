@@ -34,6 +34,7 @@
 #include "detail/io_common.h"
 #include "detail/mesh_common.h"
 #include "detail/mesh_graph.h"
+#include "detail/release.h"
 #include "detail/splat_frame.h"
 #include "detail/spool.h"
 #include "vdbrecon/error.h"
@@ -333,6 +334,7 @@ TiledResult tiled_surface(PointCloud& cloud, const TiledOptions& options, bool r
             result.splat.points = cloud.size();
             const Vec3d origin = cloud.origin;
             if (release) cloud = PointCloud{};
+            trim_heap();  // what the tiles freed, before the surface is joined
             TiledResult counted_already;
             const PieceSource source = [&](std::size_t i, std::string& b) {
                 return spool.get(i, b);

@@ -658,6 +658,15 @@ std::string run_tile(const std::string& dir, std::size_t index, const PipelineOp
 RunResult finish_tiles(const std::string& input, const std::string& output, const std::string& dir,
                        const std::vector<std::string>& pieces, const PipelineOptions& options,
                        const StageCallback& on_stage) {
+    const PieceSource source = [&](std::size_t i, std::string&) {
+        return std::string_view(pieces[i]);
+    };
+    return finish_tiles(input, output, dir, pieces.size(), source, options, on_stage);
+}
+
+RunResult finish_tiles(const std::string& input, const std::string& output, const std::string& dir,
+                       std::size_t count, const PieceSource& pieces,
+                       const PipelineOptions& options, const StageCallback& on_stage) {
     if (options.texture.enabled) {
         throw InvalidArgument("texture: not with tile jobs (the tiles do not keep the points' "
                               "colours); use --tile in one process");
@@ -671,8 +680,9 @@ RunResult finish_tiles(const std::string& input, const std::string& output, cons
             Vec3d origin{0.0, 0.0, 0.0};
             {
                 StageClock clock(r.timings, on_stage, "stitch");
-                take_tiled(r, detail::finish_tile_job(dir, pieces, tiled_options(o, o.splat, 0.0),
-                                                      voxel, origin));
+                take_tiled(r, detail::finish_tile_job(dir, count, pieces,
+                                                      tiled_options(o, o.splat, 0.0), voxel,
+                                                      origin));
             }
             r.voxel_size = voxel;
             tiled_cleanup_stages(r, o, voxel, origin, on_stage, write_vdb);

@@ -303,20 +303,18 @@ ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledRes
     return all;
 }
 
-TiledResult finish_tile_job(const std::string& dir, const std::vector<std::string>& pieces,
+TiledResult finish_tile_job(const std::string& dir, std::size_t count, const PieceSource& pieces,
                             const TiledOptions& options, double& voxel, Vec3d& origin) {
     const Plan plan = read_plan(dir);
-    if (pieces.size() != plan.tiles.size()) {
-        throw InvalidArgument("tile job: " + std::to_string(pieces.size()) + " pieces for " +
+    if (count != plan.tiles.size()) {
+        throw InvalidArgument("tile job: " + std::to_string(count) + " pieces for " +
                               std::to_string(plan.tiles.size()) + " tiles");
     }
     const TiledOptions o = tile_options(plan, options);
     TiledResult result;
     result.tile = plan.setup.grid.n;
     result.halo = plan.setup.grid.halo;
-    ClassifiedSurface all = join_pieces(
-        pieces.size(), [&](std::size_t i, std::string&) { return std::string_view(pieces[i]); },
-        result, "tile job piece");
+    ClassifiedSurface all = join_pieces(count, pieces, result, "tile job piece");
     result.splat.sigma_median = plan.setup.frame.sigma_median;
     result.splat.points = plan.points;
     voxel = plan.voxel;

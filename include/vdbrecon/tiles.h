@@ -11,7 +11,9 @@
 #pragma once
 
 #include <cstddef>
+#include <functional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "vdbrecon/pipeline.h"
@@ -44,5 +46,14 @@ std::string run_tile(const std::string& dir, std::size_t index, const PipelineOp
 RunResult finish_tiles(const std::string& input, const std::string& output, const std::string& dir,
                        const std::vector<std::string>& pieces, const PipelineOptions& options,
                        const StageCallback& on_stage = {});
+
+/// Piece i's bytes (run_tile's answer): a view of them, or read into `buffer` (from a file,
+/// say) and a view of that. Read one at a time, twice each (sizes, then contents).
+using PieceSource = std::function<std::string_view(std::size_t i, std::string& buffer)>;
+
+/// The same from `count` pieces that need not all be in memory at once.
+RunResult finish_tiles(const std::string& input, const std::string& output, const std::string& dir,
+                       std::size_t count, const PieceSource& pieces,
+                       const PipelineOptions& options, const StageCallback& on_stage = {});
 
 }  // namespace vdbrecon

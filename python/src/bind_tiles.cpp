@@ -1,9 +1,27 @@
 // Tile jobs (vdbrecon/tiles.h): the three steps vdbrecon.distributed runs, a tile's piece as
 // bytes (what Dask moves between processes).
+#include <fstream>
+#include <iterator>
+#include <string_view>
+
 #include "bind.h"
+#include "vdbrecon/error.h"
 #include "vdbrecon/tiles.h"
 
 namespace vdbrecon::python {
+
+namespace {
+
+/// A piece file's bytes; IoError naming it when it cannot be read.
+std::string read_whole_file(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in.is_open()) throw IoError(path + ": cannot open the tile piece");
+    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (in.bad()) throw IoError(path + ": cannot read the tile piece");
+    return bytes;
+}
+
+}  // namespace
 
 void bind_tiles(py::module_& m) {
     py::class_<TileJob>(m, "TileJob", "What prepare_tiles() did.")
@@ -33,14 +51,35 @@ void bind_tiles(py::module_& m) {
     m.def(
         "finish_tiles",
         [](const std::string& input, const std::string& output, const std::string& dir,
-           const std::vector<py::bytes>& pieces, const PipelineOptions& options) {
-            std::vector<std::string> p;
-            p.reserve(pieces.size());
-            for (const py::bytes& b : pieces) p.push_back(std::string(b));
-            return without_gil([&] { return finish_tiles(input, output, dir, p, options); });
+           const py::list& pieces, const PipelineOptions& options) {
+            // Each piece is bytes, viewed where it is, or the path of a file holding them, read
+            // when the join needs it: the pieces of a large job need not be in memory at once.
+            const py::module_ os = py::module_::import("os");
+            std::vector<std::string_view> bytes(pieces.size());
+            std::vector<std::string> paths(pieces.size());
+            for (std::size_t i = 0; i < pieces.size(); ++i) {
+                const py::handle item = pieces[i];
+                if (py::isinstance<py::bytes>(item)) {
+                    char* data = nullptr;
+                    Py_ssize_t size = 0;
+                    PyBytes_AsStringAndSize(item.ptr(), &data, &size);
+                    bytes[i] = std::string_view(data, std::size_t(size));
+                } else {
+                    paths[i] = os.attr("fspath")(item).cast<std::string>();
+                }
+            }
+            const PieceSource source = [&](std::size_t i, std::string& buffer) {
+                if (paths[i].empty()) return bytes[i];
+                buffer = read_whole_file(paths[i]);
+                return std::string_view(buffer);
+            };
+            return without_gil(
+                [&] { return finish_tiles(input, output, dir, pieces.size(), source, options); });
         },
         py::arg("input"), py::arg("output"), py::arg("dir"), py::arg("pieces"),
-        py::arg("options"), "Welds the pieces (in tile order) and writes the mesh as run() does.");
+        py::arg("options"),
+        "Welds the pieces (in tile order; each bytes, or the path of a file holding them) and "
+        "writes the mesh as run() does.");
 }
 
 }  // namespace vdbrecon::python

@@ -71,3 +71,31 @@ def test_bad_job_directory_and_options(client, tmp_path):
     with pytest.raises(vdbrecon.IoError, match="plan.bin"):
         vdbrecon._vdbrecon.run_tile(str(tmp_path), 0, vdbrecon.PipelineOptions())
     assert not (tmp_path / "x.ply").exists()
+
+
+def test_pieces_as_bytes_or_files_weld_to_the_cli_bytes(cli, tmp_path):
+    """The three library steps in this process, each piece handed over as bytes or as the
+    path of a file holding them (as vdbrecon.distributed does): the CLI's --tile bytes."""
+    expected = cli_tiled(cli, SRC, tmp_path / "cli.ply", "--tile", "32")
+    o = vdbrecon.PipelineOptions()
+    o.tile = 32
+    job_dir = tmp_path / "job"
+    job_dir.mkdir()
+    job = vdbrecon._vdbrecon.prepare_tiles(str(SRC), str(job_dir), o)
+    assert job.tiles > 8
+    pieces = []
+    for i in range(job.tiles):
+        piece = vdbrecon._vdbrecon.run_tile(str(job_dir), i, o)
+        if i % 2:
+            path = tmp_path / ("piece-%d.bin" % i)
+            path.write_bytes(piece)
+            pieces.append(path)
+        else:
+            pieces.append(piece)
+    vdbrecon._vdbrecon.finish_tiles(str(SRC), str(tmp_path / "lib.ply"), str(job_dir), pieces, o)
+    assert (tmp_path / "lib.ply").read_bytes() == expected
+    pieces[1] = tmp_path / "missing.bin"
+    with pytest.raises(vdbrecon.IoError, match="missing.bin"):
+        vdbrecon._vdbrecon.finish_tiles(str(SRC), str(tmp_path / "bad.ply"), str(job_dir),
+                                        pieces, o)
+    assert not (tmp_path / "bad.ply").exists()

@@ -9,8 +9,9 @@
 The client reads the input and runs the stages on the points (outliers, normals, voxel), writes
 the oriented samples bucketed by tile into a job directory, and submits one task per tile.
 Each worker reads the buckets around its tile from that directory itself, splats, closes and
-meshes the tile, and returns its piece of the surface (bytes); the client welds the pieces in
-tile order and writes the mesh. The file is the one `vdbrecon INPUT -o OUTPUT --tile N` writes
+meshes the tile, and returns its piece of the surface (bytes); the client keeps each piece in
+a file of the job directory as it arrives, then welds the pieces in tile order and writes the
+mesh. The file is the one `vdbrecon INPUT -o OUTPUT --tile N` writes
 with the same options, byte for byte. A tile's task depends on nothing but the job's files, so
 a worker that dies has its tiles recomputed elsewhere with the same result.
 
@@ -67,10 +68,15 @@ def run(input, output=None, *, client, tile=-1, workdir=None, voxel=None, progre
         futures = client.map(_run_tile, [workdir] * job.tiles, range(job.tiles),
                              [options] * job.tiles, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
-        pieces = [None] * job.tiles
+        # Each piece goes to a file in the job directory as it arrives, so that the client
+        # holds one piece at a time, not all of them (the weld reads them back one by one).
+        pieces = [_os.path.join(workdir, "piece-%d.bin" % i) for i in range(job.tiles)]
         done = 0
         for future in as_completed(futures):
-            pieces[index[future.key]] = future.result()
+            i = index[future.key]
+            with open(pieces[i], "wb") as f:
+                f.write(future.result())
+            future.release()
             done += 1
             if progress is not None:
                 progress(done, job.tiles)
@@ -78,3 +84,7 @@ def run(input, output=None, *, client, tile=-1, workdir=None, voxel=None, progre
     finally:
         if own:
             _shutil.rmtree(workdir, ignore_errors=True)
+        else:
+            for name in _os.listdir(workdir):
+                if name.startswith("piece-") and name.endswith(".bin"):
+                    _os.remove(_os.path.join(workdir, name))

@@ -18,6 +18,7 @@
 #include "vdbrecon/close.h"
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/splat.h"
+#include "vdbrecon/tiles.h"
 #include "vdbrecon/types.h"
 
 namespace vdbrecon::detail {
@@ -147,9 +148,6 @@ std::string run_tile_job(const std::string& dir, std::size_t index, const TiledO
 std::string piece_bytes(const ClassifiedSurface& piece, std::size_t index,
                         const TiledResult& stats);
 
-/// Piece i's bytes (piece_bytes), read into `buffer` where they are not in memory already.
-using PieceSource = std::function<std::string_view(std::size_t i, std::string& buffer)>;
-
 /// Pieces 0 .. n - 1 appended in order into one surface, each array sized exactly first (so the
 /// surface of a large run takes no more than it holds); their statistics added to `stats`.
 /// `what` names the pieces in errors.
@@ -158,7 +156,7 @@ ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledRes
 
 /// Every tile's piece (in tile order) welded and finished: the in-memory run's mesh. Sets the
 /// job's voxel and origin.
-TiledResult finish_tile_job(const std::string& dir, const std::vector<std::string>& pieces,
+TiledResult finish_tile_job(const std::string& dir, std::size_t count, const PieceSource& pieces,
                             const TiledOptions& options, double& voxel, Vec3d& origin);
 
 }  // namespace vdbrecon::detail

@@ -788,25 +788,28 @@ void fill_scales(const PointCloud& cloud, const NormalOptions& options, const Kn
     }
 }
 
+/// estimate_normals(); `scales_only`: the scales alone (estimate_scales), the normals neither
+/// read nor returned.
 NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions& options,
-                                   const KnnResult* known, const std::vector<float>* spacing) {
+                                   const KnnResult* known, const std::vector<float>* spacing,
+                                   bool scales_only = false) {
     options.validate();
     const std::size_t n = cloud.size();
     NormalResult result;
     if (n == 0) throw InvalidArgument("normals: the point cloud is empty");
 
-    if (options.mode == NormalMode::keep && !cloud.has_normals()) {
+    if (!scales_only && options.mode == NormalMode::keep && !cloud.has_normals()) {
         throw InvalidArgument(
             "normals: the input has no normals and --normals keep was given. Hint: --normals "
             "estimate");
     }
-    const bool estimate_all = estimates_all(cloud, options);
-    std::vector<char> needs(n, 0);
+    const bool estimate_all = !scales_only && estimates_all(cloud, options);
+    std::vector<char> needs(scales_only ? 0 : n, 0);
     std::size_t needed = 0;
     if (estimate_all) {
         std::fill(needs.begin(), needs.end(), 1);
         needed = n;
-    } else {
+    } else if (!scales_only) {
         for (std::size_t i = 0; i < n; ++i) {
             if (is_zero(cloud.normals[i])) {
                 needs[i] = 1;
@@ -819,7 +822,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     // Kept arrays are Column copies: a borrowed input is shared, not copied, until written.
     if (estimate_all) {
         result.normals = std::vector<Vec3f>(n, Vec3f{0, 0, 0});
-    } else {
+    } else if (!scales_only) {
         result.normals = cloud.normals;
     }
     if (options.scale != ScaleMode::none && cloud.has_scales()) result.scales = cloud.scales;
@@ -885,6 +888,10 @@ bool normals_need_neighbours(const PointCloud& cloud, const NormalOptions& optio
 
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options) {
     return estimate_normals_with(cloud, options, nullptr, nullptr);
+}
+
+NormalResult estimate_scales(const PointCloud& cloud, const NormalOptions& options) {
+    return estimate_normals_with(cloud, options, nullptr, nullptr, true);
 }
 
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options,

@@ -9,15 +9,13 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
-#include <memory>
 #include <string>
 
+#include "detail/parked.h"
 #include "detail/pca.h"
 #include "detail/release.h"
-#include "detail/spool.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
-#include "vdbrecon/log.h"
 
 namespace vdbrecon {
 
@@ -368,52 +366,6 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     r.spacing = std::move(first_spacing);  // input order; compacted with the cloud
 }
 
-/// The owned columns the neighbour search does not read (normals, colours, scales,
-/// confidences) wait in a spool while it runs, when they hold at least `min_bytes`
-/// (OutlierOptions::park_bytes): a 20M-point cloud's normals would otherwise sit beside its
-/// index and per-point tables. Borrowed columns stay. Where no temporary file can be made they
-/// stay in memory (a warning says so).
-class ParkedColumns {
-  public:
-    ParkedColumns(PointCloud& cloud, std::size_t min_bytes) : cloud_(cloud) {
-        std::size_t bytes = 0;
-        for_each([&](auto& c) { bytes += c.borrowed() ? 0 : c.size() * sizeof(c[0]); });
-        if (bytes == 0 || bytes < min_bytes) return;
-        try {
-            spool_ = std::make_unique<detail::Spool>("outliers: parking the cloud's columns");
-            for_each([&](auto& c) {
-                if (!c.borrowed()) {
-                    spool_->add_vector(c.edit());
-                    c.clear();
-                }
-            });
-        } catch (const IoError& e) {
-            restore();
-            log_warning(std::string(e.what()) + "; they stay in memory");
-        }
-    }
-    /// Puts the columns back (exactly sized).
-    void restore() {
-        if (!spool_) return;
-        std::size_t block = 0;
-        for_each([&](auto& c) {
-            using T = std::decay_t<decltype(c[0])>;
-            if (!c.borrowed() && block < spool_->size()) c = spool_->get_vector<T>(block++);
-        });
-        spool_.reset();
-    }
-
-  private:
-    template <typename Fn>
-    void for_each(Fn&& fn) {
-        fn(cloud_.normals);
-        fn(cloud_.colors);
-        fn(cloud_.scales);
-        fn(cloud_.confidences);
-    }
-    PointCloud& cloud_;
-    std::unique_ptr<detail::Spool> spool_;
-};
 
 }  // namespace
 
@@ -430,7 +382,8 @@ OutlierResult remove_outliers(PointCloud&& cloud, const OutlierOptions& options,
     r.removed.assign(cloud.size(), 0);
     if (options.enabled && cloud.size() >= std::size_t(options.k) + 1) {  // else nothing goes
         {
-            ParkedColumns parked(cloud, options.park_bytes);
+            detail::ParkedColumns parked(cloud, options.park_bytes, detail::kParkAll,
+                                         "outliers");
             classify(cloud, options, hand_over, r);
             parked.restore();
         }

@@ -15,6 +15,7 @@
 #include <sstream>
 
 #include "detail/io_common.h"
+#include "detail/parked.h"
 #include "detail/release.h"
 #include "detail/run.h"
 #include "detail/tiles.h"
@@ -318,6 +319,48 @@ void texture_stage(PipelineResult& r, const PointCloud& cloud, const PipelineOpt
     r.texture = texture_regions(r.mesh, r.planes.planes, cloud, options.texture, r.voxel_size);
 }
 
+/// The normal stage of point_stages: normals and scales into the cloud. Where no normal is to
+/// be estimated and the scales need a neighbour search of its own (no outlier stage handed them
+/// over), the search runs with the cloud's normals, colours and confidences parked
+/// (detail/parked.h, above OutlierOptions::park_bytes). Otherwise the stage gets the normals
+/// lent (a borrowed column): what it keeps unchanged it shares rather than copies (a 20M-point
+/// cloud's normals are 229 MiB).
+void normal_stage(PipelineResult& r, PointCloud& cloud, const PipelineOptions& options,
+                  KnnResult& neighbours) {
+    if (r.outliers.spacing.empty() && !normals_need_neighbours(cloud, options.normals) &&
+        scales_need_neighbours(cloud, options.normals)) {
+        detail::ParkedColumns parked(
+            cloud, options.outliers.park_bytes,
+            detail::kParkNormals | detail::kParkColors | detail::kParkConfidences, "normals");
+        try {
+            r.normals = estimate_scales(cloud, options.normals);
+        } catch (...) {
+            parked.restore();  // the caller's cloud keeps its columns
+            throw;
+        }
+        parked.restore();
+    } else {
+        Column<Vec3f> own = std::move(cloud.normals);
+        cloud.normals = own.view();
+        try {
+            r.normals = r.outliers.spacing.empty()
+                            ? estimate_normals(cloud, options.normals, neighbours)
+                            : estimate_normals(cloud, options.normals, r.outliers.spacing);
+        } catch (...) {
+            cloud.normals = std::move(own);  // the caller's cloud keeps its normals
+            throw;
+        }
+        const bool unchanged = r.normals.normals.borrowed() &&
+                               r.normals.normals.data() == own.data() && !own.empty();
+        cloud.normals = unchanged ? std::move(own) : std::move(r.normals.normals);
+    }
+    neighbours = KnnResult{};  // #P x k lists: not kept through the splat
+    detail::release(r.outliers.spacing);
+    cloud.scales = std::move(r.normals.scales);
+    r.normals.normals.clear();
+    r.normals.scales.clear();
+}
+
 /// reconstruct(); `consume`: free the cloud after the splat.
 /// The stages on the points: outliers > normals and scales > the voxel (chosen when
 /// options.splat has none); returns the splat's options with that voxel.
@@ -346,26 +389,7 @@ SplatOptions point_stages(PipelineResult& r, PointCloud& cloud, const PipelineOp
     }
     {
         StageClock clock(r.timings, on_stage, "normals");
-        // The stage gets the cloud's normals lent (a borrowed column): what it keeps unchanged
-        // it shares rather than copies (a 20M-point cloud's normals are 229 MiB).
-        Column<Vec3f> own = std::move(cloud.normals);
-        cloud.normals = own.view();
-        try {
-            r.normals = r.outliers.spacing.empty()
-                            ? estimate_normals(cloud, options.normals, neighbours)
-                            : estimate_normals(cloud, options.normals, r.outliers.spacing);
-        } catch (...) {
-            cloud.normals = std::move(own);  // the caller's cloud keeps its normals
-            throw;
-        }
-        neighbours = KnnResult{};  // #P x k lists: not kept through the splat
-        detail::release(r.outliers.spacing);
-        const bool unchanged = r.normals.normals.borrowed() &&
-                               r.normals.normals.data() == own.data() && !own.empty();
-        cloud.normals = unchanged ? std::move(own) : std::move(r.normals.normals);
-        cloud.scales = std::move(r.normals.scales);
-        r.normals.normals.clear();
-        r.normals.scales.clear();
+        normal_stage(r, cloud, options, neighbours);
     }
     SplatOptions splat_options = options.splat;
     if (splat_options.voxel_size == 0.0) {

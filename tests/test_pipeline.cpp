@@ -151,6 +151,31 @@ TEST_CASE("the cloud's normals, lent to the normal stage, come back to it, also 
     CHECK(one.normals.to_vector() == std::vector<Vec3f>{{0.0f, 0.0f, 1.0f}});
 }
 
+TEST_CASE("the scales alone, searched with the normals parked, give the same mesh", "[pipeline]") {
+    PointCloud c = sample_sphere(5000, 1.0);
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        c.colors.push_back({float(i % 3) / 2.0f, 0.5f, 1.0f});
+    }
+    const NormalResult full = estimate_normals(c);
+    const NormalResult alone = estimate_scales(c);
+    CHECK(alone.normals.empty());
+    CHECK(alone.scales == full.scales);
+    CHECK(alone.density_spacing == full.density_spacing);
+    PipelineOptions o;
+    o.splat.voxel_size = 0.1;
+    o.outliers.enabled = false;  // the normal stage searches the scales itself
+    PointCloud kept = c, parked = c;
+    const PipelineResult a = reconstruct(kept, o);
+    o.outliers.park_bytes = 0;  // always park
+    const PipelineResult b = reconstruct(parked, o);
+    REQUIRE(a.mesh.faces.size() > 100);
+    CHECK(a.mesh.vertices == b.mesh.vertices);
+    CHECK(a.mesh.faces == b.mesh.faces);
+    CHECK(a.mesh.colors == b.mesh.colors);
+    CHECK(parked.normals == c.normals);  // back in the caller's cloud
+    CHECK(parked.colors == c.colors);
+}
+
 TEST_CASE("a lean run (volumes not kept, cloud given up) makes the same mesh", "[pipeline]") {
     // What the CLI does to lower its peak memory: the volumes are freed once meshed and written
     // (keep_volumes = false), the cloud after the splat (reconstruct(PointCloud&&)).

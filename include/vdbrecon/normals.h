@@ -87,4 +87,9 @@ NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& opti
 NormalResult estimate_normals(const PointCloud& cloud, const NormalOptions& options,
                               const std::vector<float>& known_spacing);
 
+/// The per-point scales alone (and the median and density spacing), as estimate_normals()
+/// makes them, from the positions (and any scales the cloud has); the normals are neither read
+/// nor returned (NormalResult::normals empty), so a caller may keep them elsewhere meanwhile.
+NormalResult estimate_scales(const PointCloud& cloud, const NormalOptions& options = {});
+
 }  // namespace vdbrecon

@@ -43,6 +43,10 @@ void bind_outliers(py::module_& m) {
                "dimensionless in [0, 1) (0 disables the rule) ...")
         .field("planarity_spacing", &OutlierOptions::planarity_spacing,
                "... and d_i above this times the cloud's median d, dimensionless.")
+        .field("park_bytes", &OutlierOptions::park_bytes,
+               "Memory only: the cloud's columns the neighbour searches do not read (normals, "
+               "colours, scales, confidences) wait in an unnamed temporary file ($TMPDIR) while "
+               "they run when they hold at least this many bytes (0: always).")
         .nested("knn", &OutlierOptions::knn, "The neighbour search (KnnOptions).");
     o.finish();
 

@@ -61,42 +61,50 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vert
     // faces around each vertex (in face order) are listed for a range of vertices at a time, so
     // that a large mesh never holds all 3 nf of them; the labels, the smallest face of each
     // set, do not depend on the order of the unions.
+    std::vector<std::uint32_t> degree(vertex_count, 0);
+    for (const Triangle& t : faces) {
+        for (std::int32_t v : t) ++degree[std::size_t(v)];
+    }
     constexpr std::size_t kCornersPerPass = std::size_t(1) << 24;
-    const std::size_t passes =
-        std::max<std::size_t>(1, (3 * nf + kCornersPerPass - 1) / kCornersPerPass);
-    const std::size_t span = std::max<std::size_t>(1, (vertex_count + passes - 1) / passes);
-    for (std::size_t lo = 0; lo < vertex_count; lo += span) {
-        const std::size_t hi = std::min(vertex_count, lo + span);
-        const auto in = [&](std::int32_t v) { return std::size_t(v) >= lo && std::size_t(v) < hi; };
-        std::vector<std::uint32_t> first(hi - lo + 1, 0);
-        for (const Triangle& t : faces) {
-            for (std::int32_t v : t) {
-                if (in(v)) ++first[std::size_t(v) - lo + 1];
-            }
+    std::vector<std::uint32_t> first;
+    std::vector<std::int32_t> around;
+    for (std::size_t lo = 0; lo < vertex_count;) {
+        // The range: vertices from lo while their corners fit the pass (at least one vertex).
+        first.assign(1, 0);
+        std::size_t hi = lo;
+        while (hi < vertex_count &&
+               (hi == lo || first.back() + degree[hi] <= kCornersPerPass)) {
+            first.push_back(first.back() + degree[hi++]);
         }
-        for (std::size_t v = lo; v < hi; ++v) first[v - lo + 1] += first[v - lo];
-        std::vector<std::int32_t> around(first.back());
+        const auto in = [&](std::int32_t v) { return std::size_t(v) >= lo && std::size_t(v) < hi; };
+        around.resize(first.back());
         std::vector<std::uint32_t> fill(first.begin(), first.end() - 1);
         for (std::size_t f = 0; f < nf; ++f) {
             for (std::int32_t v : faces[f]) {
                 if (in(v)) around[fill[std::size_t(v) - lo]++] = std::int32_t(f);
             }
         }
-        for (std::size_t f = 0; f < nf; ++f) {
-            const Triangle& t = faces[f];
-            for (int k = 0; k < 3; ++k) {
-                const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
-                if (a == b || !in(a)) continue;  // a degenerate edge joins nothing
-                const std::size_t r = std::size_t(a) - lo;
-                for (std::uint32_t j = first[r]; j < first[r + 1]; ++j) {
-                    const std::int32_t g = around[j];
-                    if (std::size_t(g) <= f) continue;  // each pair once
-                    const Triangle& u = faces[std::size_t(g)];
-                    if (u[0] != b && u[1] != b && u[2] != b) continue;
-                    sets.unite(std::int32_t(f), g);
+        // Each edge (a, b) of a face f around a, a in the range.
+        for (std::size_t r = 0; r + 1 < first.size(); ++r) {
+            const auto a = std::int32_t(lo + r);
+            for (std::uint32_t i = first[r]; i < first[r + 1]; ++i) {
+                const std::int32_t f = around[i];
+                if (i > first[r] && around[i - 1] == f) continue;  // a face listing a twice
+                const Triangle& t = faces[std::size_t(f)];
+                for (int k = 0; k < 3; ++k) {
+                    const std::int32_t b = t[std::size_t((k + 1) % 3)];
+                    if (t[std::size_t(k)] != a || b == a) continue;  // a degenerate edge joins nothing
+                    for (std::uint32_t j = i + 1; j < first[r + 1]; ++j) {
+                        const std::int32_t g = around[j];
+                        if (g == f) continue;
+                        const Triangle& u = faces[std::size_t(g)];
+                        if (u[0] != b && u[1] != b && u[2] != b) continue;
+                        sets.unite(f, g);
+                    }
                 }
             }
         }
+        lo = hi;
     }
     return std::move(sets).labels();
 }

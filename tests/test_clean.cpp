@@ -90,11 +90,13 @@ TEST_CASE("clean: two faces touching at a vertex only are separate components", 
     REQUIRE(mesh_topology(m).components == 2);
 }
 
-TEST_CASE("clean: the components of a 3M-face mesh, found a range of vertices at a time", "[clean]") {
-    // A 1001 x 1501 grid of vertices (numbered row by row, so every band of columns has
-    // vertices in every range) whose column of quads x = 99, 199, ... is left out: 10 bands
-    // of 99 quads, each one piece; 2.97M faces make the component search take several passes.
-    const int w = 1001, h = 1501;
+TEST_CASE("clean: the components of a 5.7M-face mesh, found a range of vertices at a time",
+          "[clean]") {
+    // A 1701 x 1701 grid of vertices (numbered row by row, so every band of columns has
+    // vertices in every range) whose column of quads x = 99, 199, ... is left out: 17 bands of
+    // 99 quads, each one piece. Its 17.2M corners are more than one pass of the component search
+    // lists (2^24), so it takes two.
+    const int w = 1701, h = 1701;
     Mesh m;
     std::vector<Vec3f>& v = m.vertices.edit();
     for (int y = 0; y < h; ++y) {
@@ -109,11 +111,11 @@ TEST_CASE("clean: the components of a 3M-face mesh, found a range of vertices at
             f.push_back({a, d, c});
         }
     }
-    REQUIRE(f.size() == 2970000);
-    const CleanResult r = clean_mesh(m);
-    CHECK(r.components_before == 10);
+    REQUIRE(3 * f.size() > (std::size_t(1) << 24));
+    const CleanResult r = clean_mesh(std::move(m));
+    CHECK(r.components_before == 17);
     CHECK(r.removed_components == 0);
-    CHECK(r.mesh.faces.size() == f.size());
+    CHECK(r.mesh.faces.size() == 2 * 1683 * 1700);
 }
 
 TEST_CASE("clean: Taubin smoothing removes noise and keeps a sphere's size", "[clean]") {

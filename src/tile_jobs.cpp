@@ -54,13 +54,19 @@ class Reader {
         at_ += sizeof(T);
         return v;
     }
+    /// Steps over an array written by Bytes::put_vector; returns its length.
     template <typename T>
-    std::vector<T> get_vector() {
+    std::size_t skip_vector() {
         const auto n = get<std::uint64_t>();
         if (n > (bytes_.size() - at_) / sizeof(T)) fail();
-        std::vector<T> v(n);
-        std::memcpy(v.data(), bytes_.data() + at_, n * sizeof(T));
         at_ += n * sizeof(T);
+        return std::size_t(n);
+    }
+    template <typename T>
+    std::vector<T> get_vector() {
+        const std::size_t from = at_ + sizeof(std::uint64_t);
+        std::vector<T> v(skip_vector<T>());
+        std::memcpy(v.data(), bytes_.data() + from, v.size() * sizeof(T));
         return v;
     }
     /// Appends an array written by Bytes::put_vector to v.
@@ -280,6 +286,23 @@ ClassifiedSurface read_piece(std::string_view bytes, std::size_t i, TiledResult&
     return s;
 }
 
+/// The lengths of piece i's arrays (read_piece's layout), read without copying them.
+struct PieceSizes {
+    std::size_t points = 0, triangles = 0, colors = 0;
+};
+PieceSizes piece_sizes(std::string_view bytes, std::size_t i, const std::string& what) {
+    Reader r(bytes, what + " " + std::to_string(i));
+    r.tag(kPieceTag);
+    r.get<std::uint64_t>();  // the index, checked by read_piece
+    PieceSizes s;
+    s.points = r.skip_vector<openvdb::Vec3f>();
+    s.triangles = r.skip_vector<Triangle>();
+    r.skip_vector<char>();            // status
+    r.skip_vector<openvdb::Vec3f>();  // grad
+    s.colors = r.skip_vector<openvdb::Vec3f>();
+    return s;
+}
+
 }  // namespace
 
 ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledResult& stats,
@@ -287,11 +310,10 @@ ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledRes
     std::string buffer;
     std::size_t points = 0, triangles = 0, colors = 0;
     for (std::size_t i = 0; i < n; ++i) {  // the sizes first
-        TiledResult ignored;
-        const ClassifiedSurface s = read_piece(source(i, buffer), i, ignored, what);
-        points += s.points.size();
-        triangles += s.triangles.size();
-        colors += s.colors.size();
+        const PieceSizes s = piece_sizes(source(i, buffer), i, what);
+        points += s.points;
+        triangles += s.triangles;
+        colors += s.colors;
     }
     ClassifiedSurface all;
     all.points.reserve(points);

@@ -40,16 +40,25 @@ std::vector<std::uint64_t> border_edge_keys(Span<Triangle> faces) {
 }
 
 VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count) {
+    return vertex_faces(faces, 0, vertex_count);
+}
+
+VertexFaces vertex_faces(Span<Triangle> faces, std::size_t lo, std::size_t hi) {
+    const auto in = [&](std::int32_t v) { return std::size_t(v) >= lo && std::size_t(v) < hi; };
     VertexFaces r;
-    r.first.assign(vertex_count + 1, 0);
+    r.first.assign(hi - lo + 1, 0);
     for (const Triangle& t : faces) {
-        for (std::int32_t i : t) ++r.first[std::size_t(i) + 1];
+        for (std::int32_t i : t) {
+            if (in(i)) ++r.first[std::size_t(i) - lo + 1];
+        }
     }
-    for (std::size_t v = 0; v < vertex_count; ++v) r.first[v + 1] += r.first[v];
-    r.around.resize(r.first[vertex_count]);
+    for (std::size_t v = 0; v < hi - lo; ++v) r.first[v + 1] += r.first[v];
+    r.around.resize(r.first[hi - lo]);
     std::vector<std::size_t> fill(r.first.begin(), r.first.end() - 1);
     for (std::size_t f = 0; f < faces.size(); ++f) {
-        for (std::int32_t i : faces[f]) r.around[fill[std::size_t(i)]++] = std::int32_t(f);
+        for (std::int32_t i : faces[f]) {
+            if (in(i)) r.around[fill[std::size_t(i) - lo]++] = std::int32_t(f);
+        }
     }
     return r;
 }
@@ -58,44 +67,28 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vert
     const std::size_t nf = faces.size();
     MinUnionFind sets(nf);
     // A face g around a that holds both ends of an edge (a, b) of face f has that edge too. The
-    // faces around each vertex (in face order) are listed for a range of vertices at a time, so
-    // that a large mesh never holds all 3 nf of them; the labels, the smallest face of each
-    // set, do not depend on the order of the unions.
-    std::vector<std::uint32_t> degree(vertex_count, 0);
-    for (const Triangle& t : faces) {
-        for (std::int32_t v : t) ++degree[std::size_t(v)];
-    }
+    // faces around each vertex are listed for a range of vertices at a time (about 2^24 corners
+    // a pass), so that a large mesh never holds all 3 nf of them; the labels, the smallest face
+    // of each set, do not depend on the order of the unions.
     constexpr std::size_t kCornersPerPass = std::size_t(1) << 24;
-    std::vector<std::uint32_t> first;
-    std::vector<std::int32_t> around;
-    for (std::size_t lo = 0; lo < vertex_count;) {
-        // The range: vertices from lo while their corners fit the pass (at least one vertex).
-        first.assign(1, 0);
-        std::size_t hi = lo;
-        while (hi < vertex_count &&
-               (hi == lo || first.back() + degree[hi] <= kCornersPerPass)) {
-            first.push_back(first.back() + degree[hi++]);
-        }
-        const auto in = [&](std::int32_t v) { return std::size_t(v) >= lo && std::size_t(v) < hi; };
-        around.resize(first.back());
-        std::vector<std::uint32_t> fill(first.begin(), first.end() - 1);
-        for (std::size_t f = 0; f < nf; ++f) {
-            for (std::int32_t v : faces[f]) {
-                if (in(v)) around[fill[std::size_t(v) - lo]++] = std::int32_t(f);
-            }
-        }
+    const std::size_t passes =
+        std::max<std::size_t>(1, (3 * nf + kCornersPerPass - 1) / kCornersPerPass);
+    const std::size_t span = std::max<std::size_t>(1, (vertex_count + passes - 1) / passes);
+    for (std::size_t lo = 0; lo < vertex_count; lo += span) {
+        const VertexFaces vf = vertex_faces(faces, lo, std::min(vertex_count, lo + span));
         // Each edge (a, b) of a face f around a, a in the range.
-        for (std::size_t r = 0; r + 1 < first.size(); ++r) {
+        for (std::size_t r = 0; r + 1 < vf.first.size(); ++r) {
             const auto a = std::int32_t(lo + r);
-            for (std::uint32_t i = first[r]; i < first[r + 1]; ++i) {
-                const std::int32_t f = around[i];
-                if (i > first[r] && around[i - 1] == f) continue;  // a face listing a twice
+            const std::size_t end = vf.first[r + 1];
+            for (std::size_t i = vf.first[r]; i < end; ++i) {
+                const std::int32_t f = vf.around[i];
+                if (i > vf.first[r] && vf.around[i - 1] == f) continue;  // a face listing a twice
                 const Triangle& t = faces[std::size_t(f)];
                 for (int k = 0; k < 3; ++k) {
                     const std::int32_t b = t[std::size_t((k + 1) % 3)];
                     if (t[std::size_t(k)] != a || b == a) continue;  // a degenerate edge joins nothing
-                    for (std::uint32_t j = i + 1; j < first[r + 1]; ++j) {
-                        const std::int32_t g = around[j];
+                    for (std::size_t j = i + 1; j < end; ++j) {
+                        const std::int32_t g = vf.around[j];
                         if (g == f) continue;
                         const Triangle& u = faces[std::size_t(g)];
                         if (u[0] != b && u[1] != b && u[2] != b) continue;
@@ -104,7 +97,6 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vert
                 }
             }
         }
-        lo = hi;
     }
     return std::move(sets).labels();
 }

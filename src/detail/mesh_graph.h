@@ -77,6 +77,10 @@ struct VertexFaces {
 };
 VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count);
 
+/// The same for the vertices lo .. hi - 1 only: those around v are around[first[v - lo] ..
+/// first[v - lo + 1]).
+VertexFaces vertex_faces(Span<Triangle> faces, std::size_t lo, std::size_t hi);
+
 /// Union-find over 0..n-1 whose roots are the smallest index of their set, so that the labels
 /// do not depend on the order of the unions.
 class MinUnionFind {

@@ -293,8 +293,7 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         }
         ++kept;
     }
-    detail::release(raw.xyz);
-    detail::release(raw.xyz_float);
+    detail::release(raw.xyz);  // (xyz_float, if any, became the positions)
     positions.resize(kept);
     cloud.positions = std::move(positions);
     result.dropped_nonfinite = rows - kept;

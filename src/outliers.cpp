@@ -366,7 +366,6 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     r.spacing = std::move(first_spacing);  // input order; compacted with the cloud
 }
 
-
 }  // namespace
 
 OutlierResult remove_outliers(const PointCloud& cloud, const OutlierOptions& options,

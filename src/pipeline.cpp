@@ -332,13 +332,8 @@ void normal_stage(PipelineResult& r, PointCloud& cloud, const PipelineOptions& o
         detail::ParkedColumns parked(
             cloud, options.outliers.park_bytes,
             detail::kParkNormals | detail::kParkColors | detail::kParkConfidences, "normals");
-        try {
-            r.normals = estimate_scales(cloud, options.normals);
-        } catch (...) {
-            parked.restore();  // the caller's cloud keeps its columns
-            throw;
-        }
-        parked.restore();
+        r.normals = estimate_scales(cloud, options.normals);
+        parked.restore();  // (also done, on an error, by its destructor)
     } else {
         Column<Vec3f> own = std::move(cloud.normals);
         cloud.normals = own.view();

@@ -27,7 +27,6 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
-#include <numeric>
 #include <type_traits>
 #include <unordered_map>
 

@@ -149,6 +149,10 @@ TEST_CASE("the cloud's normals, lent to the normal stage, come back to it, also 
     REQUIRE_THROWS_AS(reconstruct(one, o), NumericalError);
     CHECK_FALSE(one.normals.borrowed());
     CHECK(one.normals.to_vector() == std::vector<Vec3f>{{0.0f, 0.0f, 1.0f}});
+    // The same with the normal parked in a temporary file while the stage fails.
+    o.outliers.park_bytes = 0;
+    REQUIRE_THROWS_AS(reconstruct(one, o), NumericalError);
+    CHECK(one.normals.to_vector() == std::vector<Vec3f>{{0.0f, 0.0f, 1.0f}});
 }
 
 TEST_CASE("the scales alone, searched with the normals parked, give the same mesh", "[pipeline]") {

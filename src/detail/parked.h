@@ -26,8 +26,9 @@ enum ParkColumn : unsigned {
 
 /// The cloud's owned columns in `which` wait in a spool from construction to restore(), when
 /// they hold at least `min_bytes` together; borrowed columns stay. Where no temporary file can
-/// be made they stay in memory (a warning naming `stage` says so). Not restored when a stage
-/// throws: the cloud is then given up.
+/// be made they stay in memory (a warning naming `stage` says so). When a stage throws before
+/// restore(), the destructor puts them back (as far as the file can still be read: it does not
+/// throw).
 class ParkedColumns {
   public:
     ParkedColumns(PointCloud& cloud, std::size_t min_bytes, unsigned which,
@@ -49,6 +50,15 @@ class ParkedColumns {
             log_warning(std::string(e.what()) + "; they stay in memory");
         }
     }
+    ~ParkedColumns() {
+        try {
+            restore();
+        } catch (...) {  // already unwinding from the stage's own error
+        }
+    }
+    ParkedColumns(const ParkedColumns&) = delete;
+    ParkedColumns& operator=(const ParkedColumns&) = delete;
+
     /// Puts the columns back (exactly sized).
     void restore() {
         if (!spool_) return;

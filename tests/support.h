@@ -106,6 +106,30 @@ inline int boundary_loops(const Mesh& m) {
     return l.size() == 1 && l[0] < 0.0 ? -1 : int(l.size());
 }
 
+/// An environment variable set while alive, then put back as it was (unset if it was).
+class ScopedEnv {
+  public:
+    ScopedEnv(const char* name, const char* value) : name_(name) {
+        const char* old = std::getenv(name);
+        had_ = old != nullptr;
+        if (had_) old_ = old;
+        ::setenv(name, value, 1);
+    }
+    ~ScopedEnv() {
+        if (had_) {
+            ::setenv(name_.c_str(), old_.c_str(), 1);
+        } else {
+            ::unsetenv(name_.c_str());
+        }
+    }
+    ScopedEnv(const ScopedEnv&) = delete;
+    ScopedEnv& operator=(const ScopedEnv&) = delete;
+
+  private:
+    std::string name_, old_;
+    bool had_ = false;
+};
+
 /// A fresh empty directory under /tmp, removed (with its files) when the object dies.
 class TempDir {
 public:

@@ -1,5 +1,4 @@
 // Point outlier removal (outliers.h): a sphere with stray points, a cube whose corners must stay.
-#include <cstdlib>
 #include <random>
 
 #include "support.h"
@@ -180,16 +179,8 @@ TEST_CASE("outliers: the in-place removal keeps the same points as the copying o
     SECTION("without a temporary directory the columns stay in memory") {
         OutlierOptions parking = o;
         parking.park_bytes = 0;
-        const char* old = std::getenv("TMPDIR");
-        const std::string saved = old ? old : "";
-        ::setenv("TMPDIR", "/nonexistent-vdbrecon-dir", 1);
-        const OutlierResult r = remove_outliers(c, parking, OutlierHandOver{true, 0});
-        if (old) {
-            ::setenv("TMPDIR", saved.c_str(), 1);
-        } else {
-            ::unsetenv("TMPDIR");
-        }
-        same(r);
+        const ScopedEnv tmpdir("TMPDIR", "/nonexistent-vdbrecon-dir");
+        same(remove_outliers(c, parking, OutlierHandOver{true, 0}));
     }
     SECTION("borrowed arrays are copied, never written") {
         PointCloud borrowed;

@@ -3,7 +3,6 @@
 // generated CAD parts (creases), smooth shapes with colours, a holed sphere closed by --close,
 // and the Stanford bunny scans.
 #include <algorithm>
-#include <cstdlib>
 #include <numeric>
 #include <random>
 
@@ -175,19 +174,12 @@ TEST_CASE("tiles are refused with a solid closing and out of range", "[tiles]") 
 
 TEST_CASE("tiles: no temporary directory for the pieces is a clear error", "[tiles]") {
     const PointCloud sample = sample_sphere(4000, 1.0);
-    const char* old = std::getenv("TMPDIR");
-    const std::string saved = old ? old : "";
-    ::setenv("TMPDIR", "/nonexistent-vdbrecon-dir", 1);
+    const ScopedEnv tmpdir("TMPDIR", "/nonexistent-vdbrecon-dir");
     try {
         run_on(sample, options_at(0.1, Mesher::mc, 16));
         FAIL("no error");
     } catch (const IoError& e) {
         CHECK(std::string(e.what()).find("/nonexistent-vdbrecon-dir") != std::string::npos);
-    }
-    if (old) {
-        ::setenv("TMPDIR", saved.c_str(), 1);
-    } else {
-        ::unsetenv("TMPDIR");
     }
 }
 

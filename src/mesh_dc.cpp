@@ -792,6 +792,7 @@ float level_at(const SurfaceCell& cell, const openvdb::Vec3d& x, FloatAccessor& 
                      wz = kCubeCorner[k][2] ? t[2] : 1.0 - t[2];
         const double fk = double(f[k]) - iso;
         v += wx * wy * wz * fk;
+        if (!grad) continue;  // the level alone, for most vertices
         g[0] += (kCubeCorner[k][0] ? 1.0 : -1.0) * wy * wz * fk;
         g[1] += (kCubeCorner[k][1] ? 1.0 : -1.0) * wx * wz * fk;
         g[2] += (kCubeCorner[k][2] ? 1.0 : -1.0) * wx * wy * fk;

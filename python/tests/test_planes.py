@@ -47,6 +47,19 @@ def test_box_gives_six_planes_and_few_faces():
     assert t.boundary_edges == 0 and t.components == 1 and t.euler == 2
 
 
+def test_mesh_distances_are_the_distances_to_a_box():
+    v, f = subdivided_box(4)
+    box = vdbrecon.Mesh(v, f)
+    points = np.array([[0.5, 0.5, 2.0], [0.5, 0.5, 0.4], [2.0, 2.0, 0.5], [0.25, 1.0, 0.75]],
+                      np.float32)
+    d, face = vdbrecon.mesh_distances(box, points)
+    assert d.dtype == np.float64 and face.dtype == np.int32 and len(face) == 4
+    assert np.allclose(d, [1.0, 0.4, np.sqrt(2.0), 0.0], atol=1e-6)
+    # The closest face of the first point is on the top (z = 1), of the second on the bottom.
+    tops = v[f[face]][:, :, 2]
+    assert np.all(tops[0] == 1.0) and np.all(tops[1] == 0.0)
+
+
 def test_pipeline_writes_regions_as_a_face_property(tmp_path):
     rng = np.random.default_rng(2)
     # A box sampled at random, exact normals.
@@ -64,3 +77,4 @@ def test_pipeline_writes_regions_as_a_face_property(tmp_path):
     assert b"property int region" in header
     m = vdbrecon.read_mesh(tmp_path / "box.recon.ply")
     assert len(m.faces) == r.result.planes.faces_after
+

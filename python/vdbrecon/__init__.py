@@ -95,7 +95,7 @@ __all__ = [
     "reconstruct", "run", "Fusion", "DepthOptions", "read_points", "read_mesh", "write_mesh", "write_points",
     "remove_outliers", "estimate_normals", "splat", "close", "extract_mesh", "clean_mesh",
     "fill_holes", "decimate", "DecimateOptions", "DecimateResult", "planar_regions", "PlaneOptions", "PlaneResult", "Plane",
-    "texture_regions", "write_textured_mesh", "TextureOptions", "TextureAtlas", "evaluate", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
+    "texture_regions", "write_textured_mesh", "TextureOptions", "TextureAtlas", "evaluate", "mesh_distances", "mesh_topology", "read_volume", "write_volume", "to_pyopenvdb", "from_pyopenvdb",
     "version", "stage_volume_path",
     "PointCloud", "Mesh", "Volume", "PipelineOptions", "ReadOptions", "WriteOptions",
     "OutlierOptions", "NormalOptions", "KnnOptions", "SplatOptions", "CloseOptions", "MeshOptions",
@@ -677,6 +677,12 @@ _document(evaluate, """Compares a reconstruction with a reference mesh (Mesh obj
 accuracy, completeness, Chamfer-L1, Hausdorff (world units), precision/recall/F per tau,
 normal consistency and topology. EvalResult.to_json() is what `vdbrecon eval` prints.""",
           _struct_entries(EvalOptions), [_pos("recon"), _pos("reference")])
+
+
+def mesh_distances(mesh, points):
+    """Distance (world units) from each of `points` (N x 3) to the closest point of `mesh` (a
+    Mesh or mesh path), and the index of that closest face: (float64 array, int32 array)."""
+    return _v.mesh_distances(_mesh(mesh, "mesh"), _cloud(points))
 
 
 def mesh_topology(mesh):

@@ -172,6 +172,9 @@ void print_help() {
         << fmt(d.planes.distance) << "]\n"
         << "  --plane-min-area A     smaller regions are no plane, square voxels ["
         << fmt(d.planes.min_area) << "]\n"
+        << "  --plane-error E        the re-triangulation (regions and the rest of the mesh)\n"
+        << "                         moves the surface by at most E voxels ["
+        << fmt(d.planes.max_error) << "]\n"
         << "  --texture              textures for the planar regions from the points' colours\n"
         << "                         (turns --planes on): OUT.obj + OUT.mtl + OUT.texture.png [off]\n"
         << "  --texel T              texture texel edge, world units [half a voxel]\n"
@@ -437,6 +440,8 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.planes.distance = parse_number(a, args.value(a));
     } else if (a == "--plane-min-area") {
         o.planes.min_area = parse_number(a, args.value(a));
+    } else if (a == "--plane-error") {
+        o.planes.max_error = parse_number(a, args.value(a));
     } else if (a == "--texture") {
         o.texture.enabled = true;
         o.planes.enabled = true;

@@ -25,6 +25,9 @@ void DecimateOptions::validate() const {
     if (ratio == 1.0 && max_error == 0.0) {
         throw InvalidArgument("decimate: give a ratio below 1 or a max_error");
     }
+    if (!(std::isfinite(region_error) && region_error >= 0.0)) {
+        throw InvalidArgument("decimate.region_error must be a non-negative number (0 = max_error)");
+    }
     if (!(std::isfinite(border_weight) && border_weight >= 0.0)) {
         throw InvalidArgument("decimate.border_weight must be a non-negative number");
     }
@@ -58,6 +61,12 @@ struct Quadric {
         bc += q.bc; bd += q.bd; c2 += q.c2; cd += q.cd; d2 += q.d2;
         w += q.w;
         return *this;
+    }
+    /// Adds s q (weights included).
+    void add_scaled(const Quadric& q, double s) {
+        a2 += s * q.a2; ab += s * q.ab; ac += s * q.ac; ad += s * q.ad; b2 += s * q.b2;
+        bc += s * q.bc; bd += s * q.bd; c2 += s * q.c2; cd += s * q.cd; d2 += s * q.d2;
+        w += s * q.w;
     }
     double operator()(const V3& v) const {
         const double x = v[0], y = v[1], z = v[2];
@@ -133,6 +142,7 @@ class Decimator {
             colors_.assign(m.colors.begin(), m.colors.end());
         }
         faces_.assign(m.faces.begin(), m.faces.end());
+        if (m.regions.size() == faces_.size()) regions_.assign(m.regions.begin(), m.regions.end());
         alive_face_.assign(faces_.size(), 1);
         around_.resize(nv);
         for (std::size_t f = 0; f < faces_.size(); ++f) {
@@ -140,22 +150,43 @@ class Decimator {
         }
         version_.assign(nv, 0);
         border_.assign(nv, 0);
-        q_.resize(nv);
+        faces_q_.resize(nv);
+        border_q_.resize(nv);
         cos_turn_ = std::cos(o.max_normal_turn * M_PI / 180.0);
-        build_quadrics();
+        build_quadrics(outline_edges(m));
     }
 
+    /// Collapses the cheapest edges while more than `target` faces are alive. With a
+    /// max_error, passes over the edges left repeat while one makes a collapse: whether a
+    /// collapse stays within the bounds depends on the faces around its vertices, which later
+    /// collapses around them change (the heap only hears of those at the collapsed vertex).
     DecimateResult run(std::size_t target, double max_error) {
         DecimateResult r;
         r.faces_before = faces_.size();
         std::size_t alive = faces_.size();
-        for (const detail::EdgeUse& e : detail::undirected_edges(faces_)) push(e.a, e.b);
+        for (int pass = 0; pass < 8; ++pass) {
+            std::vector<Triangle> live;
+            for (std::size_t f = 0; f < faces_.size(); ++f) {
+                if (alive_face_[f]) live.push_back(faces_[f]);
+            }
+            for (const detail::EdgeUse& e : detail::undirected_edges(live)) push(e.a, e.b);
+            const std::size_t before = r.collapses;
+            collapse_cheapest(target, max_error, alive, r);
+            if (max_error == 0.0 || alive <= target || r.collapses == before) break;
+        }
+        r.faces_after = alive;
+        return r;
+    }
+
+    void collapse_cheapest(std::size_t target, double max_error, std::size_t& alive,
+                           DecimateResult& r) {
         const double limit = max_error > 0.0 ? max_error : HUGE_VAL;
         while (alive > target && !heap_.empty()) {
-            const Candidate c = heap_.top();
+            Candidate c = heap_.top();
             heap_.pop();
             if (version_[std::size_t(c.a)] != c.va || version_[std::size_t(c.b)] != c.vb) continue;
             if (c.error > limit) continue;  // never made; cheaper ones may still come
+            if (max_error > 0.0 && !local_move_within(c, limit) && !onto_endpoint(c, limit)) continue;
             const int removed = collapse(c);
             if (removed < 0) {
                 ++r.refused;
@@ -165,8 +196,6 @@ class Decimator {
             ++r.collapses;
             r.max_error = std::max(r.max_error, c.error);
         }
-        r.faces_after = alive;
-        return r;
     }
 
     Mesh result(const Mesh& in) const {
@@ -206,18 +235,75 @@ class Decimator {
     }
 
   private:
+    /// The keys of the edges between two planar regions or a region and the rest (when the
+    /// mesh has regions, planes.h), sorted: a region's outline and its creases. They get border
+    /// planes like the open border, so that the outline moves by no more than the bound (its
+    /// straight stretches still collapse) and the rest cannot eat into a region where it is
+    /// nearly coplanar with it; but they are no border (a region may come to touch itself).
+    std::vector<std::uint64_t> outline_edges(const Mesh& m) const {
+        std::vector<std::uint64_t> keys;
+        if (m.regions.size() != faces_.size() || faces_.empty()) return keys;
+        const auto sides = detail::sorted_sides(faces_, [](std::size_t) { return true; });
+        detail::manifold_pairs(sides, [&](const detail::EdgeSide& x, const detail::EdgeSide& y) {
+            if (m.regions[std::size_t(x.face)] != m.regions[std::size_t(y.face)]) {
+                keys.push_back(x.key);
+            }
+        });
+        std::sort(keys.begin(), keys.end());
+        return keys;
+    }
+
+    /// A face's plane n.x + d = 0 (unit normal; weight w = area, 0 when degenerate) and the sum
+    /// of its corners, the key its vertices order it by.
+    struct FacePlane {
+        V3 n, centre;
+        double d, w;
+    };
+
+    /// Each planar region's plane: its faces' area-weighted mean normal and offset (the faces
+    /// lie in it; a sliver's own plane is noise), summed in the order of the faces' centroids.
+    void region_planes(const std::vector<FacePlane>& plane) {
+        std::vector<std::int32_t> order;
+        std::int32_t count = 0;
+        for (std::size_t f = 0; f < faces_.size(); ++f) {
+            if (regions_[f] < 0) continue;
+            order.push_back(std::int32_t(f));
+            count = std::max(count, regions_[f] + 1);
+        }
+        std::sort(order.begin(), order.end(), [&](std::int32_t f, std::int32_t g) {
+            const std::int32_t rf = regions_[std::size_t(f)], rg = regions_[std::size_t(g)];
+            const V3 &cf = plane[std::size_t(f)].centre, &cg = plane[std::size_t(g)].centre;
+            return rf != rg ? rf < rg : (cf != cg ? cf < cg : f < g);
+        });
+        std::vector<V3> normal(std::size_t(count), V3{0.0, 0.0, 0.0});
+        for (const std::int32_t f : order) {
+            const FacePlane& fp = plane[std::size_t(f)];
+            V3& n = normal[std::size_t(regions_[std::size_t(f)])];
+            for (int k = 0; k < 3; ++k) n[std::size_t(k)] += fp.w * fp.n[std::size_t(k)];
+        }
+        region_plane_.assign(std::size_t(count), {V3{0.0, 0.0, 0.0}, 0.0});
+        std::vector<double> area(std::size_t(count), 0.0);
+        for (std::size_t r = 0; r < normal.size(); ++r) {
+            const double l = std::sqrt(dot(normal[r], normal[r]));
+            if (l > 0.0) region_plane_[r].first = {normal[r][0] / l, normal[r][1] / l, normal[r][2] / l};
+        }
+        for (const std::int32_t f : order) {
+            const FacePlane& fp = plane[std::size_t(f)];
+            const std::size_t r = std::size_t(regions_[std::size_t(f)]);
+            region_plane_[r].second -= fp.w * dot(region_plane_[r].first, fp.centre) / 3.0;
+            area[r] += fp.w;
+        }
+        for (std::size_t r = 0; r < area.size(); ++r) {
+            if (area[r] > 0.0) region_plane_[r].second /= area[r];
+        }
+    }
+
     /// Face planes (area-weighted) and, along the open border, planes through each border edge
-    /// perpendicular to its face. Each vertex sums its faces' planes in the order of the faces'
-    /// centroids (not their numbers), so that the sums do not depend on how the mesh is
-    /// numbered.
-    void build_quadrics() {
+    /// perpendicular to its face (weighted by the edge's squared length; border_weight applies
+    /// in push). Each vertex sums its faces' planes in the order of the faces' centroids (not
+    /// their numbers), so that the sums do not depend on how the mesh is numbered.
+    void build_quadrics(const std::vector<std::uint64_t>& outline) {
         const std::vector<std::uint64_t> border = detail::border_edge_keys(faces_);
-        // Per face its plane (unit normal, offset, weight = area; weight 0 when degenerate) and
-        // the sum of its corners, the key its vertices order it by.
-        struct FacePlane {
-            V3 n, centre;
-            double d, w;
-        };
         std::vector<FacePlane> plane(faces_.size());
         for (std::size_t f = 0; f < faces_.size(); ++f) {
             const Triangle& t = faces_[f];
@@ -234,6 +320,7 @@ class Decimator {
             fp.n = l > 0.0 ? V3{n2[0] / l, n2[1] / l, n2[2] / l} : V3{0.0, 0.0, 0.0};
             fp.d = -dot(fp.n, p0);
         }
+        if (!regions_.empty()) region_planes(plane);
         std::vector<std::int32_t> faces;
         for (std::size_t v = 0; v < p_.size(); ++v) {
             faces = around_[v];
@@ -243,28 +330,44 @@ class Decimator {
             });
             for (std::int32_t f : faces) {
                 const FacePlane& fp = plane[std::size_t(f)];
-                if (fp.w > 0.0) q_[v].add_plane(fp.n, fp.d, fp.w);
-                add_border_quadrics(std::int32_t(v), faces_[std::size_t(f)], border);
+                if (fp.w > 0.0) faces_q_[v].add_plane(fp.n, fp.d, fp.w);
+                add_border_quadrics(std::int32_t(v), faces_[std::size_t(f)], border, outline);
             }
         }
     }
 
     /// Adds to v's quadric the border planes of face t's edges at v.
     void add_border_quadrics(std::int32_t v, const Triangle& t,
-                             const std::vector<std::uint64_t>& border) {
+                             const std::vector<std::uint64_t>& border,
+                             const std::vector<std::uint64_t>& outline) {
         for (int k = 0; k < 3; ++k) {
             const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
             if (a != v && b != v) continue;
-            if (!std::binary_search(border.begin(), border.end(), detail::edge_key(a, b))) continue;
-            border_[std::size_t(v)] = 1;
+            const std::uint64_t key = detail::edge_key(a, b);
+            if (std::binary_search(border.begin(), border.end(), key)) {
+                border_[std::size_t(v)] = 1;
+            } else if (!std::binary_search(outline.begin(), outline.end(), key)) {
+                continue;
+            }
             const V3 e = sub(p_[std::size_t(b)], p_[std::size_t(a)]);
             const V3 fn = cross(e, sub(p_[std::size_t(t[std::size_t((k + 2) % 3)])], p_[std::size_t(a)]));
             V3 m = cross(e, fn);
             const double lm = std::sqrt(dot(m, m));
             if (!(lm > 0.0)) continue;
             m = {m[0] / lm, m[1] / lm, m[2] / lm};
-            q_[std::size_t(v)].add_plane(m, -dot(m, p_[std::size_t(a)]), o_.border_weight * dot(e, e));
+            border_q_[std::size_t(v)].add_plane(m, -dot(m, p_[std::size_t(a)]), dot(e, e));
         }
+    }
+
+    static Quadric sum(const std::vector<Quadric>& q, std::int32_t a, std::int32_t b) {
+        Quadric s = q[std::size_t(a)];
+        s += q[std::size_t(b)];
+        return s;
+    }
+
+    /// The root mean square distance of x to q's planes (0 without planes).
+    static double rms(const Quadric& q, const V3& x) {
+        return q.w > 0.0 ? std::sqrt(std::max(0.0, q(x)) / q.w) : 0.0;
     }
 
     /// Whether vertex i comes before j by position (by number only where they coincide).
@@ -276,8 +379,15 @@ class Decimator {
 
     void push(std::int32_t a, std::int32_t b) {
         if (before(b, a)) std::swap(a, b);
-        Quadric q = q_[std::size_t(a)];
-        q += q_[std::size_t(b)];
+        // The order of collapses goes by q: the faces' planes plus the border's weighted by
+        // border_weight. The error is the larger of two root mean square distances: to the
+        // faces' planes (area-weighted) and to the border's (each counted by its edge's squared
+        // length). Mixing the two in one mean let the border sag far beyond max_error: the
+        // border_weight in the divisor made a border vertex's mean ~1000x smaller, and the
+        // merged faces' area dilutes the few border planes.
+        const Quadric faces = sum(faces_q_, a, b), border = sum(border_q_, a, b);
+        Quadric q = faces;
+        q.add_scaled(border, o_.border_weight);
         Candidate c{0.0, 0.0, a, b, version_[std::size_t(a)], version_[std::size_t(b)], {}, 0};
         const V3& pa = p_[std::size_t(a)];
         const V3& pb = p_[std::size_t(b)];
@@ -297,8 +407,83 @@ class Decimator {
         }
         c.cost = q(c.target);
         c.place = place_key(c.target, mid);
-        c.error = std::sqrt(std::max(0.0, c.cost) / std::max(q.w, 1e-300));
+        c.error = std::max(rms(faces, c.target), rms(border, c.target));
         heap_.push(c);
+    }
+
+    /// c moved to one of its two vertices (a first) when its own target is not within the
+    /// bounds there: where one vertex lies on a crease or a region's outline and the other
+    /// beside it, the quadrics' best point of the edge leaves the crease, the vertex does not.
+    bool onto_endpoint(Candidate& c, double limit) const {
+        const Quadric faces = sum(faces_q_, c.a, c.b), border = sum(border_q_, c.a, c.b);
+        for (const std::int32_t v : {c.a, c.b}) {
+            Candidate e = c;
+            e.target = p_[std::size_t(v)];
+            e.error = std::max(rms(faces, e.target), rms(border, e.target));
+            if (e.error <= limit && local_move_within(e, limit)) {
+                c = e;
+                return true;
+            }
+        }
+        return false;
+    }
+
+    /// Whether c's target lies within `limit` of the planes through the open border's and the
+    /// regions' outline edges at its two vertices (each perpendicular to its face), and within
+    /// region_error of the planes of the region faces around them (or as far as their corners
+    /// already are). The quadrics' root mean squares are means over every plane a vertex
+    /// stands for, and a few planes far off (the third face at a region's corner, the other
+    /// side of an outline's corner) vanish in them. Only with a max_error.
+    bool local_move_within(const Candidate& c, double limit) const {
+        const double on_region = o_.region_error > 0.0 ? o_.region_error : limit;
+        std::vector<std::pair<std::int32_t, std::int32_t>> sides;  // (far vertex, face)
+        for (const std::int32_t v : {c.a, c.b}) {
+            sides.clear();
+            for (const std::int32_t f : around_[std::size_t(v)]) {
+                const Triangle& t = faces_[std::size_t(f)];
+                if (!regions_.empty() && regions_[std::size_t(f)] >= 0) {
+                    // Off the region's plane by no more than the face's corners are already
+                    // (a vertex the planes stage could not put onto every plane around it).
+                    const auto& [rn, rd] = region_plane_[std::size_t(regions_[std::size_t(f)])];
+                    double allowed = on_region;
+                    for (const std::int32_t w : t) {
+                        allowed = std::max(allowed, std::fabs(dot(rn, p_[std::size_t(w)]) + rd));
+                    }
+                    if (std::fabs(dot(rn, c.target) + rd) > allowed) return false;
+                }
+                for (const std::int32_t w : t) {
+                    if (w != v) sides.push_back({w, f});
+                }
+            }
+            // The edges at v one face has (open border) or two faces of two regions have
+            // (outline): c's target within `limit` of the plane through the edge perpendicular
+            // to each such face.
+            std::sort(sides.begin(), sides.end());
+            for (std::size_t i = 0; i < sides.size();) {
+                std::size_t j = i + 1;
+                while (j < sides.size() && sides[j].first == sides[i].first) ++j;
+                const bool kept = j - i == 1 ||
+                                  (j - i == 2 && !regions_.empty() &&
+                                   regions_[std::size_t(sides[i].second)] !=
+                                       regions_[std::size_t(sides[i + 1].second)]);
+                for (; kept && i < j; ++i) {
+                    if (off_edge(v, sides[i].first, sides[i].second, c.target) > limit) return false;
+                }
+                i = j;
+            }
+        }
+        return true;
+    }
+
+    /// The distance of x from the plane through the edge (v, w) perpendicular to face f.
+    double off_edge(std::int32_t v, std::int32_t w, std::int32_t f, const V3& x) const {
+        const Triangle& t = faces_[std::size_t(f)];
+        const V3 n = cross(sub(p_[std::size_t(t[1])], p_[std::size_t(t[0])]),
+                           sub(p_[std::size_t(t[2])], p_[std::size_t(t[0])]));
+        const V3& pv = p_[std::size_t(v)];
+        const V3 m = cross(sub(p_[std::size_t(w)], pv), n);
+        const double lm = std::sqrt(dot(m, m));
+        return lm > 0.0 ? std::fabs(dot(m, sub(x, pv))) / lm : 0.0;
     }
 
     /// The vertices sharing a face with v.
@@ -369,7 +554,8 @@ class Decimator {
             }
         }
         p_[std::size_t(a)] = c.target;
-        q_[std::size_t(a)] += q_[std::size_t(b)];
+        faces_q_[std::size_t(a)] += faces_q_[std::size_t(b)];
+        border_q_[std::size_t(a)] += border_q_[std::size_t(b)];
         border_[std::size_t(a)] = border_[std::size_t(a)] || border_[std::size_t(b)];
         // The shared faces go, also from the lists of their third vertices (a dead face left
         // there made later collapses at those vertices see a third face on an edge, or
@@ -406,10 +592,12 @@ class Decimator {
     std::vector<V3> p_;
     std::vector<Vec3f> colors_;
     std::vector<Triangle> faces_;
+    std::vector<std::int32_t> regions_;  // per face, when the mesh has planar regions
+    std::vector<std::pair<V3, double>> region_plane_;  // per region: n.x + d = 0
     std::vector<char> alive_face_, border_;
     std::vector<std::vector<std::int32_t>> around_;
     std::vector<std::uint32_t> version_;
-    std::vector<Quadric> q_;
+    std::vector<Quadric> faces_q_, border_q_;  // per vertex: its faces' planes, its border's
     double cos_turn_ = 0.5;
     std::priority_queue<Candidate, std::vector<Candidate>, std::greater<Candidate>> heap_;
 };

@@ -32,6 +32,8 @@ void PlaneOptions::validate() const {
           "must be a positive number of voxels");
     check(std::isfinite(max_error) && max_error > 0.0, "max_error", max_error,
           "must be a positive number of voxels");
+    check(std::isfinite(region_error) && region_error > 0.0, "region_error", region_error,
+          "must be a positive number of voxels");
 }
 
 namespace {
@@ -411,9 +413,10 @@ PlaneResult planar_regions(const Mesh& mesh, const PlaneOptions& options, double
     m.regions = std::move(region);
     DecimateOptions dec;
     dec.max_error = options.max_error * voxel;
+    dec.region_error = options.region_error * voxel;
     r.mesh = decimate(m, dec).mesh;
     r.flips = delaunay_flips(r.mesh, r.mesh.regions.to_vector(), r.planes,
-                             options.max_error * voxel);
+                             options.region_error * voxel);
     r.faces_after = r.mesh.faces.size();
     return r;
 }

@@ -13,8 +13,13 @@ void bind_decimate(py::module_& m) {
             "Keep at most this fraction of the faces, 0 < ratio <= 1; 1 = no face-count target "
             "(CLI --decimate).")
         .field("max_error", &DecimateOptions::max_error,
-               "No collapse whose error (RMS distance to the original planes) exceeds this, "
-               "world units; 0 = no limit (CLI --max-error).")
+               "No collapse whose error exceeds this, world units; 0 = no limit (CLI "
+               "--max-error): the larger of the RMS distances to the planes of the original "
+               "faces and border edges the vertex stands for and of its distance to the planes "
+               "of the border and region outline edges around it.")
+        .field("region_error", &DecimateOptions::region_error,
+               "With planar regions (mesh.regions): no collapse moves a vertex off the plane of "
+               "a region face around it by more than this, world units; 0 = max_error.")
         .choice("placement", &DecimateOptions::placement, placement_choices(),
                 "'edge': the quadric's minimum on the collapsed edge (closer to the scanned "
                 "surface); 'free': its unconstrained minimum (CLI --placement).")

@@ -20,7 +20,11 @@ void bind_planes(py::module_& m) {
         .field("max_move", &PlaneOptions::max_move,
                "No vertex moves farther than this onto its planes, voxels.")
         .field("max_error", &PlaneOptions::max_error,
-               "The re-triangulation moves the surface by at most this, voxels.");
+               "The re-triangulation (regions and the rest of the mesh) moves the surface by "
+               "at most this, voxels (CLI --plane-error).")
+        .field("region_error", &PlaneOptions::region_error,
+               "... but no vertex moves off the plane of a region face around it by more than "
+               "this, voxels: regions, creases and corners stay.");
     o.finish();
 
     py::class_<Plane>(m, "Plane", "normal . x = offset (local frame of the mesh).")

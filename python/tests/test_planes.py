@@ -2,6 +2,7 @@
 pipeline's planes_enabled=True gives every face its region, written as the PLY face property
 `region` and read back."""
 import numpy as np
+import pytest
 
 import vdbrecon
 
@@ -78,3 +79,33 @@ def test_pipeline_writes_regions_as_a_face_property(tmp_path):
     m = vdbrecon.read_mesh(tmp_path / "box.recon.ply")
     assert len(m.faces) == r.result.planes.faces_after
 
+
+def _planes_points():
+    """bench/planes_points.py: the benchmark's measure of the regions' points."""
+    import importlib.util
+    from conftest import SOURCE_DIR
+    spec = importlib.util.spec_from_file_location("planes_points",
+                                                  SOURCE_DIR / "bench" / "planes_points.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("scan, voxel", [("pcl_laser/room_scan1.ply", 0.1),
+                                         ("pdal_autzen/autzen_trim.ply", 4.4)])
+def test_room_and_buildings_come_out_ten_times_lighter(shared_data, scan, voxel):
+    """Issue 25: on room and building scans --planes gives >= 10x fewer faces, the points of
+    every large planar region (inliers of its plane that the plain mesh represents) within
+    half a voxel of the mesh, and no new holes (same pieces, same Euler characteristic)."""
+    points = vdbrecon.read_points(shared_data / scan).cloud
+    plain = vdbrecon.reconstruct(points, voxel=voxel)
+    planar = vdbrecon.reconstruct(points, voxel=voxel, planes_enabled=True)
+    assert len(planar.faces) * 10 <= len(plain.faces)
+    before, after = vdbrecon.mesh_topology(plain), vdbrecon.mesh_topology(planar)
+    assert (after.components, after.euler) == (before.components, before.euler)
+    assert after.boundary_edges < before.boundary_edges
+    pp = _planes_points()
+    ours, label, count = pp.region_points(np.asarray(points.positions), plain, voxel)
+    assert len(np.unique(label)) >= 5 and len(ours) > 0.4 * len(points.positions)
+    _, within, worst, _ = pp.coverage(planar, ours, label, count, voxel)
+    assert within >= 0.995 and worst >= 0.99, (within, worst)

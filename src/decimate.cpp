@@ -7,7 +7,10 @@
 #include <cstring>
 #include <queue>
 #include <sstream>
+#include <memory>
 #include <vector>
+
+#include <tbb/parallel_for.h>
 
 #include "detail/mesh_graph.h"
 #include "detail/vec3.h"
@@ -132,8 +135,11 @@ struct Candidate {
 
 class Decimator {
   public:
-    Decimator(const Mesh& m, const DecimateOptions& o) : o_(o) {
+    /// `locked`: per vertex, whether it must stay (no collapse touches it); null: none.
+    Decimator(const Mesh& m, const DecimateOptions& o, const std::vector<char>* locked = nullptr)
+        : o_(o) {
         const std::size_t nv = m.vertices.size();
+        if (locked) locked_ = *locked;
         p_.resize(nv);
         for (std::size_t i = 0; i < nv; ++i) {
             for (int k = 0; k < 3; ++k) p_[i][std::size_t(k)] = double(m.vertices[i][std::size_t(k)]);
@@ -195,6 +201,24 @@ class Decimator {
             alive -= std::size_t(removed);
             ++r.collapses;
             r.max_error = std::max(r.max_error, c.error);
+        }
+    }
+
+    /// Writes this decimator's vertices (numbered by `global` in `whole`) into `whole` and
+    /// appends its faces left, numbered so, to `faces`.
+    void write_back(const std::vector<std::int32_t>& global, Mesh& whole,
+                    std::vector<Triangle>& faces) const {
+        std::vector<Vec3f>& v = whole.vertices.edit();
+        for (std::size_t i = 0; i < p_.size(); ++i) {
+            if (!locked_.empty() && locked_[i]) continue;
+            v[std::size_t(global[i])] = {float(p_[i][0]), float(p_[i][1]), float(p_[i][2])};
+            if (!colors_.empty()) whole.colors.edit()[std::size_t(global[i])] = colors_[i];
+        }
+        for (std::size_t f = 0; f < faces_.size(); ++f) {
+            if (!alive_face_[f]) continue;
+            const Triangle& t = faces_[f];
+            faces.push_back({global[std::size_t(t[0])], global[std::size_t(t[1])],
+                             global[std::size_t(t[2])]});
         }
     }
 
@@ -378,6 +402,7 @@ class Decimator {
     }
 
     void push(std::int32_t a, std::int32_t b) {
+        if (!locked_.empty() && (locked_[std::size_t(a)] || locked_[std::size_t(b)])) return;
         if (before(b, a)) std::swap(a, b);
         // The order of collapses goes by q: the faces' planes plus the border's weighted by
         // border_weight. The error is the larger of two root mean square distances: to the
@@ -594,7 +619,7 @@ class Decimator {
     std::vector<Triangle> faces_;
     std::vector<std::int32_t> regions_;  // per face, when the mesh has planar regions
     std::vector<std::pair<V3, double>> region_plane_;  // per region: n.x + d = 0
-    std::vector<char> alive_face_, border_;
+    std::vector<char> alive_face_, border_, locked_;
     std::vector<std::vector<std::int32_t>> around_;
     std::vector<std::uint32_t> version_;
     std::vector<Quadric> faces_q_, border_q_;  // per vertex: its faces' planes, its border's
@@ -604,10 +629,136 @@ class Decimator {
 
 }  // namespace
 
+/// The slabs of a large mesh for decimate_in_slabs: `count` runs of faces of equal length
+/// along the bounding box's longest axis, by the faces' centroids (not their numbers).
+std::vector<std::int32_t> slab_of_faces(const Mesh& mesh, std::size_t count) {
+    const std::size_t nf = mesh.faces.size();
+    std::vector<std::array<double, 3>> centre(nf);
+    std::array<double, 3> lo{HUGE_VAL, HUGE_VAL, HUGE_VAL}, hi{-HUGE_VAL, -HUGE_VAL, -HUGE_VAL};
+    for (std::size_t f = 0; f < nf; ++f) {
+        for (int k = 0; k < 3; ++k) {
+            double c = 0.0;
+            for (const std::int32_t v : mesh.faces[f]) c += double(mesh.vertices[std::size_t(v)][std::size_t(k)]);
+            centre[f][std::size_t(k)] = c;
+            lo[std::size_t(k)] = std::min(lo[std::size_t(k)], c);
+            hi[std::size_t(k)] = std::max(hi[std::size_t(k)], c);
+        }
+    }
+    int axis = 0;
+    for (int k = 1; k < 3; ++k) {
+        if (hi[std::size_t(k)] - lo[std::size_t(k)] > hi[std::size_t(axis)] - lo[std::size_t(axis)]) axis = k;
+    }
+    std::vector<std::int32_t> order(nf);
+    for (std::size_t f = 0; f < nf; ++f) order[f] = std::int32_t(f);
+    std::sort(order.begin(), order.end(), [&](std::int32_t f, std::int32_t g) {
+        const auto &cf = centre[std::size_t(f)], &cg = centre[std::size_t(g)];
+        if (cf[std::size_t(axis)] != cg[std::size_t(axis)]) return cf[std::size_t(axis)] < cg[std::size_t(axis)];
+        return cf != cg ? cf < cg : f < g;
+    });
+    std::vector<std::int32_t> slab(nf);
+    for (std::size_t i = 0; i < nf; ++i) slab[std::size_t(order[i])] = std::int32_t(i * count / nf);
+    return slab;
+}
+
+/// Ratio-only decimation of a large mesh, in parallel: the slabs (slab_of_faces; their number
+/// follows the mesh's size, not the threads, so the result does not depend on them) are
+/// decimated each, the vertices two slabs share locked, until the faces off the seam are down
+/// to the ratio; then the whole mesh once more to the target, seams included (its quadrics
+/// made anew from the slabs' result).
+DecimateResult decimate_in_slabs(const Mesh& mesh, const DecimateOptions& options,
+                                 std::size_t target, std::size_t count) {
+    const std::vector<std::int32_t> slab = slab_of_faces(mesh, count);
+    const std::size_t nv = mesh.vertices.size();
+    std::vector<std::int32_t> first(nv, -1);
+    std::vector<char> shared(nv, 0);
+    for (std::size_t f = 0; f < mesh.faces.size(); ++f) {
+        for (const std::int32_t v : mesh.faces[f]) {
+            std::int32_t& s = first[std::size_t(v)];
+            if (s < 0) s = slab[f];
+            else if (s != slab[f]) shared[std::size_t(v)] = 1;
+        }
+    }
+    struct Part {
+        Mesh mesh;
+        std::vector<std::int32_t> global;  // the part's vertex -> the mesh's
+        std::vector<char> locked;
+        std::size_t seam = 0;  // faces with a locked vertex
+        std::unique_ptr<Decimator> d;
+        DecimateResult r;
+    };
+    std::vector<Part> parts(count);
+    std::vector<std::int32_t> local(nv, -1);
+    for (std::size_t s = 0; s < count; ++s) {
+        Part& p = parts[s];
+        std::vector<Vec3f> v, c;
+        std::vector<Triangle> faces;
+        for (std::size_t f = 0; f < mesh.faces.size(); ++f) {
+            if (std::size_t(slab[f]) != s) continue;
+            Triangle t;
+            for (int k = 0; k < 3; ++k) {
+                const std::int32_t g = mesh.faces[f][std::size_t(k)];
+                if (local[std::size_t(g)] < 0) {
+                    local[std::size_t(g)] = std::int32_t(p.global.size());
+                    p.global.push_back(g);
+                    p.locked.push_back(shared[std::size_t(g)]);
+                    v.push_back(mesh.vertices[std::size_t(g)]);
+                    if (mesh.colors.size() == nv) c.push_back(mesh.colors[std::size_t(g)]);
+                }
+                t[std::size_t(k)] = local[std::size_t(g)];
+            }
+            p.seam += shared[std::size_t(mesh.faces[f][0])] || shared[std::size_t(mesh.faces[f][1])] ||
+                      shared[std::size_t(mesh.faces[f][2])];
+            faces.push_back(t);
+        }
+        for (const std::int32_t g : p.global) local[std::size_t(g)] = -1;
+        p.mesh.vertices = std::move(v);
+        p.mesh.colors = std::move(c);
+        p.mesh.faces = std::move(faces);
+    }
+    tbb::parallel_for(std::size_t(0), count, [&](std::size_t s) {
+        Part& p = parts[s];
+        p.d = std::make_unique<Decimator>(p.mesh, options, &p.locked);
+        // The seam's faces stay for the last pass: the rest of the slab to the ratio.
+        const double rest = double(p.mesh.faces.size() - p.seam);
+        p.r = p.d->run(p.seam + std::size_t(std::ceil(options.ratio * rest)), 0.0);
+    });
+    Mesh whole;
+    whole.origin = mesh.origin;
+    whole.vertices = std::vector<Vec3f>(mesh.vertices.begin(), mesh.vertices.end());
+    if (mesh.colors.size() == nv) whole.colors = std::vector<Vec3f>(mesh.colors.begin(), mesh.colors.end());
+    std::vector<Triangle> faces;
+    DecimateResult r;
+    for (Part& p : parts) {
+        p.d->write_back(p.global, whole, faces);
+        r.collapses += p.r.collapses;
+        r.refused += p.r.refused;
+        r.max_error = std::max(r.max_error, p.r.max_error);
+        p.d.reset();
+    }
+    whole.faces = std::move(faces);
+    whole.normals = mesh.normals;  // only whether there are any: result() makes them anew
+    Decimator d(whole, options);
+    const DecimateResult last = d.run(target, 0.0);
+    r.mesh = d.result(whole);
+    r.faces_before = mesh.faces.size();
+    r.faces_after = last.faces_after;
+    r.collapses += last.collapses;
+    r.refused += last.refused;
+    r.max_error = std::max(r.max_error, last.max_error);
+    return r;
+}
+
 DecimateResult decimate(const Mesh& mesh, const DecimateOptions& options) {
     options.validate();
     const std::size_t target =
         std::size_t(std::ceil(options.ratio * double(mesh.faces.size())));
+    // Ratio-only decimation of a large mesh without planar regions goes slab by slab, in
+    // parallel; below ~2^17 faces (or with a max_error, whose bound the slabs' memoryless last
+    // pass would not keep, or regions, whose planes are the whole region's) one pass.
+    const std::size_t slabs = std::min<std::size_t>(16, mesh.faces.size() >> 16);
+    if (options.ratio < 1.0 && options.max_error == 0.0 && mesh.regions.empty() && slabs >= 2) {
+        return decimate_in_slabs(mesh, options, target, slabs);
+    }
     Decimator d(mesh, options);
     DecimateResult r = d.run(options.ratio < 1.0 ? target : 0, options.max_error);
     r.mesh = d.result(mesh);

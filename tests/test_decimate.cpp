@@ -2,7 +2,11 @@
 // that stay put, colours carried, the error bound, on generated shapes with known answers.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
+#include <random>
+
+#include <tbb/global_control.h>
 
 #include "shapes.h"
 #include "support.h"
@@ -55,7 +59,94 @@ Mesh flat_disc(int n) {
     return m;
 }
 
+/// A torus (radii 1 and 0.3) of n x m quads, two triangles each: 2 n m faces.
+Mesh fine_torus(int n, int m) {
+    Mesh t;
+    std::vector<Vec3f> v;
+    std::vector<Triangle> f;
+    for (int i = 0; i < n; ++i) {
+        for (int j = 0; j < m; ++j) {
+            const double u = 2 * M_PI * i / n, w = 2 * M_PI * j / m, r = 1.0 + 0.3 * std::cos(w);
+            v.push_back({float(r * std::cos(u)), float(r * std::sin(u)), float(0.3 * std::sin(w))});
+            const int a = i * m + j, b = ((i + 1) % n) * m + j, c = ((i + 1) % n) * m + (j + 1) % m,
+                      d = i * m + (j + 1) % m;
+            f.push_back({a, b, c});
+            f.push_back({a, c, d});
+        }
+    }
+    t.vertices = std::move(v);
+    t.faces = std::move(f);
+    return t;
+}
+
+/// The faces as sorted triples of corner positions, sorted: a mesh up to its numbering.
+std::vector<std::array<std::array<float, 3>, 3>> by_position(const Mesh& m) {
+    std::vector<std::array<std::array<float, 3>, 3>> out;
+    for (const Triangle& t : m.faces) {
+        std::array<std::array<float, 3>, 3> c;
+        for (int k = 0; k < 3; ++k) {
+            const Vec3f& p = m.vertices[std::size_t(t[std::size_t(k)])];
+            c[std::size_t(k)] = {p[0], p[1], p[2]};
+        }
+        std::rotate(c.begin(), std::min_element(c.begin(), c.end()), c.end());  // keeps the turn
+        out.push_back(c);
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+}
+
 }  // namespace
+
+TEST_CASE("a large mesh decimates in parallel slabs: same mesh for any thread count and numbering", "[decimate]") {
+    const Mesh torus = fine_torus(512, 256);  // 262,144 faces: 4 slabs
+    DecimateOptions o;
+    o.ratio = 0.1;
+    DecimateResult one, two;
+    {
+        tbb::global_control threads(tbb::global_control::max_allowed_parallelism, 1);
+        one = decimate(torus, o);
+    }
+    {
+        tbb::global_control threads(tbb::global_control::max_allowed_parallelism, 2);
+        two = decimate(torus, o);
+    }
+    CHECK(std::vector<Vec3f>(one.mesh.vertices.begin(), one.mesh.vertices.end()) ==
+          std::vector<Vec3f>(two.mesh.vertices.begin(), two.mesh.vertices.end()));
+    CHECK(std::vector<Triangle>(one.mesh.faces.begin(), one.mesh.faces.end()) ==
+          std::vector<Triangle>(two.mesh.faces.begin(), two.mesh.faces.end()));
+    // The faces count down to the target, the topology stays (closed, genus 1, one piece).
+    const TopologyStats t = mesh_topology(one.mesh);
+    const std::size_t target = std::size_t(std::ceil(0.1 * double(torus.faces.size())));
+    CHECK(t.faces <= target);
+    CHECK(t.faces + 1 >= target);  // a collapse takes two faces
+    CHECK(t.watertight());
+    CHECK(t.euler == 0);
+    CHECK(t.components == 1);
+    CHECK(t.degenerate_faces == 0);
+    // Every vertex on the true torus to within 0.3 % of its tube radius.
+    double worst = 0.0;
+    for (const Vec3f& p : one.mesh.vertices) {
+        const double ring = std::hypot(double(p[0]), double(p[1])) - 1.0;
+        worst = std::max(worst, std::fabs(std::hypot(ring, double(p[2])) - 0.3));
+    }
+    CHECK(worst < 1e-3);
+    // Numbered otherwise (vertices and faces shuffled): the same faces on the same points.
+    std::mt19937 rng(7);
+    std::vector<std::int32_t> perm(torus.vertices.size());
+    for (std::size_t i = 0; i < perm.size(); ++i) perm[i] = std::int32_t(i);
+    std::shuffle(perm.begin(), perm.end(), rng);
+    Mesh shuffled;
+    std::vector<Vec3f> v(torus.vertices.size());
+    for (std::size_t i = 0; i < perm.size(); ++i) v[std::size_t(perm[i])] = torus.vertices[i];
+    std::vector<Triangle> f;
+    for (const Triangle& tri : torus.faces) {
+        f.push_back({perm[std::size_t(tri[0])], perm[std::size_t(tri[1])], perm[std::size_t(tri[2])]});
+    }
+    std::shuffle(f.begin(), f.end(), rng);
+    shuffled.vertices = std::move(v);
+    shuffled.faces = std::move(f);
+    CHECK(by_position(decimate(shuffled, o).mesh) == by_position(one.mesh));
+}
 
 TEST_CASE("decimation keeps closed shapes closed, their genus and pieces", "[decimate]") {
     for (const char* name : {"sphere", "torus", "drilled", "blob"}) {

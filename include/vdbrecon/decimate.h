@@ -8,10 +8,13 @@
 // two vertices' common neighbours are exactly the edge's opposite vertices), so closed stays
 // closed, the genus and the number of pieces stay; open borders stay put (a quadric of the
 // plane through each border edge, perpendicular to its face, weighted by border_weight); vertex
-// colours follow the collapses (interpolated along the edge). Serial and deterministic, also
-// under renumbering: ties between equal costs go by the collapse's position, an edge collapses
-// onto its endpoint that comes first by position, and quadrics are summed in the order of the
-// faces' centroids.
+// colours follow the collapses (interpolated along the edge). Deterministic, also under
+// renumbering: ties between equal costs go by the collapse's position, an edge collapses onto
+// its endpoint that comes first by position, and quadrics are summed in the order of the
+// faces' centroids. A ratio-only decimation of a mesh of 2^17 faces or more runs in parallel:
+// slabs of equal face counts along the longest axis (by the faces' centroids; 2-16 of them by
+// the mesh's size, not by the threads) decimate with the vertices they share locked, then the
+// whole mesh with the seams to the target -- the same mesh for any thread count.
 #pragma once
 
 #include <cstddef>

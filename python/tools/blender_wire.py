@@ -59,6 +59,7 @@ edges.data.materials.append(material("edges", (0.02, 0.02, 0.05, 1.0), emission=
 modifier = edges.modifiers.new("wire", "WIREFRAME")
 modifier.thickness = wire
 modifier.use_replace = True
+modifier.use_even_offset = False  # its offset blows up at the slivers marching cubes makes
 
 corners = [obj.matrix_world @ Vector(c) for c in obj.bound_box]
 centre = sum(corners, Vector()) / 8.0

@@ -403,6 +403,11 @@ class Decimator {
 
     void push(std::int32_t a, std::int32_t b) {
         if (!locked_.empty() && (locked_[std::size_t(a)] || locked_[std::size_t(b)])) return;
+        heap_.push(candidate(a, b));
+    }
+
+    /// The collapse of the edge (a, b): its target, cost and error.
+    Candidate candidate(std::int32_t a, std::int32_t b) const {
         if (before(b, a)) std::swap(a, b);
         // The order of collapses goes by q: the faces' planes plus the border's weighted by
         // border_weight. The error is the larger of two root mean square distances: to the
@@ -433,7 +438,7 @@ class Decimator {
         c.cost = q(c.target);
         c.place = place_key(c.target, mid);
         c.error = std::max(rms(faces, c.target), rms(border, c.target));
-        heap_.push(c);
+        return c;
     }
 
     /// c moved to one of its two vertices (a first) when its own target is not within the
@@ -524,11 +529,14 @@ class Decimator {
         return n;
     }
 
-    /// Collapses b into a at c.target; returns the faces removed, or -1 when refused.
-    int collapse(const Candidate& c) {
-        std::int32_t a = c.a, b = c.b;
+    /// Why c may not collapse (0: it may): 1 the edge has no face or more than two, 2 it would
+    /// pinch the border, 3 the link condition, 4 it would leave less than a tetrahedron, 5 a face
+    /// would flip or degenerate. `shared` receives the edge's faces.
+    int refusal(const Candidate& c, std::vector<std::int32_t>& shared) const {
+        const std::int32_t a = c.a, b = c.b;
         // The faces on the edge, and their third vertices.
-        std::vector<std::int32_t> shared, opposite;
+        std::vector<std::int32_t> opposite;
+        shared.clear();
         for (std::int32_t f : around_[std::size_t(a)]) {
             const Triangle& t = faces_[std::size_t(f)];
             if (t[0] == b || t[1] == b || t[2] == b) {
@@ -538,17 +546,17 @@ class Decimator {
                 }
             }
         }
-        if (shared.empty() || shared.size() > 2) return -1;
+        if (shared.empty() || shared.size() > 2) return 1;
         // An interior edge between two border vertices would pinch the border.
-        if (shared.size() == 2 && border_[std::size_t(a)] && border_[std::size_t(b)]) return -1;
+        if (shared.size() == 2 && border_[std::size_t(a)] && border_[std::size_t(b)]) return 2;
         // Link condition: the common neighbours are exactly the opposite vertices.
         const std::vector<std::int32_t> na = neighbours(a), nb = neighbours(b);
         std::vector<std::int32_t> common;
         std::set_intersection(na.begin(), na.end(), nb.begin(), nb.end(), std::back_inserter(common));
         std::sort(opposite.begin(), opposite.end());
-        if (common != opposite) return -1;
+        if (common != opposite) return 3;
         // A closed piece must keep at least a tetrahedron.
-        if (shared.size() == 2 && na.size() + nb.size() <= 6) return -1;
+        if (shared.size() == 2 && na.size() + nb.size() <= 6) return 4;
         // No face may flip or degenerate.
         for (std::int32_t v : {a, b}) {
             for (std::int32_t f : around_[std::size_t(v)]) {
@@ -562,11 +570,19 @@ class Decimator {
                 const V3 n0 = cross(sub(before[1], before[0]), sub(before[2], before[0]));
                 const V3 n1 = cross(sub(after[1], after[0]), sub(after[2], after[0]));
                 const double l0 = std::sqrt(dot(n0, n0)), l1 = std::sqrt(dot(n1, n1));
-                if (!(l1 > 1e-12 * (l0 + 1e-300))) return -1;
-                if (l0 > 0.0 && dot(n0, n1) < cos_turn_ * l0 * l1) return -1;
+                if (!(l1 > 1e-12 * (l0 + 1e-300))) return 5;
+                if (l0 > 0.0 && dot(n0, n1) < cos_turn_ * l0 * l1) return 5;
             }
         }
-        // Collapse: b's faces move to a; the shared faces go.
+        return 0;
+    }
+
+    /// Collapses b into a at c.target; returns the faces removed, or -1 when refused.
+    int collapse(const Candidate& c) {
+        std::vector<std::int32_t> shared;
+        if (refusal(c, shared) != 0) return -1;
+        const std::int32_t a = c.a, b = c.b;
+        // b's faces move to a; the shared faces go.
         const V3 pa = p_[std::size_t(a)], pb = p_[std::size_t(b)];
         if (!colors_.empty()) {
             const V3 e = sub(pb, pa);

@@ -170,6 +170,7 @@ class Decimator {
         DecimateResult r;
         r.faces_before = faces_.size();
         std::size_t alive = faces_.size();
+        limit_ = max_error > 0.0 ? max_error : HUGE_VAL;
         for (int pass = 0; pass < 8; ++pass) {
             std::vector<Triangle> live;
             for (std::size_t f = 0; f < faces_.size(); ++f) {
@@ -186,12 +187,11 @@ class Decimator {
 
     void collapse_cheapest(std::size_t target, double max_error, std::size_t& alive,
                            DecimateResult& r) {
-        const double limit = max_error > 0.0 ? max_error : HUGE_VAL;
+        const double limit = limit_;
         while (alive > target && !heap_.empty()) {
             Candidate c = heap_.top();
             heap_.pop();
             if (version_[std::size_t(c.a)] != c.va || version_[std::size_t(c.b)] != c.vb) continue;
-            if (c.error > limit) continue;  // never made; cheaper ones may still come
             if (max_error > 0.0 && !local_move_within(c, limit) && !onto_endpoint(c, limit)) continue;
             const int removed = collapse(c);
             if (removed < 0) {
@@ -403,7 +403,8 @@ class Decimator {
 
     void push(std::int32_t a, std::int32_t b) {
         if (!locked_.empty() && (locked_[std::size_t(a)] || locked_[std::size_t(b)])) return;
-        heap_.push(candidate(a, b));
+        const Candidate c = candidate(a, b);
+        if (c.error <= limit_) heap_.push(c);  // never made otherwise; cheaper ones may come
     }
 
     /// The collapse of the edge (a, b): its target, cost and error.
@@ -640,6 +641,7 @@ class Decimator {
     std::vector<std::uint32_t> version_;
     std::vector<Quadric> faces_q_, border_q_;  // per vertex: its faces' planes, its border's
     double cos_turn_ = 0.5;
+    double limit_ = HUGE_VAL;  // run()'s max_error, or no limit
     std::priority_queue<Candidate, std::vector<Candidate>, std::greater<Candidate>> heap_;
 };
 

@@ -133,6 +133,16 @@ struct Candidate {
     }
 };
 
+/// The unit normal of the plane through the edge (a, b) perpendicular to the triangle (a, b, c):
+/// the plane an open border or a region's outline keeps its vertices to. Zero where the
+/// triangle is degenerate.
+V3 across_edge(const V3& a, const V3& b, const V3& c) {
+    const V3 e = sub(b, a);
+    const V3 m = cross(e, cross(e, sub(c, a)));
+    const double l = std::sqrt(dot(m, m));
+    return l > 0.0 ? V3{m[0] / l, m[1] / l, m[2] / l} : V3{0.0, 0.0, 0.0};
+}
+
 class Decimator {
   public:
     /// `locked`: per vertex, whether it must stay (no collapse touches it); null: none.
@@ -148,7 +158,9 @@ class Decimator {
             colors_.assign(m.colors.begin(), m.colors.end());
         }
         faces_.assign(m.faces.begin(), m.faces.end());
-        if (m.regions.size() == faces_.size()) regions_.assign(m.regions.begin(), m.regions.end());
+        if (m.regions.size() == faces_.size() && !faces_.empty()) {
+            regions_.assign(m.regions.begin(), m.regions.end());
+        }
         alive_face_.assign(faces_.size(), 1);
         around_.resize(nv);
         for (std::size_t f = 0; f < faces_.size(); ++f) {
@@ -159,7 +171,7 @@ class Decimator {
         faces_q_.resize(nv);
         border_q_.resize(nv);
         cos_turn_ = std::cos(o.max_normal_turn * M_PI / 180.0);
-        build_quadrics(outline_edges(m));
+        build_quadrics(outline_edges());
     }
 
     /// Collapses the cheapest edges while more than `target` faces are alive. With a
@@ -178,21 +190,20 @@ class Decimator {
             }
             for (const detail::EdgeUse& e : detail::undirected_edges(live)) push(e.a, e.b);
             const std::size_t before = r.collapses;
-            collapse_cheapest(target, max_error, alive, r);
+            collapse_cheapest(target, alive, r);
             if (max_error == 0.0 || alive <= target || r.collapses == before) break;
         }
         r.faces_after = alive;
         return r;
     }
 
-    void collapse_cheapest(std::size_t target, double max_error, std::size_t& alive,
-                           DecimateResult& r) {
-        const double limit = limit_;
+    void collapse_cheapest(std::size_t target, std::size_t& alive, DecimateResult& r) {
+        const bool bounded = limit_ < HUGE_VAL;
         while (alive > target && !heap_.empty()) {
             Candidate c = heap_.top();
             heap_.pop();
             if (version_[std::size_t(c.a)] != c.va || version_[std::size_t(c.b)] != c.vb) continue;
-            if (max_error > 0.0 && !local_move_within(c, limit) && !onto_endpoint(c, limit)) continue;
+            if (bounded && !local_move_within(c) && !onto_endpoint(c)) continue;
             const int removed = collapse(c);
             if (removed < 0) {
                 ++r.refused;
@@ -211,7 +222,7 @@ class Decimator {
         std::vector<Vec3f>& v = whole.vertices.edit();
         for (std::size_t i = 0; i < p_.size(); ++i) {
             if (!locked_.empty() && locked_[i]) continue;
-            v[std::size_t(global[i])] = {float(p_[i][0]), float(p_[i][1]), float(p_[i][2])};
+            v[std::size_t(global[i])] = position(i);
             if (!colors_.empty()) whole.colors.edit()[std::size_t(global[i])] = colors_[i];
         }
         for (std::size_t f = 0; f < faces_.size(); ++f) {
@@ -222,16 +233,16 @@ class Decimator {
         }
     }
 
+    /// The mesh left, in `in`'s frame, with vertex normals when `in` has them.
     Mesh result(const Mesh& in) const {
         Mesh m;
         m.origin = in.origin;
         std::vector<Triangle> faces;
         std::vector<std::int32_t> regions;  // the faces' planar regions, when the mesh has them
-        const bool with_regions = in.regions.size() == faces_.size() && !faces_.empty();
         for (std::size_t f = 0; f < faces_.size(); ++f) {
             if (!alive_face_[f]) continue;
             faces.push_back(faces_[f]);
-            if (with_regions) regions.push_back(in.regions[f]);
+            if (!regions_.empty()) regions.push_back(regions_[f]);
         }
         std::size_t used = 0;
         const std::vector<std::int32_t> map = detail::compact_vertices(faces, p_.size(), &used);
@@ -239,12 +250,12 @@ class Decimator {
         if (!colors_.empty()) c.resize(used);
         for (std::size_t i = 0; i < p_.size(); ++i) {
             if (map[i] < 0) continue;
-            v[std::size_t(map[i])] = {float(p_[i][0]), float(p_[i][1]), float(p_[i][2])};
+            v[std::size_t(map[i])] = position(i);
             if (!colors_.empty()) c[std::size_t(map[i])] = colors_[i];
         }
         m.vertices = std::move(v);
         m.faces = std::move(faces);
-        if (with_regions) m.regions = std::move(regions);
+        if (!regions_.empty()) m.regions = std::move(regions);
         if (!c.empty()) m.colors = std::move(c);
         if (!in.normals.empty()) {
             std::vector<Vec3f> n;
@@ -259,17 +270,21 @@ class Decimator {
     }
 
   private:
+    Vec3f position(std::size_t i) const {
+        return {float(p_[i][0]), float(p_[i][1]), float(p_[i][2])};
+    }
+
     /// The keys of the edges between two planar regions or a region and the rest (when the
     /// mesh has regions, planes.h), sorted: a region's outline and its creases. They get border
     /// planes like the open border, so that the outline moves by no more than the bound (its
     /// straight stretches still collapse) and the rest cannot eat into a region where it is
     /// nearly coplanar with it; but they are no border (a region may come to touch itself).
-    std::vector<std::uint64_t> outline_edges(const Mesh& m) const {
+    std::vector<std::uint64_t> outline_edges() const {
         std::vector<std::uint64_t> keys;
-        if (m.regions.size() != faces_.size() || faces_.empty()) return keys;
+        if (regions_.empty()) return keys;
         const auto sides = detail::sorted_sides(faces_, [](std::size_t) { return true; });
         detail::manifold_pairs(sides, [&](const detail::EdgeSide& x, const detail::EdgeSide& y) {
-            if (m.regions[std::size_t(x.face)] != m.regions[std::size_t(y.face)]) {
+            if (regions_[std::size_t(x.face)] != regions_[std::size_t(y.face)]) {
                 keys.push_back(x.key);
             }
         });
@@ -373,13 +388,11 @@ class Decimator {
             } else if (!std::binary_search(outline.begin(), outline.end(), key)) {
                 continue;
             }
-            const V3 e = sub(p_[std::size_t(b)], p_[std::size_t(a)]);
-            const V3 fn = cross(e, sub(p_[std::size_t(t[std::size_t((k + 2) % 3)])], p_[std::size_t(a)]));
-            V3 m = cross(e, fn);
-            const double lm = std::sqrt(dot(m, m));
-            if (!(lm > 0.0)) continue;
-            m = {m[0] / lm, m[1] / lm, m[2] / lm};
-            border_q_[std::size_t(v)].add_plane(m, -dot(m, p_[std::size_t(a)]), dot(e, e));
+            const V3 &pa = p_[std::size_t(a)], &pb = p_[std::size_t(b)];
+            const V3 m = across_edge(pa, pb, p_[std::size_t(t[std::size_t((k + 2) % 3)])]);
+            if (m == V3{0.0, 0.0, 0.0}) continue;
+            const V3 e = sub(pb, pa);
+            border_q_[std::size_t(v)].add_plane(m, -dot(m, pa), dot(e, e));
         }
     }
 
@@ -392,6 +405,12 @@ class Decimator {
     /// The root mean square distance of x to q's planes (0 without planes).
     static double rms(const Quadric& q, const V3& x) {
         return q.w > 0.0 ? std::sqrt(std::max(0.0, q(x)) / q.w) : 0.0;
+    }
+
+    /// A collapse's error at x: the larger of the root mean square distances to the faces'
+    /// planes and to the border's (see candidate()).
+    static double error(const Quadric& faces, const Quadric& border, const V3& x) {
+        return std::max(rms(faces, x), rms(border, x));
     }
 
     /// Whether vertex i comes before j by position (by number only where they coincide).
@@ -438,20 +457,20 @@ class Decimator {
         }
         c.cost = q(c.target);
         c.place = place_key(c.target, mid);
-        c.error = std::max(rms(faces, c.target), rms(border, c.target));
+        c.error = error(faces, border, c.target);
         return c;
     }
 
     /// c moved to one of its two vertices (a first) when its own target is not within the
     /// bounds there: where one vertex lies on a crease or a region's outline and the other
     /// beside it, the quadrics' best point of the edge leaves the crease, the vertex does not.
-    bool onto_endpoint(Candidate& c, double limit) const {
+    bool onto_endpoint(Candidate& c) const {
         const Quadric faces = sum(faces_q_, c.a, c.b), border = sum(border_q_, c.a, c.b);
         for (const std::int32_t v : {c.a, c.b}) {
             Candidate e = c;
             e.target = p_[std::size_t(v)];
-            e.error = std::max(rms(faces, e.target), rms(border, e.target));
-            if (e.error <= limit && local_move_within(e, limit)) {
+            e.error = error(faces, border, e.target);
+            if (e.error <= limit_ && local_move_within(e)) {
                 c = e;
                 return true;
             }
@@ -459,14 +478,14 @@ class Decimator {
         return false;
     }
 
-    /// Whether c's target lies within `limit` of the planes through the open border's and the
+    /// Whether c's target lies within the bound (limit_) of the planes through the open border's and the
     /// regions' outline edges at its two vertices (each perpendicular to its face), and within
     /// region_error of the planes of the region faces around them (or as far as their corners
     /// already are). The quadrics' root mean squares are means over every plane a vertex
     /// stands for, and a few planes far off (the third face at a region's corner, the other
     /// side of an outline's corner) vanish in them. Only with a max_error.
-    bool local_move_within(const Candidate& c, double limit) const {
-        const double on_region = o_.region_error > 0.0 ? o_.region_error : limit;
+    bool local_move_within(const Candidate& c) const {
+        const double on_region = o_.region_error > 0.0 ? o_.region_error : limit_;
         std::vector<std::pair<std::int32_t, std::int32_t>> sides;  // (far vertex, face)
         for (const std::int32_t v : {c.a, c.b}) {
             sides.clear();
@@ -487,7 +506,7 @@ class Decimator {
                 }
             }
             // The edges at v one face has (open border) or two faces of two regions have
-            // (outline): c's target within `limit` of the plane through the edge perpendicular
+            // (outline): c's target within the bound of the plane through the edge perpendicular
             // to each such face.
             std::sort(sides.begin(), sides.end());
             for (std::size_t i = 0; i < sides.size();) {
@@ -498,7 +517,7 @@ class Decimator {
                                    regions_[std::size_t(sides[i].second)] !=
                                        regions_[std::size_t(sides[i + 1].second)]);
                 for (; kept && i < j; ++i) {
-                    if (off_edge(v, sides[i].first, sides[i].second, c.target) > limit) return false;
+                    if (off_edge(v, sides[i].first, sides[i].second, c.target) > limit_) return false;
                 }
                 i = j;
             }
@@ -508,13 +527,12 @@ class Decimator {
 
     /// The distance of x from the plane through the edge (v, w) perpendicular to face f.
     double off_edge(std::int32_t v, std::int32_t w, std::int32_t f, const V3& x) const {
-        const Triangle& t = faces_[std::size_t(f)];
-        const V3 n = cross(sub(p_[std::size_t(t[1])], p_[std::size_t(t[0])]),
-                           sub(p_[std::size_t(t[2])], p_[std::size_t(t[0])]));
+        std::int32_t u = v;  // f's third corner
+        for (const std::int32_t k : faces_[std::size_t(f)]) {
+            if (k != v && k != w) u = k;
+        }
         const V3& pv = p_[std::size_t(v)];
-        const V3 m = cross(sub(p_[std::size_t(w)], pv), n);
-        const double lm = std::sqrt(dot(m, m));
-        return lm > 0.0 ? std::fabs(dot(m, sub(x, pv))) / lm : 0.0;
+        return std::fabs(dot(across_edge(pv, p_[std::size_t(w)], p_[std::size_t(u)]), sub(x, pv)));
     }
 
     /// The vertices sharing a face with v.

@@ -663,8 +663,6 @@ class Decimator {
     std::priority_queue<Candidate, std::vector<Candidate>, std::greater<Candidate>> heap_;
 };
 
-}  // namespace
-
 /// The slabs of a large mesh for decimate_in_slabs: `count` runs of faces of equal length
 /// along the bounding box's longest axis, by the faces' centroids (not their numbers).
 std::vector<std::int32_t> slab_of_faces(const Mesh& mesh, std::size_t count) {
@@ -722,31 +720,28 @@ DecimateResult decimate_in_slabs(const Mesh& mesh, const DecimateOptions& option
         std::unique_ptr<Decimator> d;
         DecimateResult r;
     };
+    std::vector<std::vector<Triangle>> faces_of(count);
+    for (std::size_t f = 0; f < mesh.faces.size(); ++f) faces_of[std::size_t(slab[f])].push_back(mesh.faces[f]);
     std::vector<Part> parts(count);
-    std::vector<std::int32_t> local(nv, -1);
     for (std::size_t s = 0; s < count; ++s) {
         Part& p = parts[s];
-        std::vector<Vec3f> v, c;
-        std::vector<Triangle> faces;
-        for (std::size_t f = 0; f < mesh.faces.size(); ++f) {
-            if (std::size_t(slab[f]) != s) continue;
-            Triangle t;
-            for (int k = 0; k < 3; ++k) {
-                const std::int32_t g = mesh.faces[f][std::size_t(k)];
-                if (local[std::size_t(g)] < 0) {
-                    local[std::size_t(g)] = std::int32_t(p.global.size());
-                    p.global.push_back(g);
-                    p.locked.push_back(shared[std::size_t(g)]);
-                    v.push_back(mesh.vertices[std::size_t(g)]);
-                    if (mesh.colors.size() == nv) c.push_back(mesh.colors[std::size_t(g)]);
-                }
-                t[std::size_t(k)] = local[std::size_t(g)];
-            }
-            p.seam += shared[std::size_t(mesh.faces[f][0])] || shared[std::size_t(mesh.faces[f][1])] ||
-                      shared[std::size_t(mesh.faces[f][2])];
-            faces.push_back(t);
+        std::vector<Triangle>& faces = faces_of[s];
+        for (const Triangle& t : faces) {
+            p.seam += shared[std::size_t(t[0])] || shared[std::size_t(t[1])] || shared[std::size_t(t[2])];
         }
-        for (const std::int32_t g : p.global) local[std::size_t(g)] = -1;
+        std::size_t used = 0;
+        const std::vector<std::int32_t> map = detail::compact_vertices(faces, nv, &used);
+        p.global.resize(used);
+        std::vector<Vec3f> v(used), c(mesh.colors.size() == nv ? used : 0);
+        p.locked.resize(used);
+        for (std::size_t g = 0; g < nv; ++g) {
+            if (map[g] < 0) continue;
+            const std::size_t i = std::size_t(map[g]);
+            p.global[i] = std::int32_t(g);
+            p.locked[i] = shared[g];
+            v[i] = mesh.vertices[g];
+            if (!c.empty()) c[i] = mesh.colors[g];
+        }
         p.mesh.vertices = std::move(v);
         p.mesh.colors = std::move(c);
         p.mesh.faces = std::move(faces);
@@ -772,10 +767,9 @@ DecimateResult decimate_in_slabs(const Mesh& mesh, const DecimateOptions& option
         p.d.reset();
     }
     whole.faces = std::move(faces);
-    whole.normals = mesh.normals;  // only whether there are any: result() makes them anew
     Decimator d(whole, options);
     const DecimateResult last = d.run(target, 0.0);
-    r.mesh = d.result(whole);
+    r.mesh = d.result(mesh);  // in its frame, with normals when it has them
     r.faces_before = mesh.faces.size();
     r.faces_after = last.faces_after;
     r.collapses += last.collapses;
@@ -783,6 +777,8 @@ DecimateResult decimate_in_slabs(const Mesh& mesh, const DecimateOptions& option
     r.max_error = std::max(r.max_error, last.max_error);
     return r;
 }
+
+}  // namespace
 
 DecimateResult decimate(const Mesh& mesh, const DecimateOptions& options) {
     options.validate();

@@ -262,6 +262,17 @@ std::vector<double> MeshDistance::distances(const std::vector<Vec3f>& points,
     return d;
 }
 
+std::vector<double> MeshDistance::distances(const PointCloud& cloud,
+                                            std::vector<std::int32_t>* faces) const {
+    const Vec3d& o = impl_->origin;
+    const double shift[3] = {cloud.origin[0] - o[0], cloud.origin[1] - o[1], cloud.origin[2] - o[2]};
+    std::vector<Vec3f> p(cloud.positions.begin(), cloud.positions.end());
+    for (Vec3f& q : p) {
+        for (int k = 0; k < 3; ++k) q[std::size_t(k)] = float(q[std::size_t(k)] + shift[k]);
+    }
+    return distances(p, faces);
+}
+
 // ---------------------------------------------------------------------------------------------
 // Sampling and topology
 

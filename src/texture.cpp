@@ -1,7 +1,6 @@
 // Textures for planar regions (see texture.h).
 #include "vdbrecon/texture.h"
 
-#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -314,20 +313,13 @@ Layer raster_region(const Rect& r, const std::int32_t* points, std::size_t count
 }
 
 /// The region of each input point: that of its nearest face when within `reach` of it.
-std::vector<std::int32_t> point_regions(const Mesh& mesh, const PointCloud& cloud, const V3& shift,
-                                        double reach) {
-    const MeshDistance distance(mesh);
+std::vector<std::int32_t> point_regions(const Mesh& mesh, const PointCloud& cloud, double reach) {
+    std::vector<std::int32_t> face;
+    const std::vector<double> d = MeshDistance(mesh).distances(cloud, &face);
     std::vector<std::int32_t> owner(cloud.size(), -1);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cloud.size(), 4096), [&](const auto& range) {
-        for (std::size_t i = range.begin(); i != range.end(); ++i) {
-            const Vec3f& q = cloud.positions[i];
-            const Vec3f p{float(q[0] + shift[0]), float(q[1] + shift[1]), float(q[2] + shift[2])};
-            std::int32_t face = -1;
-            if (distance.distance(p, &face) <= reach && face >= 0) {
-                owner[i] = mesh.regions[std::size_t(face)];
-            }
-        }
-    });
+    for (std::size_t i = 0; i < owner.size(); ++i) {
+        if (d[i] <= reach && face[i] >= 0) owner[i] = mesh.regions[std::size_t(face[i])];
+    }
     return owner;
 }
 
@@ -416,7 +408,7 @@ TextureAtlas texture_regions(const Mesh& mesh, const std::vector<Plane>& planes,
     const V3 shift{points.origin[0] - mesh.origin[0], points.origin[1] - mesh.origin[1],
                    points.origin[2] - mesh.origin[2]};
     const Groups owned =
-        group_by(point_regions(mesh, points, shift, options.max_distance * voxel), regions);
+        group_by(point_regions(mesh, points, options.max_distance * voxel), regions);
     std::vector<RegionStats> stats(regions);
     tbb::parallel_for(std::size_t(0), regions, [&](std::size_t r) {
         const Rect& rect = rects[r];

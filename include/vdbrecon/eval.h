@@ -102,6 +102,10 @@ public:
     /// Distances of many points, in parallel.
     std::vector<double> distances(const std::vector<Vec3f>& points,
                                   std::vector<std::int32_t>* faces = nullptr) const;
+    /// Distances of a cloud's points, each moved into the mesh's frame first (the two may have
+    /// different origins), in parallel.
+    std::vector<double> distances(const PointCloud& cloud,
+                                  std::vector<std::int32_t>* faces = nullptr) const;
 
 private:
     struct Impl;

@@ -94,17 +94,8 @@ void bind_eval(py::module_& m) {
         "mesh_distances",
         [](const Mesh& mesh, const PointCloud& points) {
             std::vector<std::int32_t> faces;
-            std::vector<double> d = without_gil([&] {
-                // The points in the mesh's frame (both are relative to their origins).
-                std::vector<Vec3f> p(points.positions.begin(), points.positions.end());
-                for (Vec3f& q : p) {
-                    for (int k = 0; k < 3; ++k) {
-                        q[std::size_t(k)] = float(double(q[std::size_t(k)]) + points.origin[std::size_t(k)] -
-                                                  mesh.origin[std::size_t(k)]);
-                    }
-                }
-                return MeshDistance(mesh).distances(p, &faces);
-            });
+            std::vector<double> d =
+                without_gil([&] { return MeshDistance(mesh).distances(points, &faces); });
             return py::make_tuple(adopt(std::move(d), 0), adopt(std::move(faces), 0));
         },
         py::arg("mesh"), py::arg("points"),

@@ -15,16 +15,14 @@
 // sigma: Chamfer 38.6 um with the tangent-plane mean, 35.6 um with this, 36.5 um without
 // presumming). Range-image fusion sees every patch from many frames with several pixels per
 // voxel: the bunny sequence's 1.19 M samples become 84 k kernels in cells of 1.5 sigma.
-#include <tbb/parallel_for.h>
-
 #include <algorithm>
-#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <vector>
 
+#include "detail/cell_groups.h"
 #include "detail/radix_sort.h"
 #include "vdbrecon/splat.h"
 
@@ -32,16 +30,11 @@ namespace vdbrecon {
 
 namespace {
 
-constexpr std::uint64_t kNoGroup = std::numeric_limits<std::uint64_t>::max();
 constexpr int kLevels = 15;  ///< sigma levels, half octaves above min_sigma_voxels
 constexpr int kCellBits = 20;
 constexpr std::int64_t kCellBias = std::int64_t(1) << (kCellBits - 1);
-
-struct Keyed {
-    std::uint64_t key;
-    std::uint32_t index;
-    float sigma;  ///< the sample's sigma, voxels
-};
+/// No key: the level (<= 14) in the top four bits never makes one all ones.
+constexpr std::uint64_t kNoKey = std::numeric_limits<std::uint64_t>::max();
 
 double length(const Vec3f& n) {
     return std::sqrt(double(n[0]) * n[0] + double(n[1]) * n[1] + double(n[2]) * n[2]);
@@ -54,38 +47,73 @@ int bits_for(std::uint64_t n) {
     return b;
 }
 
-/// A sample's sigma level and cell (on a grid fixed in the cloud's frame, so that groups of
-/// groups fall into the same cells); level < 0 for a sample the splat would skip.
-struct SampleCell {
-    std::int32_t c[3];
-    std::int32_t level;
+/// A sample's cell, (level, z, y, x) packed 4 + 3 x 20 bits with the cell coordinates biased by
+/// 2^19 (kNoKey for a sample the splat would skip), and its sigma in voxels.
+struct SampleKey {
+    std::uint64_t key;
+    float sigma;
 };
 
-/// Sorting keys of the samples' cells: (level, z, y, x) packed with the bits their ranges in
-/// this cloud need (sorts of a frame take 3 radix passes, not 6), kNoGroup for a sample the
-/// splat would skip; an empty vector when some sample lies more than 2^19 cells from the
-/// origin or the key needs more than 62 bits. `bits`: the key bits used.
-std::vector<Keyed> cell_keys(const PointCloud& cloud, const SplatOptions& o, double cell, int& bits) {
-    const std::size_t n = cloud.size();
-    double inv_edge[kLevels];  // 1 / the cell edge of each level, world units
-    for (int l = 0; l < kLevels; ++l) {
-        inv_edge[l] = 1.0 / (cell * o.min_sigma_voxels * o.voxel_size * std::exp2(0.5 * l));
+/// The fields of a key, level first.
+void key_fields(std::uint64_t key, std::uint32_t f[4]) {
+    f[0] = std::uint32_t(key >> (3 * kCellBits));
+    for (int a = 0; a < 3; ++a) {
+        f[3 - a] = std::uint32_t(key >> (a * kCellBits)) & ((1u << kCellBits) - 1);
     }
-    std::vector<SampleCell> cells(n);
-    std::vector<Keyed> keys(n);
+}
+
+}  // namespace
+
+namespace detail {
+
+CellGroups::CellGroups(const SplatOptions& options, double cell, bool colors)
+    : options_(options), colors_(colors), slots_(1024, Slot{kNoKey, kNone}) {
+    for (int l = 0; l < kLevels; ++l) {
+        inv_edge_[l] = 1.0 / (cell * options.min_sigma_voxels * options.voxel_size * std::exp2(0.5 * l));
+    }
+}
+
+void CellGroups::grow() {
+    std::vector<Slot> old(slots_.size() * 2, Slot{kNoKey, kNone});
+    old.swap(slots_);
+    cells_ = 0;
+    for (const Slot& s : old) {
+        if (s.key != kNoKey) first_group(s.key) = s.first;
+    }
+}
+
+std::uint32_t& CellGroups::first_group(std::uint64_t key) {
+    if (2 * (cells_ + 1) > slots_.size()) grow();
+    const std::size_t mask = slots_.size() - 1;
+    std::uint64_t h = (key ^ (key >> 31)) * 0x9e3779b97f4a7c15ull;
+    std::size_t i = std::size_t(h >> 20) & mask;
+    while (slots_[i].key != key) {
+        if (slots_[i].key == kNoKey) {
+            slots_[i].key = key;
+            ++cells_;
+            break;
+        }
+        i = (i + 1) & mask;
+    }
+    return slots_[i].first;
+}
+
+bool CellGroups::add(const PointCloud& cloud) {
+    const std::size_t n = cloud.size();
+    if (n == 0) return true;
+    if (n >= kNone || groups_.size() + n >= kNone) return false;
+    const SplatOptions& o = options_;
     const Vec3f* pos = cloud.positions.data();
     const Vec3f* nrm = cloud.normals.data();
     const float* conf = cloud.has_confidences() ? cloud.confidences.data() : nullptr;
     const float* scale = cloud.has_scales() ? cloud.scales.data() : nullptr;
+    std::vector<SampleKey> keys(n);
     std::atomic<bool> outside{false};
-    detail::for_each_chunk(n, [&](std::size_t, std::size_t begin, std::size_t end) {
+    for_each_chunk(n, [&](std::size_t, std::size_t begin, std::size_t end) {
         for (std::size_t i = begin; i < end; ++i) {
-            keys[i] = {kNoGroup, std::uint32_t(i), 0.0f};
-            cells[i].level = -1;
+            keys[i] = {kNoKey, 0.0f};
             const Vec3f& p = pos[i];
-            const double len = length(nrm[i]);
-            const float c = conf ? conf[i] : 1.0f;
-            if (!kernel_usable(len, c) ||
+            if (!kernel_usable(length(nrm[i]), conf ? conf[i] : 1.0f) ||
                 !(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) {
                 continue;
             }
@@ -94,130 +122,102 @@ std::vector<Keyed> cell_keys(const PointCloud& cloud, const SplatOptions& o, dou
                 s <= o.min_sigma_voxels
                     ? 0
                     : std::min(int(std::lround(2.0 * std::log2(s / o.min_sigma_voxels))), kLevels - 1);
-            for (int a = 0; a < 3; ++a) {
+            std::uint64_t key = std::uint64_t(level);
+            for (int a = 2; a >= 0; --a) {
                 // floor(x) for |x| < 2^19 as a truncation of the positive x + 2^20 (no libm
                 // call where the target lacks SSE4.1's rounding instruction).
-                const double x = double(p[a]) * inv_edge[level];
+                const double x = double(p[a]) * inv_edge_[level];
                 if (!(std::fabs(x) < double(kCellBias))) {
                     outside = true;
                     break;
                 }
-                cells[i].c[a] = std::int32_t(std::int64_t(x + double(2 * kCellBias)) - 2 * kCellBias);
+                const std::int64_t c = std::int64_t(x + double(2 * kCellBias)) - 2 * kCellBias;
+                key = key << kCellBits | std::uint64_t(c + kCellBias);
             }
-            cells[i].level = level;
-            keys[i].sigma = float(s);
+            keys[i] = {key, float(s)};
         }
     });
-    if (outside) return {};
-    std::int32_t lo[4] = {INT32_MAX, INT32_MAX, INT32_MAX, INT32_MAX}, hi[4] = {0, 0, 0, 0};
-    bool any = false;
-    for (const SampleCell& c : cells) {
-        if (c.level < 0) continue;
-        const std::int32_t v[4] = {c.c[0], c.c[1], c.c[2], c.level};
-        for (int a = 0; a < 4; ++a) {
-            lo[a] = any ? std::min(lo[a], v[a]) : v[a];
-            hi[a] = any ? std::max(hi[a], v[a]) : v[a];
+    if (outside) return false;
+    // Each sample joins the first group of its cell whose summed normal is less than 90
+    // degrees from its own (opposite sides of a thin wall never mix). Normals are summed as
+    // they are (a group's mean normal is shorter than 1 where they disagree), so that groups of
+    // groups sum exactly what their samples would.
+    for (std::size_t i = 0; i < n; ++i) {
+        if (keys[i].key == kNoKey) continue;
+        const Vec3f& p = pos[i];
+        const Vec3f& nv = nrm[i];
+        std::uint32_t g = first_group(keys[i].key);
+        if (g == kNone) {
+            g = first_group(keys[i].key) = std::uint32_t(groups_.size());
+            groups_.emplace_back();
+        } else {
+            while (groups_[g].n[0] * nv[0] + groups_[g].n[1] * nv[1] + groups_[g].n[2] * nv[2] <= 0.0) {
+                if (groups_[g].next == kNone) {
+                    g = groups_[g].next = std::uint32_t(groups_.size());
+                    groups_.emplace_back();
+                    break;
+                }
+                g = groups_[g].next;
+            }
         }
-        any = true;
-    }
-    int width[4];
-    bits = 0;
-    for (int a = 0; a < 4; ++a) {
-        width[a] = any ? bits_for(std::uint64_t(std::int64_t(hi[a]) - lo[a])) : 0;
-        bits += width[a];
-    }
-    if (bits > 62) return {};  // a cloud ~2^20 cells wide every way: not presummed
-    detail::for_each_chunk(n, [&](std::size_t, std::size_t begin, std::size_t end) {
-        for (std::size_t i = begin; i < end; ++i) {
-            const SampleCell& c = cells[i];
-            if (c.level < 0) continue;
-            std::uint64_t key = std::uint64_t(c.level - lo[3]);
-            for (int a = 2; a >= 0; --a) key = key << width[a] | std::uint64_t(c.c[a] - lo[a]);
-            keys[i].key = key;
-        }
-    });
-    return keys;
-}
-
-/// One group's sums, in double, in increasing sample order.
-struct GroupSums {
-    double c = 0.0, sigma = 0.0;
-    std::array<double, 3> p{0, 0, 0}, n{0, 0, 0}, rgb{0, 0, 0};
-};
-
-/// The groups of one cell: its samples, in order, each joining the first group whose summed
-/// normal is less than 90 degrees from its own (opposite sides of a thin wall never mix).
-/// Normals are summed as they are (a group's mean normal is shorter than 1 where they
-/// disagree), so that groups of groups sum exactly what their samples would.
-void cell_groups(const PointCloud& cloud, const Keyed* first, const Keyed* last,
-                 std::vector<GroupSums>& out) {
-    const std::size_t begin = out.size();
-    const bool use_conf = cloud.has_confidences(), colors = cloud.has_colors();
-    for (const Keyed* k = first; k != last; ++k) {
-        const std::size_t i = k->index;
-        const Vec3f& p = cloud.positions[i];
-        const Vec3f& n = cloud.normals[i];
-        std::size_t g = begin;
-        while (g < out.size() &&
-               out[g].n[0] * n[0] + out[g].n[1] * n[1] + out[g].n[2] * n[2] <= 0.0) {
-            ++g;
-        }
-        if (g == out.size()) out.emplace_back();
-        GroupSums& s = out[g];
-        const double c = use_conf ? double(cloud.confidences[i]) : 1.0;
+        Group& s = groups_[g];
+        const double c = conf ? double(conf[i]) : 1.0;
         for (int a = 0; a < 3; ++a) {
             s.p[a] += c * double(p[a]);
-            s.n[a] += c * double(n[a]);
-            if (colors) s.rgb[a] += c * double(cloud.colors[i][a]);
+            s.n[a] += c * double(nv[a]);
+            if (colors_) s.rgb[a] += c * double(cloud.colors[i][a]);
         }
         s.c += c;
-        s.sigma += c * double(k->sigma);
+        s.sigma += c * double(keys[i].sigma);
     }
+    return true;
 }
 
-}  // namespace
-
-PointCloud aggregate_samples(PointCloud cloud, const SplatOptions& options, double cell) {
-    if (!(cell > 0.0) || cloud.size() < 2 || !cloud.has_normals()) return cloud;
-    options.validate();
-    if (cloud.size() > std::numeric_limits<std::uint32_t>::max()) return cloud;
-    int bits = 0;
-    std::vector<Keyed> keys = cell_keys(cloud, options, cell, bits);
-    if (keys.empty()) return cloud;
-    // kNoGroup sorts last: the sort sees one bit more than the keys use (bits <= 4 + 3 * 20).
-    const std::uint64_t last = std::uint64_t(1) << bits;
-    detail::radix_sort(keys, bits + 1,
-                       [&](const Keyed& k) { return k.key == kNoGroup ? last : k.key; });
-    std::size_t end = keys.size();
-    while (end > 0 && keys[end - 1].key == kNoGroup) --end;
-
-    // Cells in fixed chunks of the sorted keys (a chunk starts at the first cell that begins
-    // in it), each chunk's groups in order: the same groups for any thread count.
-    const std::size_t chunks = detail::chunk_count(end);
-    std::vector<std::vector<GroupSums>> parts(chunks);
-    detail::for_each_chunk(end, [&](std::size_t c, std::size_t b, std::size_t e) {
-        while (b < e && b > 0 && keys[b].key == keys[b - 1].key) ++b;
-        while (b < e) {
-            std::size_t j = b + 1;
-            while (j < end && keys[j].key == keys[b].key) ++j;
-            cell_groups(cloud, &keys[b], &keys[j], parts[c]);
-            b = j;
+PointCloud CellGroups::take(const Vec3d& origin) {
+    // The cells in key order, by a radix sort of their keys packed as tightly as their ranges
+    // allow.
+    struct Cell {
+        std::uint64_t key;
+        std::uint32_t first;
+    };
+    std::vector<Cell> cells;
+    cells.reserve(cells_);
+    std::uint32_t lo[4] = {UINT32_MAX, UINT32_MAX, UINT32_MAX, UINT32_MAX}, hi[4] = {0, 0, 0, 0};
+    for (const Slot& s : slots_) {
+        if (s.key == kNoKey) continue;
+        cells.push_back({s.key, s.first});
+        std::uint32_t f[4];
+        key_fields(s.key, f);
+        for (int a = 0; a < 4; ++a) {
+            lo[a] = std::min(lo[a], f[a]);
+            hi[a] = std::max(hi[a], f[a]);
         }
-    });
-    keys = std::vector<Keyed>{};
-    std::size_t groups = 0;
-    for (const auto& part : parts) groups += part.size();
+    }
+    int width[4], bits = 0;
+    for (int a = 0; a < 4; ++a) {
+        width[a] = cells.empty() ? 0 : bits_for(hi[a] - lo[a]);
+        bits += width[a];
+    }
+    for (Cell& c : cells) {
+        std::uint32_t f[4];
+        key_fields(c.key, f);
+        std::uint64_t packed = 0;
+        for (int a = 0; a < 4; ++a) packed = packed << width[a] | (f[a] - lo[a]);
+        c.key = packed;
+    }
+    radix_sort(cells, bits, [](const Cell& c) { return c.key; });
 
-    const bool colors = cloud.has_colors();
+    const std::size_t n = groups_.size();
     std::vector<Vec3f> positions, normals, rgb;
     std::vector<float> scales, confidences;
-    positions.reserve(groups);
-    normals.reserve(groups);
-    rgb.reserve(colors ? groups : 0);
-    scales.reserve(groups);
-    confidences.reserve(groups);
-    for (const auto& part : parts) {
-        for (const GroupSums& s : part) {
+    positions.reserve(n);
+    normals.reserve(n);
+    rgb.reserve(colors_ ? n : 0);
+    scales.reserve(n);
+    confidences.reserve(n);
+    for (const Cell& cell : cells) {
+        for (std::uint32_t g = cell.first; g != kNone; g = groups_[g].next) {
+            const Group& s = groups_[g];
             const double nn = std::sqrt(s.n[0] * s.n[0] + s.n[1] * s.n[1] + s.n[2] * s.n[2]);
             if (!(nn > 1e-6 * s.c)) continue;  // normals that cancel: no plane
             Vec3f x, nu, col;
@@ -228,21 +228,34 @@ PointCloud aggregate_samples(PointCloud cloud, const SplatOptions& options, doub
             }
             positions.push_back(x);
             normals.push_back(nu);
-            if (colors) rgb.push_back(col);
+            if (colors_) rgb.push_back(col);
             confidences.push_back(float(s.c));
             // The scale whose sigma is the group's mean sigma (within the clamp, which the mean
             // of clamped sigmas never leaves).
-            scales.push_back(float(s.sigma / s.c * options.voxel_size / options.scale_factor));
+            scales.push_back(float(s.sigma / s.c * options_.voxel_size / options_.scale_factor));
         }
     }
+    groups_ = std::vector<Group>{};
+    slots_.assign(1024, Slot{kNoKey, kNone});
+    cells_ = 0;
     PointCloud out;
-    out.origin = cloud.origin;
+    out.origin = origin;
     out.positions = std::move(positions);
     out.normals = std::move(normals);
-    if (colors) out.colors = std::move(rgb);
+    if (colors_) out.colors = std::move(rgb);
     out.scales = std::move(scales);
     out.confidences = std::move(confidences);
     return out;
+}
+
+}  // namespace detail
+
+PointCloud aggregate_samples(PointCloud cloud, const SplatOptions& options, double cell) {
+    if (!(cell > 0.0) || cloud.size() < 2 || !cloud.has_normals()) return cloud;
+    options.validate();
+    detail::CellGroups groups(options, cell, cloud.has_colors());
+    if (!groups.add(cloud)) return cloud;
+    return groups.take(cloud.origin);
 }
 
 }  // namespace vdbrecon

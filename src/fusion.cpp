@@ -10,6 +10,7 @@
 #include <memory>
 #include <sstream>
 
+#include "detail/cell_groups.h"
 #include "detail/io_common.h"
 #include "detail/run.h"
 #include "detail/tsdf.h"
@@ -106,6 +107,15 @@ double median_of(std::vector<T>& v) {
     return double(v[v.size() / 2]);
 }
 
+/// One row of a grid of points: its points, ranges, valid flags and pixel counts (count null
+/// where every point stands for one pixel).
+struct GridRow {
+    const V3* p = nullptr;
+    const double* r = nullptr;
+    const char* valid = nullptr;
+    const float* count = nullptr;
+};
+
 /// A grid of sensor-centred points (an image's pixels, or blocks of them, or an organized
 /// cloud's points less the sensor position): valid[i] false where nothing was measured; r[i]
 /// the range (distance from the sensor), which the depth-jump tests compare; count[i] the
@@ -133,33 +143,99 @@ struct FramePoints {
     }
 
     std::size_t index(int u, int v) const { return std::size_t(v) * std::size_t(w) + std::size_t(u); }
+    /// The range of point i, 0 where nothing was measured.
+    double range(std::size_t i) const { return valid[i] ? r[i] : 0.0; }
+    GridRow row(int v) const {
+        const std::size_t i = index(0, v);
+        return {p.data() + i, r.data() + i, valid.data() + i, count.data() + i};
+    }
+};
+
+/// A depth image's pixels as camera-frame points, made row by row as they are asked for (the
+/// points of rows v - 1, v and v + 1 at a time): a frame is mostly background, and the points of
+/// a whole frame (37 bytes a pixel) cost more to write and read back than to make.
+class DepthRows {
+  public:
+    const int w, h;
+
+    DepthRows(const DepthImage& depth, const Intrinsics& K, const DepthOptions& o)
+        : w(depth.width), h(depth.height), depth_(depth), K_(K), kind_(o.kind),
+          min_depth_(o.min_depth), max_depth_(o.max_depth > 0.0 ? o.max_depth : HUGE_VAL) {
+        for (int s = 0; s < 3; ++s) {
+            p_[s].resize(std::size_t(w));
+            r_[s].resize(std::size_t(w));
+            valid_[s].resize(std::size_t(w));
+        }
+    }
+
+    /// Row v's points into p, r, valid (w entries each; p and r left as they are where
+    /// nothing was measured).
+    void project(int v, V3* p, double* r, char* valid) const {
+        const float* d = depth_.depth.data() + std::size_t(v) * std::size_t(w);
+        for (int u = 0; u < w; ++u) {
+            valid[u] = 0;
+            const double z = double(d[u]);
+            if (!(std::isfinite(z) && z > min_depth_ && z > 0.0 && z <= max_depth_)) continue;
+            const V3 x = point(u, v, z);
+            p[u] = x;
+            r[u] = std::sqrt(dot(x, x));
+            valid[u] = r[u] > 0.0;
+        }
+    }
+    GridRow row(int v) const {
+        const int s = v % 3;
+        if (row_[s] != v) {
+            project(v, p_[s].data(), r_[s].data(), valid_[s].data());
+            row_[s] = v;
+        }
+        return {p_[s].data(), r_[s].data(), valid_[s].data(), nullptr};
+    }
+    double range(std::size_t i) const {
+        const int v = int(i / std::size_t(w)), u = int(i % std::size_t(w));
+        const double z = double(depth_.depth[i]);
+        if (!(std::isfinite(z) && z > min_depth_ && z > 0.0 && z <= max_depth_)) return 0.0;
+        const V3 x = point(u, v, z);
+        return std::sqrt(dot(x, x));
+    }
+
+  private:
+    V3 point(int u, int v, double z) const {
+        const V3 ray = {(u - K_.cx) / K_.fx, (v - K_.cy) / K_.fy, 1.0};
+        if (kind_ == DepthKind::ray) z /= std::sqrt(dot(ray, ray));
+        return {ray[0] * z, ray[1] * z, z};
+    }
+
+    const DepthImage& depth_;
+    const Intrinsics& K_;
+    DepthKind kind_;
+    double min_depth_, max_depth_;
+    mutable std::vector<V3> p_[3];
+    mutable std::vector<double> r_[3];
+    mutable std::vector<char> valid_[3];
+    mutable int row_[3] = {-1, -1, -1};  ///< the row each buffer holds
 };
 
 FramePoints back_project(const DepthImage& depth, const Intrinsics& K, const DepthOptions& o) {
-    const int w = depth.width, h = depth.height;
+    const DepthRows rows(depth, K, o);
     FramePoints f;
-    f.resize(w, h);
-    const double max_depth = o.max_depth > 0.0 ? o.max_depth : HUGE_VAL;
-    for (int v = 0; v < h; ++v) {
-        for (int u = 0; u < w; ++u) {
-            const std::size_t i = f.index(u, v);
-            double d = double(depth.depth[i]);
-            if (!(std::isfinite(d) && d > o.min_depth && d > 0.0 && d <= max_depth)) continue;
-            const V3 ray = {(u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0};
-            if (o.kind == DepthKind::ray) d /= std::sqrt(dot(ray, ray));
-            f.set(i, {ray[0] * d, ray[1] * d, d});
-        }
+    f.resize(depth.width, depth.height);
+    for (int v = 0; v < f.h; ++v) {
+        const std::size_t i = f.index(0, v);
+        rows.project(v, &f.p[i], &f.r[i], &f.valid[i]);
     }
     return f;
 }
 
 /// The pixel blocks (b x b) a frame is merged into where its footprint is below
 /// `merge_footprint`: b = floor(merge_footprint / the median footprint), at most 4.
-int merge_factor(const FramePoints& f, double focal, double merge_footprint) {
+template <typename Grid>
+int merge_factor(const Grid& f, double focal, double merge_footprint) {
     if (!(merge_footprint > 0.0)) return 1;
     std::vector<double> z;
-    for (std::size_t i = 0; i < f.p.size(); i += 7) {  // a sample of the pixels is enough
-        if (f.valid[i]) z.push_back(f.r[i]);
+    const std::size_t n = std::size_t(f.w) * std::size_t(f.h);
+    for (std::size_t i = 0; i < n; i += 7) {  // a sample of the pixels is enough
+        const double r = f.range(i);
+        if (r > 0.0) z.push_back(r);
     }
     if (z.empty()) return 1;
     const double footprint = median_of(z) / focal;
@@ -204,22 +280,22 @@ FramePoints merge_blocks(const FramePoints& f, int b, double max_jump) {
 }
 
 /// The oriented samples of a grid of camera-frame points (see fusion.h); `focal`: the grid's
-/// focal length in cells.
-PointCloud grid_samples(const FramePoints& f, double focal, const Pose& pose,
-                        const DepthOptions& options, const Vec3d& origin) {
+/// focal length in cells. Grid: FramePoints or DepthRows (rows by row(v)).
+template <typename Grid>
+PointCloud grid_samples(const Grid& f, double focal, const Pose& pose, const DepthOptions& options,
+                        const Vec3d& origin) {
     const int w = f.w, h = f.h;
-    auto usable = [&](int u, int v, double d) {  // a neighbour on the same surface
-        if (u < 0 || v < 0 || u >= w || v >= h) return false;
-        const std::size_t j = f.index(u, v);
-        return f.valid[j] && std::fabs(f.r[j] - d) <= options.max_jump * d;
+    auto usable = [&](const GridRow* row, int u, double d) {  // a neighbour on the same surface
+        if (!row || u < 0 || u >= w) return false;
+        return row->valid[u] && std::fabs(row->r[u] - d) <= options.max_jump * d;
     };
-    auto at = [&](int u, int v) { return f.p[f.index(u, v)]; };
-    // A tangent along one image axis: central difference, else one-sided; false when neither
-    // neighbour is usable.
-    auto tangent = [&](int u, int v, int du, int dv, double d, V3& t, double& step) {
-        const bool a = usable(u - du, v - dv, d), b = usable(u + du, v + dv, d);
+    // A tangent along one image axis between neighbours a (row ra, column ua) and b: central
+    // difference, else one-sided; false when neither neighbour is usable.
+    auto tangent = [&](const GridRow* ra, int ua, const GridRow* rb, int ub, const V3& p, double d,
+                       V3& t, double& step) {
+        const bool a = usable(ra, ua, d), b = usable(rb, ub, d);
         if (!a && !b) return false;
-        const V3 lo = a ? at(u - du, v - dv) : at(u, v), hi = b ? at(u + du, v + dv) : at(u, v);
+        const V3 lo = a ? ra->p[ua] : p, hi = b ? rb->p[ub] : p;
         t = sub(hi, lo);
         step = std::sqrt(dot(t, t)) / double(int(a) + int(b));
         return step > 0.0;
@@ -228,28 +304,31 @@ PointCloud grid_samples(const FramePoints& f, double focal, const Pose& pose,
     cloud.origin = origin;
     std::vector<Vec3f> positions, normals;
     std::vector<float> scales, confidences;
-    const std::size_t measured = std::size_t(std::count(f.valid.begin(), f.valid.end(), 1));
-    positions.reserve(measured);
-    normals.reserve(measured);
-    scales.reserve(measured);
-    confidences.reserve(measured);
     const V3 t = {pose[3], pose[7], pose[11]};
     auto rotate = [&](const V3& x) {
         return V3{pose[0] * x[0] + pose[1] * x[1] + pose[2] * x[2],
                   pose[4] * x[0] + pose[5] * x[1] + pose[6] * x[2],
                   pose[8] * x[0] + pose[9] * x[1] + pose[10] * x[2]};
     };
+    GridRow up, row, down;
     for (int v = 0; v < h; ++v) {
+        if (v > 0) up = row;
+        row = v > 0 ? down : f.row(v);
+        if (v + 1 < h) down = f.row(v + 1);
+        const GridRow* above = v > 0 ? &up : nullptr;
+        const GridRow* below = v + 1 < h ? &down : nullptr;
         for (int u = 0; u < w; ++u) {
-            const std::size_t i = f.index(u, v);
-            if (!f.valid[i]) continue;
-            const V3& p = f.p[i];
+            if (!row.valid[u]) continue;
+            const V3& p = row.p[u];
             V3 tu, tv;
             double su = 0.0, sv = 0.0;
-            const double range = f.r[i];
-            if (!tangent(u, v, 1, 0, range, tu, su) || !tangent(u, v, 0, 1, range, tv, sv)) continue;
+            const double range = row.r[u];
+            if (!tangent(&row, u - 1, &row, u + 1, p, range, tu, su) ||
+                !tangent(above, u, below, u, p, range, tv, sv)) {
+                continue;
+            }
             V3 n = cross(tu, tv);
-            const double len = std::sqrt(dot(n, n)), dist = std::sqrt(dot(p, p));
+            const double len = std::sqrt(dot(n, n)), dist = range;  // |p|
             if (!(len > 0.0)) continue;
             double c = -dot(n, p) / (len * dist);  // cosine of the viewing angle, signed
             if (c < 0.0) {  // orient toward the camera
@@ -260,7 +339,7 @@ PointCloud grid_samples(const FramePoints& f, double focal, const Pose& pose,
             // Footprint: the spacing to the neighbours, at most that of a cell seen at
             // min_view_cos (a jump below max_jump must not widen the kernel further).
             const double footprint = std::min(0.5 * (su + sv), dist / focal / options.min_view_cos);
-            double conf = c * double(f.count[i]);
+            double conf = c * (row.count ? double(row.count[u]) : 1.0);
             if (options.reference_depth > 0.0 && range > options.reference_depth) {
                 const double r = options.reference_depth / range;
                 conf *= r * r;
@@ -398,10 +477,11 @@ PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pos
                          const DepthOptions& options, const Vec3d& origin) {
     check_frame(depth, K, pose, options);
     const double focal = 0.5 * (K.fx + K.fy);
-    FramePoints f = back_project(depth, K, options);
-    const int b = merge_factor(f, focal, options.merge_footprint);
-    if (b > 1) f = merge_blocks(f, b, options.max_jump);
-    return grid_samples(f, focal / b, pose, options, origin);
+    const DepthRows rows(depth, K, options);
+    const int b = merge_factor(rows, focal, options.merge_footprint);
+    if (b == 1) return grid_samples(rows, focal, pose, options, origin);
+    const FramePoints merged = merge_blocks(back_project(depth, K, options), b, options.max_jump);
+    return grid_samples(merged, focal / b, pose, options, origin);
 }
 
 namespace {
@@ -449,7 +529,7 @@ std::size_t Fusion::integrate_presummed(const PointCloud& groups, std::size_t sa
 }
 
 // A frame's samples are presummed on their own (they fit the caches), the batch's groups once
-// more when it is flushed (the frames' groups of one cell become one).
+// more as they are added (the frames' groups of one cell become one).
 void Fusion::add(const PointCloud& samples, std::size_t count) {
     samples_ += count;
     if (samples.empty()) return;
@@ -457,28 +537,43 @@ void Fusion::add(const PointCloud& samples, std::size_t count) {
         accumulator_.add(samples);
         return;
     }
-    auto append = [](auto& into, const auto& from) {
-        if (from.empty()) return;
-        into.edit().insert(into.edit().end(), from.begin(), from.end());
-    };
-    if (!pending_.empty() && (samples.has_colors() != pending_.has_colors() ||
-                              samples.has_scales() != pending_.has_scales() ||
-                              samples.has_confidences() != pending_.has_confidences())) {
-        flush();  // a batch holds one kind of sample
+    if (depth_.aggregate > 0.0) {
+        if (groups_ && groups_->colors() != samples.has_colors()) flush();  // one kind a batch
+        if (!groups_) {
+            groups_ = std::make_unique<detail::CellGroups>(options_.splat, depth_.aggregate,
+                                                           samples.has_colors());
+        }
+        if (!groups_->add(samples)) {  // beyond the cells' reach: splatted as they are
+            flush();
+            accumulator_.add(samples);
+            return;
+        }
+    } else {
+        auto append = [](auto& into, const auto& from) {
+            if (from.empty()) return;
+            into.edit().insert(into.edit().end(), from.begin(), from.end());
+        };
+        if (!pending_.empty() && (samples.has_colors() != pending_.has_colors() ||
+                                  samples.has_scales() != pending_.has_scales() ||
+                                  samples.has_confidences() != pending_.has_confidences())) {
+            flush();  // a batch holds one kind of sample
+        }
+        pending_.origin = samples.origin;
+        append(pending_.positions, samples.positions);
+        append(pending_.normals, samples.normals);
+        append(pending_.colors, samples.colors);
+        append(pending_.scales, samples.scales);
+        append(pending_.confidences, samples.confidences);
     }
-    pending_.origin = samples.origin;
-    append(pending_.positions, samples.positions);
-    append(pending_.normals, samples.normals);
-    append(pending_.colors, samples.colors);
-    append(pending_.scales, samples.scales);
-    append(pending_.confidences, samples.confidences);
-    if (pending_.size() >= depth_.batch_samples) flush();
+    batched_ += samples.size();
+    if (batched_ >= depth_.batch_samples) flush();
 }
 
 void Fusion::flush() const {
-    if (pending_.empty()) return;
-    accumulator_.add(presum(std::move(pending_)));
+    if (groups_ && !groups_->empty()) accumulator_.add(groups_->take(accumulator_.origin()));
+    if (!pending_.empty()) accumulator_.add(pending_);
     pending_ = PointCloud{};
+    batched_ = 0;
 }
 
 std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose) {
@@ -597,6 +692,8 @@ class FusionStart {
     }
     bool started() const { return bool(fusion_); }
     Fusion& operator*() { return *fusion_; }
+    /// Frees the fusion's sums (once its volume is made: the mesh stages need the room).
+    void release() { fusion_.reset(); }
     const PipelineOptions& options() const { return po_; }
 
   private:
@@ -774,6 +871,7 @@ RunResult fuse(const std::string& scene_path, const std::string& output,
         {
             detail::StageClock clock(timings, on_stage, "splat");
             splat = detail::in_arena(fusion.options().threads, [&] { return (*fusion).splat(); });
+            fusion.release();
         }
         Volume volume = std::move(splat.volume);
         splat.volume = Volume{};

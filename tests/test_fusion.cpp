@@ -605,3 +605,58 @@ TEST_CASE("presummed frames fuse the same surface with a fraction of the kernels
         CHECK(sum.recon.boundary_edges == 0);
     }
 }
+
+TEST_CASE("a fusion's batch presums its clouds' groups once more, as of them joined", "[fusion][aggregate]") {
+    // Three interleaved thirds of a sphere with scales and confidences, integrated as clouds:
+    // each is presummed, the batch sums their groups once more as they arrive (one hash table
+    // of cells, no sort). That must give, bit for bit, what presumming the groups joined gives.
+    const PointCloud all = test::sample_sphere(30000, 0.5);
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(0.5f, 2.0f), s(0.002f, 0.03f);
+    PointCloud parts[3];
+    for (std::size_t i = 0; i < all.size(); ++i) {
+        PointCloud& p = parts[i % 3];
+        p.positions.push_back(all.positions[i]);
+        p.normals.push_back(all.normals[i]);
+        p.confidences.push_back(u(rng));
+        p.scales.push_back(s(rng));
+    }
+    const PipelineOptions po = fusion_options(0.01);
+    const double cell = DepthOptions{}.aggregate;
+    auto same = [](const Volume& a, const Volume& b) {
+        REQUIRE(a.sdf->activeVoxelCount() == b.sdf->activeVoxelCount());
+        REQUIRE(a.sdf->activeVoxelCount() > 10000);
+        auto sacc = b.sdf->getConstAccessor();
+        auto wacc = b.weight->getConstAccessor();
+        auto wa = a.weight->getConstAccessor();
+        for (auto it = a.sdf->cbeginValueOn(); it; ++it) {
+            REQUIRE(sacc.getValue(it.getCoord()) == *it);
+            REQUIRE(wacc.getValue(it.getCoord()) == wa.getValue(it.getCoord()));
+        }
+    };
+    for (std::size_t batch : {std::size_t(1) << 21, std::size_t(1)}) {
+        DepthOptions d;
+        d.batch_samples = batch;  // one batch, or a flush after every cloud
+        Fusion f(po, d);
+        for (const PointCloud& p : parts) f.integrate(p);
+        const Volume fused = f.volume();
+        SplatAccumulator reference(po.splat);
+        PointCloud joined;
+        for (const PointCloud& p : parts) {
+            const PointCloud g = aggregate_samples(p.view(), po.splat, cell);
+            if (batch == 1) {
+                reference.add(aggregate_samples(g.view(), po.splat, cell));
+                continue;
+            }
+            for (std::size_t i = 0; i < g.size(); ++i) {
+                joined.positions.push_back(g.positions[i]);
+                joined.normals.push_back(g.normals[i]);
+                joined.confidences.push_back(g.confidences[i]);
+                joined.scales.push_back(g.scales[i]);
+            }
+        }
+        if (batch != 1) reference.add(aggregate_samples(joined.view(), po.splat, cell));
+        INFO("batch_samples " << batch);
+        same(fused, reference.result().volume);
+    }
+}

@@ -163,6 +163,7 @@ PointCloud scan_samples(const PointCloud& scan, const std::optional<Vec3d>& orig
 /// Fuses posed depth images (and oriented clouds) into one volume, one frame at a time.
 namespace detail {
 class TsdfVolume;
+class CellGroups;
 }
 
 class Fusion {
@@ -213,10 +214,14 @@ class Fusion {
     void flush() const;
 
     // Samples are gathered into batches of depth.batch_samples before they are splatted (a
-    // batch sums in double and touches each block's stored sums once). Flushing a batch does
-    // not change what the fusion holds, so the const accessors may do it.
+    // batch sums in double and touches each block's stored sums once): presummed frames'
+    // groups into the batch's cell groups (groups_, the frames' groups of one cell summed
+    // once more), samples not presummed (depth.aggregate 0) into pending_. Flushing a batch
+    // does not change what the fusion holds, so the const accessors may do it.
     mutable SplatAccumulator accumulator_;
     mutable PointCloud pending_;
+    mutable std::unique_ptr<detail::CellGroups> groups_;
+    mutable std::size_t batched_ = 0;  ///< samples (or groups) in the batch
     std::size_t samples_ = 0;  ///< samples added (before aggregation)
     std::unique_ptr<detail::TsdfVolume> tsdf_;  ///< rule == tsdf
     std::size_t frames_ = 0;

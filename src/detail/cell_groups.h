@@ -1,0 +1,56 @@
+// Presumming (aggregate_samples, splat.h) a cloud at a time into one set of cell groups, for a
+// fusion that gathers the groups of many frames before it splats them.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "vdbrecon/splat.h"
+
+namespace vdbrecon::detail {
+
+/// The groups of aggregate_samples() kept open: clouds added one after another sum into the
+/// same groups (a group of later samples joins the first group of its cell whose summed normal
+/// is less than 90 degrees from its own), and take() gives them as aggregate_samples() of the
+/// clouds joined in order would. The cells live in a hash table, so adding costs no sort.
+class CellGroups {
+  public:
+    /// `cell` > 0: the cell edge in sigmas of each level. `colors`: whether the clouds added
+    /// have colours (all or none).
+    CellGroups(const SplatOptions& options, double cell, bool colors);
+
+    /// Adds the cloud's samples in order (those the splat would skip are left out); false,
+    /// adding nothing, when one reaches more than 2^19 cells from the origin.
+    bool add(const PointCloud& cloud);
+    /// The groups as samples, cells in (level, z, y, x) order and each cell's groups in the
+    /// order they were opened, in `origin`'s frame; empties this.
+    PointCloud take(const Vec3d& origin);
+
+    bool empty() const { return groups_.empty(); }
+    bool colors() const { return colors_; }
+
+  private:
+    struct Group {
+        double c = 0.0, sigma = 0.0;
+        double p[3] = {0, 0, 0}, n[3] = {0, 0, 0}, rgb[3] = {0, 0, 0};
+        std::uint32_t next = kNone;  ///< the cell's next group
+    };
+    struct Slot {
+        std::uint64_t key;
+        std::uint32_t first;  ///< the cell's first group
+    };
+    static constexpr std::uint32_t kNone = 0xffffffffu;
+
+    std::uint32_t& first_group(std::uint64_t key);
+    void grow();
+
+    SplatOptions options_;
+    bool colors_;
+    double inv_edge_[15];  ///< 1 / the cell edge of each sigma level, world units
+    std::vector<Group> groups_;
+    std::vector<Slot> slots_;  ///< open addressing, a power of two, at most half full
+    std::size_t cells_ = 0;
+};
+
+}  // namespace vdbrecon::detail

@@ -86,13 +86,9 @@ bool point_in_valid_cells(FloatAccessor& acc, const openvdb::Vec3d& p) {
 class CellStencil {
 public:
     void load(FloatAccessor& acc, const openvdb::Coord& c) {
-        for (int x = 0; x < 4; ++x) {
-            for (int y = 0; y < 4; ++y) {
-                for (int z = 0; z < 4; ++z) {
-                    if ((x % 3 == 0) + (y % 3 == 0) + (z % 3 == 0) > 1) continue;  // not read
-                    on_[x][y][z] = acc.probeValue(c.offsetBy(x - 1, y - 1, z - 1), f_[x][y][z]);
-                }
-            }
+        for (const auto& o : kRead) {
+            on_[o[0]][o[1]][o[2]] =
+                acc.probeValue(c.offsetBy(o[0] - 1, o[1] - 1, o[2] - 1), f_[o[0]][o[1]][o[2]]);
         }
     }
 
@@ -124,6 +120,20 @@ public:
     }
 
 private:
+    /// The voxels read, 0..3 per axis: those with at most one coordinate outside the cell (1..2).
+    static constexpr std::array<std::array<int, 3>, 32> kRead = [] {
+        std::array<std::array<int, 3>, 32> r{};
+        int n = 0;
+        for (int x = 0; x < 4; ++x) {
+            for (int y = 0; y < 4; ++y) {
+                for (int z = 0; z < 4; ++z) {
+                    if ((x % 3 == 0) + (y % 3 == 0) + (z % 3 == 0) <= 1) r[std::size_t(n++)] = {x, y, z};
+                }
+            }
+        }
+        return r;
+    }();
+
     openvdb::Vec3d corner_gradient(int x, int y, int z) const {
         openvdb::Vec3d g(0.0);
         if (!on_[x][y][z]) return g;

@@ -118,8 +118,9 @@ bool CellGroups::add(const PointCloud& cloud) {
                 continue;
             }
             const double s = kernel_sigma_voxels(o, scale ? scale[i] : 0.0f);
+            // Level 0 below 2^0.25 min_sigma (1.18920712 ...), where the rounded 2 log2 is 0.
             const int level =
-                s <= o.min_sigma_voxels
+                s <= 1.189 * o.min_sigma_voxels
                     ? 0
                     : std::min(int(std::lround(2.0 * std::log2(s / o.min_sigma_voxels))), kLevels - 1);
             std::uint64_t key = std::uint64_t(level);
@@ -138,6 +139,7 @@ bool CellGroups::add(const PointCloud& cloud) {
         }
     });
     if (outside) return false;
+    while (2 * (cells_ + n / 2) > slots_.size()) grow();  // room for a cell per two samples
     // Each sample joins the first group of its cell whose summed normal is less than 90
     // degrees from its own (opposite sides of a thin wall never mix). Normals are summed as
     // they are (a group's mean normal is shorter than 1 where they disagree), so that groups of
@@ -146,9 +148,10 @@ bool CellGroups::add(const PointCloud& cloud) {
         if (keys[i].key == kNoKey) continue;
         const Vec3f& p = pos[i];
         const Vec3f& nv = nrm[i];
-        std::uint32_t g = first_group(keys[i].key);
+        std::uint32_t& head = first_group(keys[i].key);  // slots_ stay put until the next call
+        std::uint32_t g = head;
         if (g == kNone) {
-            g = first_group(keys[i].key) = std::uint32_t(groups_.size());
+            g = head = std::uint32_t(groups_.size());
             groups_.emplace_back();
         } else {
             while (groups_[g].n[0] * nv[0] + groups_[g].n[1] * nv[1] + groups_[g].n[2] * nv[2] <= 0.0) {

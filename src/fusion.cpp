@@ -3,12 +3,16 @@
 #include "vdbrecon/fusion.h"
 
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_pipeline.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <exception>
 #include <memory>
 #include <sstream>
+#include <utility>
 
 #include "detail/cell_groups.h"
 #include "detail/io_common.h"
@@ -107,6 +111,17 @@ double median_of(std::vector<T>& v) {
     return double(v[v.size() / 2]);
 }
 
+/// Whether the 8 values at x are all zero bytes (+0.0f, or 8 flags off).
+template <typename T>
+bool none_of_8(const T* x) {
+    static_assert(sizeof(T) == 1 || sizeof(T) == 4, "bytes or floats");
+    std::uint64_t word[sizeof(T)];
+    std::memcpy(word, x, sizeof word);
+    std::uint64_t any = 0;
+    for (std::uint64_t w : word) any |= w;
+    return any == 0;
+}
+
 /// One row of a grid of points: its points, ranges, valid flags and pixel counts (count null
 /// where every point stands for one pixel).
 struct GridRow {
@@ -172,14 +187,20 @@ class DepthRows {
     /// nothing was measured).
     void project(int v, V3* p, double* r, char* valid) const {
         const float* d = depth_.depth.data() + std::size_t(v) * std::size_t(w);
-        for (int u = 0; u < w; ++u) {
-            valid[u] = 0;
-            const double z = double(d[u]);
-            if (!(std::isfinite(z) && z > min_depth_ && z > 0.0 && z <= max_depth_)) continue;
-            const V3 x = point(u, v, z);
-            p[u] = x;
-            r[u] = std::sqrt(dot(x, x));
-            valid[u] = r[u] > 0.0;
+        std::fill(valid, valid + w, 0);
+        for (int u = 0; u < w;) {
+            if (u + 8 <= w && none_of_8(d + u)) {  // background (0) is skipped 8 pixels at a time
+                u += 8;
+                continue;
+            }
+            for (const int end = std::min(w, u + 8); u < end; ++u) {
+                const double z = double(d[u]);
+                if (!(std::isfinite(z) && z > min_depth_ && z > 0.0 && z <= max_depth_)) continue;
+                const V3 x = point(u, v, z);
+                p[u] = x;
+                r[u] = std::sqrt(dot(x, x));
+                valid[u] = r[u] > 0.0;
+            }
         }
     }
     GridRow row(int v) const {
@@ -318,7 +339,10 @@ PointCloud grid_samples(const Grid& f, double focal, const Pose& pose, const Dep
         const GridRow* above = v > 0 ? &up : nullptr;
         const GridRow* below = v + 1 < h ? &down : nullptr;
         for (int u = 0; u < w; ++u) {
-            if (!row.valid[u]) continue;
+            if (!row.valid[u]) {
+                if ((u & 7) == 0 && u + 8 <= w && none_of_8(row.valid + u)) u += 7;  // 8 at a time
+                continue;
+            }
             const V3& p = row.p[u];
             V3 tu, tv;
             double su = 0.0, sv = 0.0;
@@ -608,7 +632,11 @@ std::size_t Fusion::integrate(const PointCloud& cloud) {
     return add_frame(moved);
 }
 
-SplatResult Fusion::splat() const {
+SplatResult Fusion::splat() const { return fused(false); }
+
+SplatResult Fusion::take_splat() { return fused(true); }
+
+SplatResult Fusion::fused(bool take) const {
     if (tsdf_) {
         if (tsdf_->pixels() == 0) {
             throw NumericalError("fusion: none of the " + std::to_string(frames_) +
@@ -624,7 +652,7 @@ SplatResult Fusion::splat() const {
                              " frames has a usable pixel (depth missing or out of range, or "
                              "no neighbour for a normal)");
     }
-    SplatResult r = accumulator_.result();
+    SplatResult r = take ? accumulator_.take_result() : accumulator_.result();
     // The mesher's gap test allows gaps of a few sample spacings: here the pixel footprint.
     const double spacing = r.sigma_median / options_.splat.scale_factor;
     if (spacing > 0.0) r.volume.metadata["sample_spacing"] = detail::format_number(spacing);
@@ -710,12 +738,12 @@ struct FrameSamples {
     std::exception_ptr error;
 };
 
-FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion) {
+FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3d& origin) {
     FrameSamples out;
     try {
         const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
         const Intrinsics K = frame_intrinsics(f, img);  // checked with the frame
-        PointCloud samples = depth_samples(img, K, f.pose, fusion.depth_options(), fusion.origin());
+        PointCloud samples = depth_samples(img, K, f.pose, fusion.depth_options(), origin);
         out.count = samples.size();
         out.groups = fusion.presum(std::move(samples));  // owned: the samples die here
     } catch (...) {
@@ -724,9 +752,38 @@ FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion) {
     return out;
 }
 
+/// Depth frames [first, last) with the splat rule: read and turned into samples in parallel (at
+/// most kInFlight at once), added to the fusion one after another in frame order as they are
+/// ready, while later frames are read (an error is the first bad frame's, whatever the threads).
+void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::size_t first,
+                            std::size_t last, Fusion& fusion, int threads) {
+    constexpr std::size_t kInFlight = 8;  // frames in flight: a few MB of samples each
+    using Ready = std::pair<std::size_t, FrameSamples>;
+    const Vec3d origin = fusion.origin();
+    std::size_t next = first;
+    auto read = [&](tbb::flow_control& fc) {
+        if (next == last) fc.stop();
+        return next++;
+    };
+    auto prepare = [&](std::size_t i) { return Ready(i, frame_samples(*frames[i], fusion, origin)); };
+    auto add = [&](Ready r) {
+        try {
+            if (r.second.error) std::rethrow_exception(r.second.error);
+            fusion.integrate_presummed(r.second.groups, r.second.count);
+        } catch (const Error& e) {
+            detail::rethrow_naming(frames[r.first]->depth_path, e);
+        }
+    };
+    detail::in_arena(threads, [&] {
+        tbb::parallel_pipeline(
+            kInFlight, tbb::make_filter<void, std::size_t>(tbb::filter_mode::serial_in_order, read) &
+                           tbb::make_filter<std::size_t, Ready>(tbb::filter_mode::parallel, prepare) &
+                           tbb::make_filter<Ready, void>(tbb::filter_mode::serial_in_order, add));
+    });
+}
+
 /// A scene's frames (depth images, organized clouds), read and integrated in order. With the
-/// splat rule, groups of frames are read and turned into samples in parallel, then added one
-/// after another in frame order (an error is the first bad frame's, whatever the threads).
+/// splat rule, runs of depth frames go through integrate_depth_frames.
 void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fusion) {
     const int threads = fusion.options().threads;
     std::vector<const SceneFrame*> frames;
@@ -734,7 +791,6 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
         if (fo.max_frames > 0 && frames.size() == fo.max_frames) break;
         frames.push_back(&scene.frames[i]);
     }
-    constexpr std::size_t kGroup = 8;  // frames read at once: a few MB of samples each
     for (std::size_t g = 0; g < frames.size();) {
         const SceneFrame& f = *frames[g];
         try {
@@ -746,7 +802,7 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
                 continue;
             }
             if (!fusion.started() && fusion.options().splat.voxel_size > 0.0) {
-                // The voxel is known: the first frame joins the parallel groups below.
+                // The voxel is known: the first frame joins the parallel run below.
                 fusion.get(PointCloud{}, f.depth_path, Vec3d{f.pose[3], f.pose[7], f.pose[11]});
             }
             if (!fusion.started() || (*fusion).tsdf()) {  // the first frame, or the tsdf rule
@@ -765,23 +821,8 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
             detail::rethrow_naming(f.depth_path, e);
         }
         std::size_t end = g;
-        while (end < frames.size() && end - g < kGroup && !frames[end]->organized) ++end;
-        std::vector<FrameSamples> group(end - g);
-        Fusion& fu = *fusion;
-        detail::in_arena(threads, [&] {
-            tbb::parallel_for(std::size_t(0), group.size(),
-                              [&](std::size_t j) { group[j] = frame_samples(*frames[g + j], fu); });
-        });
-        for (std::size_t j = 0; j < group.size(); ++j) {
-            try {
-                if (group[j].error) std::rethrow_exception(group[j].error);
-                detail::in_arena(threads,
-                                 [&] { fu.integrate_presummed(group[j].groups, group[j].count); });
-            } catch (const Error& e) {
-                detail::rethrow_naming(frames[g + j]->depth_path, e);
-            }
-            group[j].groups = PointCloud{};
-        }
+        while (end < frames.size() && !frames[end]->organized) ++end;
+        integrate_depth_frames(frames, g, end, *fusion, threads);
         g = end;
     }
 }
@@ -870,7 +911,7 @@ RunResult fuse(const std::string& scene_path, const std::string& output,
         SplatResult splat;
         {
             detail::StageClock clock(timings, on_stage, "splat");
-            splat = detail::in_arena(fusion.options().threads, [&] { return (*fusion).splat(); });
+            splat = detail::in_arena(fusion.options().threads, [&] { return (*fusion).take_splat(); });
             fusion.release();
         }
         Volume volume = std::move(splat.volume);

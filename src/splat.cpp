@@ -1214,11 +1214,22 @@ void SplatAccumulator::add(const PointCloud& cloud) {
     st.sigma_medians.push_back(sums.sigma_median);
 }
 
-SplatResult SplatAccumulator::result() const {
-    const SplatState& st = *state_;
+namespace {
+
+/// Frees a leaf's values (it reads as zeros afterwards); the leaf stays in its tree. For the
+/// leaves of a state being consumed, which are not const (see accumulated_result).
+template <typename Leaf>
+void free_values(const Leaf* leaf) {
+    typename Leaf::Buffer none(openvdb::PartialCreate(), typename Leaf::ValueType{});
+    const_cast<Leaf*>(leaf)->buffer().swap(none);
+}
+
+/// The volume of an accumulator's sums (SplatAccumulator::result). With `consume`, st is
+/// `consume`'s state: each leaf's values are freed as soon as its output leaf is made, so that
+/// the output grids take the memory of the sums instead of more (the state is then spent).
+SplatResult accumulated_result(const SplatState& st, SplatState* consume) {
     if (st.clouds == 0) throw InvalidArgument("splat: nothing was added to the accumulator");
     const SplatOptions& options = st.options;
-    const double voxel = options.voxel_size;
     SplatResult result;
     result.skipped_points = st.skipped;
     result.sigma_min = st.sigma_min;
@@ -1227,12 +1238,7 @@ SplatResult SplatAccumulator::result() const {
     std::nth_element(medians.begin(), medians.begin() + std::ptrdiff_t(medians.size() / 2),
                      medians.end());
     result.sigma_median = medians[medians.size() / 2];
-    const float background = band_background(st.max_r, voxel);
-    // One output leaf per state leaf, in parallel (each task writes its own BlockOut).
-    std::vector<const FloatLeaf*> leaves;
-    leaves.reserve(st.w->tree().leafCount());
-    for (auto it = st.w->tree().cbeginLeaf(); it; ++it) leaves.push_back(&*it);
-    std::vector<BlockOut> blocks(leaves.size());
+    const float background = band_background(st.max_r, options.voxel_size);
     struct At {
         const FloatLeaf *wl, *ul, *uphil;
         const Vec3Leaf *nearestl, *colorl;
@@ -1248,14 +1254,27 @@ SplatResult SplatAccumulator::result() const {
             return x;
         }
     };
+    // One output leaf per state leaf, in parallel (each task writes its own BlockOut).
+    std::vector<At> leaves;
+    leaves.reserve(st.w->tree().leafCount());
+    for (auto it = st.w->tree().cbeginLeaf(); it; ++it) {
+        const openvdb::Coord lo = it->origin();
+        leaves.push_back({&*it, st.u->tree().probeConstLeaf(lo), st.uphi->tree().probeConstLeaf(lo),
+                          st.nearest->tree().probeConstLeaf(lo),
+                          st.colors ? st.color->tree().probeConstLeaf(lo) : nullptr});
+    }
+    std::vector<BlockOut> blocks(leaves.size());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 16),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t j = rg.begin(); j < rg.end(); ++j) {
-            const openvdb::Coord lo = leaves[j]->origin();
-            const At at{leaves[j], st.u->tree().probeConstLeaf(lo),
-                        st.uphi->tree().probeConstLeaf(lo), st.nearest->tree().probeConstLeaf(lo),
-                        st.colors ? st.color->tree().probeConstLeaf(lo) : nullptr};
-            emit_leaf(lo, at, st.colors, options.min_weight, background, blocks[j], 0);
+            const At& at = leaves[j];
+            emit_leaf(at.wl->origin(), at, st.colors, options.min_weight, background, blocks[j], 0);
+            if (!consume) continue;
+            free_values(at.wl);
+            free_values(at.ul);
+            free_values(at.uphil);
+            free_values(at.nearestl);
+            if (at.colorl) free_values(at.colorl);
         }
     });
     result.updates = st.updates;
@@ -1264,6 +1283,19 @@ SplatResult SplatAccumulator::result() const {
     result.volume.metadata["clouds"] = std::to_string(st.clouds);
     result.volume.metadata["crease_angle"] = "0";
     return result;
+}
+
+}  // namespace
+
+SplatResult SplatAccumulator::result() const { return accumulated_result(*state_, nullptr); }
+
+SplatResult SplatAccumulator::take_result() {
+    SplatResult r = accumulated_result(*state_, state_.get());
+    auto fresh = std::make_unique<detail::SplatState>();
+    fresh->options = state_->options;
+    fresh->origin = state_->origin;
+    state_ = std::move(fresh);
+    return r;
 }
 
 }  // namespace vdbrecon

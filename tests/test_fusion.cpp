@@ -660,3 +660,39 @@ TEST_CASE("a fusion's batch presums its clouds' groups once more, as of them joi
         same(fused, reference.result().volume);
     }
 }
+
+TEST_CASE("taking an accumulator's result gives result()'s volume and frees the sums", "[fusion][splat]") {
+    PointCloud s = test::sample_sphere(40000, 0.5);
+    s.colors.assign(s.size(), Vec3f{0.2f, 0.4f, 0.6f});
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    o.crease_angle = 0.0;
+    SplatAccumulator acc(o);
+    acc.add(s);
+    const std::size_t before = acc.memory_bytes();
+    const SplatResult kept = acc.result(), taken = acc.take_result();
+    INFO("sums " << before << " bytes before, " << acc.memory_bytes() << " after");
+    CHECK(acc.memory_bytes() * 20 < before);
+    CHECK(acc.clouds() == 0);
+    REQUIRE(kept.volume.sdf->activeVoxelCount() > 10000);
+    REQUIRE(taken.volume.sdf->activeVoxelCount() == kept.volume.sdf->activeVoxelCount());
+    CHECK(taken.updates == kept.updates);
+    auto sdf = taken.volume.sdf->getConstAccessor();
+    auto w = taken.volume.weight->getConstAccessor();
+    auto near = taken.volume.nearest->getConstAccessor();
+    auto col = taken.volume.color->getConstAccessor();
+    auto kw = kept.volume.weight->getConstAccessor();
+    auto kn = kept.volume.nearest->getConstAccessor();
+    auto kc = kept.volume.color->getConstAccessor();
+    for (auto it = kept.volume.sdf->cbeginValueOn(); it; ++it) {
+        const openvdb::Coord c = it.getCoord();
+        REQUIRE(sdf.isValueOn(c));
+        REQUIRE(sdf.getValue(c) == *it);
+        REQUIRE(w.getValue(c) == kw.getValue(c));
+        REQUIRE(near.getValue(c) == kn.getValue(c));
+        REQUIRE(col.getValue(c) == kc.getValue(c));
+    }
+    // The spent accumulator starts again.
+    acc.add(s);
+    CHECK(acc.result().volume.sdf->activeVoxelCount() == kept.volume.sdf->activeVoxelCount());
+}

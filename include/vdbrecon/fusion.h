@@ -193,6 +193,9 @@ class Fusion {
     Volume volume() const;
     /// The same with the splat's statistics.
     SplatResult splat() const;
+    /// The same, spending the fusion: its sums are freed as the volume is made (the volume
+    /// takes their memory), and nothing integrated before is left in it.
+    SplatResult take_splat();
     /// close > mesh > clean > fill of the fused volume, by the pipeline's options.
     PipelineResult reconstruct(const StageCallback& on_stage = {},
                                const VolumeCallback& on_volume = {}) const;
@@ -212,6 +215,8 @@ class Fusion {
     /// Adds presummed groups that stand for `samples` samples.
     void add(const PointCloud& groups, std::size_t samples);
     void flush() const;
+    /// splat(), or take_splat() when `take` (the accumulator is mutable, as flush() needs).
+    SplatResult fused(bool take) const;
 
     // Samples are gathered into batches of depth.batch_samples before they are splatted (a
     // batch sums in double and touches each block's stored sums once): presummed frames'

@@ -158,6 +158,9 @@ class SplatAccumulator {
     void add(const PointCloud& cloud);
     /// The volume of everything added so far (NumericalError when no voxel is valid).
     SplatResult result() const;
+    /// The same, leaving the accumulator empty: the sums are freed as the volume is made, so
+    /// that it takes their memory instead of more (the last result of a fusion).
+    SplatResult take_result();
 
     const SplatOptions& options() const;
     const Vec3d& origin() const;

@@ -77,12 +77,15 @@ void CellGroups::grow() {
     std::vector<Slot> old(slots_.size() * 2, Slot{kNoKey, kNone});
     old.swap(slots_);
     cells_ = 0;
+    last_key_ = kNoKey;
     for (const Slot& s : old) {
         if (s.key != kNoKey) first_group(s.key) = s.first;
     }
 }
 
 std::uint32_t& CellGroups::first_group(std::uint64_t key) {
+    // Samples in image order come in runs of one cell (a cell spans a few pixels).
+    if (key == last_key_) return slots_[last_slot_].first;
     if (2 * (cells_ + 1) > slots_.size()) grow();
     const std::size_t mask = slots_.size() - 1;
     std::uint64_t h = (key ^ (key >> 31)) * 0x9e3779b97f4a7c15ull;
@@ -95,6 +98,8 @@ std::uint32_t& CellGroups::first_group(std::uint64_t key) {
         }
         i = (i + 1) & mask;
     }
+    last_key_ = key;
+    last_slot_ = i;
     return slots_[i].first;
 }
 
@@ -139,7 +144,7 @@ bool CellGroups::add(const PointCloud& cloud) {
         }
     });
     if (outside) return false;
-    while (2 * (cells_ + n / 2) > slots_.size()) grow();  // room for a cell per two samples
+    while (2 * (cells_ + n / 4) > slots_.size()) grow();  // room for a cell per four samples
     // Each sample joins the first group of its cell whose summed normal is less than 90
     // degrees from its own (opposite sides of a thin wall never mix). Normals are summed as
     // they are (a group's mean normal is shorter than 1 where they disagree), so that groups of
@@ -210,37 +215,36 @@ PointCloud CellGroups::take(const Vec3d& origin) {
     }
     radix_sort(cells, bits, [](const Cell& c) { return c.key; });
 
+    // Sized first and filled by index (a push_back per value cost more than the sums).
     const std::size_t n = groups_.size();
-    std::vector<Vec3f> positions, normals, rgb;
-    std::vector<float> scales, confidences;
-    positions.reserve(n);
-    normals.reserve(n);
-    rgb.reserve(colors_ ? n : 0);
-    scales.reserve(n);
-    confidences.reserve(n);
+    std::vector<Vec3f> positions(n), normals(n), rgb(colors_ ? n : 0);
+    std::vector<float> scales(n), confidences(n);
+    std::size_t k = 0;
     for (const Cell& cell : cells) {
         for (std::uint32_t g = cell.first; g != kNone; g = groups_[g].next) {
             const Group& s = groups_[g];
             const double nn = std::sqrt(s.n[0] * s.n[0] + s.n[1] * s.n[1] + s.n[2] * s.n[2]);
             if (!(nn > 1e-6 * s.c)) continue;  // normals that cancel: no plane
-            Vec3f x, nu, col;
             for (int a = 0; a < 3; ++a) {
-                x[a] = float(s.p[a] / s.c);
-                nu[a] = float(s.n[a] / s.c);
-                col[a] = float(s.rgb[a] / s.c);
+                positions[k][a] = float(s.p[a] / s.c);
+                normals[k][a] = float(s.n[a] / s.c);
+                if (colors_) rgb[k][a] = float(s.rgb[a] / s.c);
             }
-            positions.push_back(x);
-            normals.push_back(nu);
-            if (colors_) rgb.push_back(col);
-            confidences.push_back(float(s.c));
+            confidences[k] = float(s.c);
             // The scale whose sigma is the group's mean sigma (within the clamp, which the mean
             // of clamped sigmas never leaves).
-            scales.push_back(float(s.sigma / s.c * options_.voxel_size / options_.scale_factor));
+            scales[k++] = float(s.sigma / s.c * options_.voxel_size / options_.scale_factor);
         }
     }
+    positions.resize(k);
+    normals.resize(k);
+    if (colors_) rgb.resize(k);
+    scales.resize(k);
+    confidences.resize(k);
     groups_ = std::vector<Group>{};
     slots_.assign(1024, Slot{kNoKey, kNone});
     cells_ = 0;
+    last_key_ = kNoKey;
     PointCloud out;
     out.origin = origin;
     out.positions = std::move(positions);

@@ -331,8 +331,16 @@ PointCloud grid_samples(const Grid& f, double focal, const Pose& pose, const Dep
                   pose[4] * x[0] + pose[5] * x[1] + pose[6] * x[2],
                   pose[8] * x[0] + pose[9] * x[1] + pose[10] * x[2]};
     };
+    // A row's samples are gathered, then appended at once (no growth check per sample).
+    const std::size_t width = static_cast<std::size_t>(w);
+    std::vector<Vec3f> row_p(width), row_n(width);
+    std::vector<float> row_s(width), row_c(width);
+    auto append = [](auto& to, const auto& from, std::size_t k) {
+        to.insert(to.end(), from.begin(), from.begin() + std::ptrdiff_t(k));
+    };
     GridRow up, row, down;
     for (int v = 0; v < h; ++v) {
+        std::size_t k = 0;
         if (v > 0) up = row;
         row = v > 0 ? down : f.row(v);
         if (v + 1 < h) down = f.row(v + 1);
@@ -369,12 +377,16 @@ PointCloud grid_samples(const Grid& f, double focal, const Pose& pose, const Dep
                 conf *= r * r;
             }
             const V3 pw = rotate(p), nw = rotate(n);
-            positions.push_back({float(pw[0] + t[0] - origin[0]), float(pw[1] + t[1] - origin[1]),
-                                 float(pw[2] + t[2] - origin[2])});
-            normals.push_back({float(nw[0] / len), float(nw[1] / len), float(nw[2] / len)});
-            scales.push_back(float(footprint));
-            confidences.push_back(float(conf));
+            row_p[k] = {float(pw[0] + t[0] - origin[0]), float(pw[1] + t[1] - origin[1]),
+                        float(pw[2] + t[2] - origin[2])};
+            row_n[k] = {float(nw[0] / len), float(nw[1] / len), float(nw[2] / len)};
+            row_s[k] = float(footprint);
+            row_c[k++] = float(conf);
         }
+        append(positions, row_p, k);
+        append(normals, row_n, k);
+        append(scales, row_s, k);
+        append(confidences, row_c, k);
     }
     cloud.positions = std::move(positions);
     cloud.normals = std::move(normals);

@@ -51,6 +51,8 @@ class CellGroups {
     std::vector<Group> groups_;
     std::vector<Slot> slots_;  ///< open addressing, a power of two, at most half full
     std::size_t cells_ = 0;
+    std::uint64_t last_key_ = ~std::uint64_t(0);  ///< the cell found last (none: all ones)
+    std::size_t last_slot_ = 0;
 };
 
 }  // namespace vdbrecon::detail

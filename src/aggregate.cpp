@@ -88,8 +88,13 @@ std::uint32_t& CellGroups::first_group(std::uint64_t key) {
     if (key == last_key_) return slots_[last_slot_].first;
     if (2 * (cells_ + 1) > slots_.size()) grow();
     const std::size_t mask = slots_.size() - 1;
-    std::uint64_t h = (key ^ (key >> 31)) * 0x9e3779b97f4a7c15ull;
-    std::size_t i = std::size_t(h >> 20) & mask;
+    // Neighbours along x take neighbouring slots (samples and groups come in spatial order,
+    // so the probes stay in a few cache lines); y, z and the level scatter the rows.
+    const std::uint64_t m = (std::uint64_t(1) << kCellBits) - 1;
+    const std::uint64_t h = (key & m) + ((key >> kCellBits) & m) * 0x9e3779b1ull +
+                            ((key >> (2 * kCellBits)) & m) * 0x85ebca77ull +
+                            (key >> (3 * kCellBits)) * 0xc2b2ae3dull;
+    std::size_t i = std::size_t(h) & mask;
     while (slots_[i].key != key) {
         if (slots_[i].key == kNoKey) {
             slots_[i].key = key;
@@ -156,13 +161,12 @@ bool CellGroups::add(const PointCloud& cloud) {
         std::uint32_t& head = first_group(keys[i].key);  // slots_ stay put until the next call
         std::uint32_t g = head;
         if (g == kNone) {
-            g = head = std::uint32_t(groups_.size());
-            groups_.emplace_back();
+            g = head = groups_.add();
         } else {
             while (groups_[g].n[0] * nv[0] + groups_[g].n[1] * nv[1] + groups_[g].n[2] * nv[2] <= 0.0) {
                 if (groups_[g].next == kNone) {
-                    g = groups_[g].next = std::uint32_t(groups_.size());
-                    groups_.emplace_back();
+                    const std::uint32_t added = groups_.add();
+                    g = groups_[g].next = added;
                     break;
                 }
                 g = groups_[g].next;
@@ -241,7 +245,7 @@ PointCloud CellGroups::take(const Vec3d& origin) {
     if (colors_) rgb.resize(k);
     scales.resize(k);
     confidences.resize(k);
-    groups_ = std::vector<Group>{};
+    groups_.clear();
     slots_.assign(1024, Slot{kNoKey, kNone});
     cells_ = 0;
     last_key_ = kNoKey;

@@ -4,6 +4,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "vdbrecon/splat.h"
@@ -27,7 +28,7 @@ class CellGroups {
     /// order they were opened, in `origin`'s frame; empties this.
     PointCloud take(const Vec3d& origin);
 
-    bool empty() const { return groups_.empty(); }
+    bool empty() const { return groups_.size() == 0; }
     bool colors() const { return colors_; }
 
   private:
@@ -35,6 +36,29 @@ class CellGroups {
         double c = 0.0, sigma = 0.0;
         double p[3] = {0, 0, 0}, n[3] = {0, 0, 0}, rgb[3] = {0, 0, 0};
         std::uint32_t next = kNone;  ///< the cell's next group
+    };
+    /// The groups in blocks of 4096: growth never copies them, nor holds room for twice as
+    /// many (a batch of frames holds ~10^5 groups).
+    class Blocks {
+      public:
+        std::size_t size() const { return size_; }
+        Group& operator[](std::uint32_t g) { return blocks_[g >> kLog][g & (kSize - 1)]; }
+        const Group& operator[](std::uint32_t g) const { return blocks_[g >> kLog][g & (kSize - 1)]; }
+        /// A new zero group; its index.
+        std::uint32_t add() {
+            if ((size_ & (kSize - 1)) == 0) blocks_.push_back(std::make_unique<Group[]>(kSize));
+            return std::uint32_t(size_++);
+        }
+        void clear() {
+            blocks_.clear();
+            size_ = 0;
+        }
+
+      private:
+        static constexpr int kLog = 12;
+        static constexpr std::size_t kSize = std::size_t(1) << kLog;
+        std::vector<std::unique_ptr<Group[]>> blocks_;
+        std::size_t size_ = 0;
     };
     struct Slot {
         std::uint64_t key;
@@ -48,7 +72,7 @@ class CellGroups {
     SplatOptions options_;
     bool colors_;
     double inv_edge_[15];  ///< 1 / the cell edge of each sigma level, world units
-    std::vector<Group> groups_;
+    Blocks groups_;
     std::vector<Slot> slots_;  ///< open addressing, a power of two, at most half full
     std::size_t cells_ = 0;
     std::uint64_t last_key_ = ~std::uint64_t(0);  ///< the cell found last (none: all ones)

@@ -742,19 +742,26 @@ class FusionStart {
     std::unique_ptr<Fusion> fusion_;
 };
 
-/// One depth frame read, turned into samples by the fusion's rules and presummed (or its
-/// error).
+/// One depth frame read and, with the splat rule, turned into samples and presummed (or its
+/// error). The tsdf rule integrates the image itself.
 struct FrameSamples {
     PointCloud groups;
     std::size_t count = 0;  ///< samples
+    DepthImage image;       ///< tsdf rule: the frame, and its intrinsics
+    Intrinsics K;
     std::exception_ptr error;
 };
 
 FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3d& origin) {
     FrameSamples out;
     try {
-        const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
+        DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
         const Intrinsics K = frame_intrinsics(f, img);  // checked with the frame
+        if (fusion.tsdf()) {
+            out.image = std::move(img);
+            out.K = K;
+            return out;
+        }
         PointCloud samples = depth_samples(img, K, f.pose, fusion.depth_options(), origin);
         out.count = samples.size();
         out.groups = fusion.presum(std::move(samples));  // owned: the samples die here
@@ -764,8 +771,8 @@ FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3
     return out;
 }
 
-/// Depth frames [first, last) with the splat rule: read and turned into samples in parallel (at
-/// most kInFlight at once), added to the fusion one after another in frame order as they are
+/// Depth frames [first, last): read (and with the splat rule turned into samples) in parallel, at
+/// most kInFlight at once, and added to the fusion one after another in frame order as they are
 /// ready, while later frames are read (an error is the first bad frame's, whatever the threads).
 void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::size_t first,
                             std::size_t last, Fusion& fusion, int threads) {
@@ -780,8 +787,13 @@ void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::s
     auto prepare = [&](std::size_t i) { return Ready(i, frame_samples(*frames[i], fusion, origin)); };
     auto add = [&](Ready r) {
         try {
-            if (r.second.error) std::rethrow_exception(r.second.error);
-            fusion.integrate_presummed(r.second.groups, r.second.count);
+            const FrameSamples& s = r.second;
+            if (s.error) std::rethrow_exception(s.error);
+            if (fusion.tsdf()) {
+                fusion.integrate(s.image, s.K, frames[r.first]->pose);
+            } else {
+                fusion.integrate_presummed(s.groups, s.count);
+            }
         } catch (const Error& e) {
             detail::rethrow_naming(frames[r.first]->depth_path, e);
         }
@@ -794,8 +806,8 @@ void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::s
     });
 }
 
-/// A scene's frames (depth images, organized clouds), read and integrated in order. With the
-/// splat rule, runs of depth frames go through integrate_depth_frames.
+/// A scene's frames (depth images, organized clouds), read and integrated in order; runs of
+/// depth frames go through integrate_depth_frames.
 void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fusion) {
     const int threads = fusion.options().threads;
     std::vector<const SceneFrame*> frames;
@@ -817,13 +829,11 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
                 // The voxel is known: the first frame joins the parallel run below.
                 fusion.get(PointCloud{}, f.depth_path, Vec3d{f.pose[3], f.pose[7], f.pose[11]});
             }
-            if (!fusion.started() || (*fusion).tsdf()) {  // the first frame, or the tsdf rule
+            if (!fusion.started()) {  // the first frame: its samples choose the voxel
                 const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
                 const Intrinsics K = frame_intrinsics(f, img);
-                if (!fusion.started()) {  // its samples choose the voxel
-                    fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
-                               Vec3d{f.pose[3], f.pose[7], f.pose[11]});
-                }
+                fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
+                           Vec3d{f.pose[3], f.pose[7], f.pose[11]});
                 Fusion& fu = *fusion;
                 detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose); });
                 ++g;

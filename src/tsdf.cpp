@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "detail/volume_grids.h"
 #include "vdbrecon/error.h"
@@ -13,6 +14,135 @@
 namespace vdbrecon::detail {
 
 using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+
+namespace {
+
+/// std::lround(x) (half away from zero) for |x| < 2^52, without libm's call: the truncation
+/// and the exact remainder x - trunc(x).
+long round_half_away(double x) {
+    const long t = long(x);
+    const double r = x - double(t);
+    return t + (r >= 0.5 ? 1 : (r <= -0.5 ? -1 : 0));
+}
+
+/// std::lround(x) where it lies in [0, size) (the pixel a projection falls in), else -1.
+long pixel_of(double x, int size) {
+    if (!(x > -0.5 && x < double(size) - 0.5)) return -1;
+    return round_half_away(x);
+}
+
+}  // namespace
+
+/// Whether a frame may update a voxel of the leaf at `origin`: false when all of the leaf lies
+/// behind the camera, or in front of it and beyond one side of the image, or where its pixels
+/// measured nothing or measured a surface more than the truncation in front of the whole leaf.
+/// The camera-frame depth is linear in the voxel, and a box in front of the camera projects into
+/// the hull of its corners' projections, so the corners decide (with margins for rounding);
+/// `tiles` bounds the pixels' depths there.
+bool TsdfVolume::leaf_seen(const openvdb::Coord& origin, const Intrinsics& K, const Pose& m,
+                           const DepthTiles& tiles) const {
+    const double eps = 1e-3 * voxel_;
+    double zmin = HUGE_VAL, zmax = -HUGE_VAL, lo[2] = {HUGE_VAL, HUGE_VAL}, hi[2] = {-HUGE_VAL, -HUGE_VAL};
+    for (int k = 0; k < 8; ++k) {
+        double p[3];
+        for (int a = 0; a < 3; ++a) {
+            const int q = origin[a] + ((k >> a) & 1) * 7;
+            p[a] = q * voxel_ + origin_[std::size_t(a)] - m[std::size_t(4 * a + 3)];
+        }
+        const double cx = m[0] * p[0] + m[4] * p[1] + m[8] * p[2];
+        const double cy = m[1] * p[0] + m[5] * p[1] + m[9] * p[2];
+        const double cz = m[2] * p[0] + m[6] * p[1] + m[10] * p[2];
+        zmin = std::min(zmin, cz);
+        zmax = std::max(zmax, cz);
+        if (!(cz > eps)) continue;
+        const double uv[2] = {K.fx * cx / cz + K.cx, K.fy * cy / cz + K.cy};
+        for (int a = 0; a < 2; ++a) {
+            lo[a] = std::min(lo[a], uv[a]);
+            hi[a] = std::max(hi[a], uv[a]);
+        }
+    }
+    if (zmax < -eps) return false;  // behind the camera
+    if (!(zmin > eps)) return true;  // across the camera plane: not judged
+    const double margin = 1e-6;      // pixels
+    const int size[2] = {K.width, K.height};
+    int first[2], last[2];  // the pixels the leaf's voxels can fall in
+    for (int a = 0; a < 2; ++a) {
+        if (!(hi[a] > -0.5 - margin && lo[a] < size[a] - 0.5 + margin)) return false;
+        first[a] = std::max(0, int(std::floor(lo[a] - margin + 0.5)));
+        last[a] = std::min(size[a] - 1, int(std::floor(hi[a] + margin + 0.5)));
+    }
+    const double deepest = tiles.deepest(first[0], first[1], last[0], last[1]);
+    if (!(deepest > 0.0)) return false;  // nothing measured there
+    return zmin - deepest <= truncation_ + eps;  // else every voxel lies behind the surface
+}
+
+double TsdfVolume::DepthTiles::deepest(int u0, int v0, int u1, int v1) const {
+    double d = 0.0;
+    for (int tv = v0 >> kLog; tv <= v1 >> kLog; ++tv) {
+        for (int tu = u0 >> kLog; tu <= u1 >> kLog; ++tu) d = std::max(d, max[std::size_t(tv * columns + tu)]);
+    }
+    return d;
+}
+
+TsdfVolume::DepthTiles::DepthTiles(const std::vector<double>& z, int w, int h)
+    : columns((w + (1 << kLog) - 1) >> kLog),
+      max(std::size_t(columns) * std::size_t((h + (1 << kLog) - 1) >> kLog), 0.0) {
+    for (int v = 0; v < h; ++v) {
+        double* row = max.data() + std::size_t((v >> kLog) * columns);
+        for (int u = 0; u < w; ++u) {
+            double& m = row[u >> kLog];
+            m = std::max(m, z[std::size_t(v) * std::size_t(w) + std::size_t(u)]);
+        }
+    }
+}
+
+/// A frame's update of one leaf's voxels (see integrate): each voxel projected to its nearest
+/// pixel, and its running average updated. The camera-frame coordinates are summed as
+/// (m0 p0 + m4 p1) + m8 p2, the x and y parts once per row of the leaf: the same floating-point
+/// operations as per voxel, in the same order. The leaf's arrays are written in place.
+void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<double>& z,
+                             const Intrinsics& K, const Pose& m) const {
+    const openvdb::Coord o = val.origin();
+    double p[3][8];  // per axis and leaf coordinate, the voxel's position less the camera's
+    for (int a = 0; a < 3; ++a) {
+        for (int k = 0; k < 8; ++k) {
+            p[a][k] = (o[a] + k) * voxel_ + origin_[std::size_t(a)] - m[std::size_t(4 * a + 3)];
+        }
+    }
+    const std::size_t w = std::size_t(K.width);
+    const double trunc = truncation_;
+    float* value = val.buffer().data();
+    float* weight = wt.buffer().data();
+    auto& value_on = val.getValueMask();
+    auto& weight_on = wt.getValueMask();
+    for (int x = 0; x < 8; ++x) {
+        for (int y = 0; y < 8; ++y) {
+            const double sx = m[0] * p[0][x] + m[4] * p[1][y];
+            const double sy = m[1] * p[0][x] + m[5] * p[1][y];
+            const double sz = m[2] * p[0][x] + m[6] * p[1][y];
+            for (int k = 0; k < 8; ++k) {
+                const double cx = sx + m[8] * p[2][k], cy = sy + m[9] * p[2][k];
+                const double cz = sz + m[10] * p[2][k];
+                if (!(cz > 0.0)) continue;
+                const long u = pixel_of(K.fx * cx / cz + K.cx, K.width);
+                const long v = pixel_of(K.fy * cy / cz + K.cy, K.height);
+                if (u < 0 || v < 0) continue;
+                const double d = z[std::size_t(v) * w + std::size_t(u)];
+                if (d == 0.0) continue;
+                const double sdf = d - cz;
+                if (sdf < -trunc) continue;  // behind the surface: not seen
+                const double t = std::min(1.0, sdf / trunc);
+                const openvdb::Index idx = openvdb::Index(x << 6 | y << 3 | k);
+                const double w0 = double(weight[idx]);
+                const double v0 = w0 > 0.0 ? double(value[idx]) : 0.0;
+                value[idx] = float((v0 * w0 + t) / (w0 + 1.0));
+                value_on.setOn(idx);
+                weight[idx] = float(w0 + 1.0);
+                weight_on.setOn(idx);
+            }
+        }
+    }
+}
 
 TsdfVolume::TsdfVolume(double voxel, double truncation_voxels, bool carve, const Vec3d& origin)
     : voxel_(voxel), truncation_(truncation_voxels * voxel), carve_(carve), origin_(origin),
@@ -27,6 +157,7 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
     std::vector<openvdb::Coord> leaves;
     const int reach = int(std::ceil(truncation_ / voxel_));
     std::size_t valid = 0;
+    openvdb::Coord last_lo(std::numeric_limits<int>::min()), last_hi = last_lo;
     for (std::size_t i = 0; i < z.size(); ++i) {
         if (!measured[i]) continue;
         const std::array<double, 3>& c = points[i];
@@ -38,10 +169,20 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
             for (int a = 0; a < 3; ++a) {
                 const double wpt = m[std::size_t(4 * a)] * c[0] + m[std::size_t(4 * a + 1)] * c[1] +
                                    m[std::size_t(4 * a + 2)] * c[2] + m[std::size_t(4 * a + 3)] - origin_[std::size_t(a)];
-                const int k = int(std::lround(wpt / voxel_));
+                const double k_real = wpt / voxel_;
+                if (!(std::fabs(k_real) < double(1 << 30))) {
+                    throw NumericalError("tsdf: a pixel's point lies more than 2^30 voxels from the "
+                                         "origin. Hint: a larger --voxel or --max-depth");
+                }
+                const int k = int(round_half_away(k_real));
                 lo[a] = (k - reach) & ~7;
                 hi[a] = (k + reach) & ~7;
             }
+            // Neighbouring pixels mostly reach the same leaves: a box like the last one adds
+            // nothing (the sort below would only drop its leaves again).
+            if (lo == last_lo && hi == last_hi) continue;
+            last_lo = lo;
+            last_hi = hi;
             for (int a = lo[0]; a <= hi[0]; a += 8) {
                 for (int b = lo[1]; b <= hi[1]; b += 8) {
                     for (int e = lo[2]; e <= hi[2]; e += 8) leaves.emplace_back(a, b, e);
@@ -65,34 +206,14 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
     } else {
         for (const openvdb::Coord& c : leaves) todo.push_back(value_->tree().probeLeaf(c));
     }
-    const double trunc = truncation_;
+    const DepthTiles tiles(z, w, h);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, todo.size(), 8),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t j = rg.begin(); j < rg.end(); ++j) {
             FloatLeaf& val = *todo[j];
+            if (!leaf_seen(val.origin(), K, m, tiles)) continue;
             FloatLeaf& wt = *weight_->tree().probeLeaf(val.origin());
-            for (auto it = val.beginValueAll(); it; ++it) {
-                const openvdb::Coord q = it.getCoord();
-                double p[3];
-                for (int a = 0; a < 3; ++a) p[a] = q[a] * voxel_ + origin_[std::size_t(a)] - m[std::size_t(4 * a + 3)];
-                // Camera frame: R^T (x - t).
-                const double cx = m[0] * p[0] + m[4] * p[1] + m[8] * p[2];
-                const double cy = m[1] * p[0] + m[5] * p[1] + m[9] * p[2];
-                const double cz = m[2] * p[0] + m[6] * p[1] + m[10] * p[2];
-                if (!(cz > 0.0)) continue;
-                const long u = std::lround(K.fx * cx / cz + K.cx), v = std::lround(K.fy * cy / cz + K.cy);
-                if (u < 0 || v < 0 || u >= w || v >= h) continue;
-                const double d = z[std::size_t(v) * std::size_t(w) + std::size_t(u)];
-                if (d == 0.0) continue;
-                const double sdf = d - cz;
-                if (sdf < -trunc) continue;  // behind the surface: not seen
-                const double t = std::min(1.0, sdf / trunc);
-                const openvdb::Index idx = it.pos();
-                const double w0 = double(wt.getValue(idx));
-                const double v0 = w0 > 0.0 ? double(val.getValue(idx)) : 0.0;
-                val.setValueOn(idx, float((v0 * w0 + t) / (w0 + 1.0)));
-                wt.setValueOn(idx, float(w0 + 1.0));
-            }
+            update_leaf(val, wt, z, K, m);
         }
     });
     return valid;

@@ -39,6 +39,21 @@ class TsdfVolume {
     std::size_t pixels() const { return pixels_; }
 
   private:
+    using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+    /// The deepest measured depth of each 8 x 8 block of a frame's pixels (0: none).
+    struct DepthTiles {
+        static constexpr int kLog = 3;
+        int columns;
+        std::vector<double> max;
+        DepthTiles(const std::vector<double>& z, int w, int h);
+        /// The deepest depth of the pixels u0..u1 x v0..v1 (and of their blocks' others).
+        double deepest(int u0, int v0, int u1, int v1) const;
+    };
+    bool leaf_seen(const openvdb::Coord& origin, const Intrinsics& K, const Pose& pose,
+                   const DepthTiles& tiles) const;
+    void update_leaf(FloatLeaf& value, FloatLeaf& weight, const std::vector<double>& z,
+                     const Intrinsics& K, const Pose& pose) const;
+
     double voxel_, truncation_;
     bool carve_;
     Vec3d origin_;

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 
 #include "detail/volume_grids.h"
@@ -30,6 +31,51 @@ long pixel_of(double x, int size) {
     if (!(x > -0.5 && x < double(size) - 0.5)) return -1;
     return round_half_away(x);
 }
+
+/// Voxel coordinates stay within +-2^23 (as the splat's): leaf indices then fit 21 bits.
+constexpr int kMaxIndex = (1 << 23) - 64;
+
+/// A set of leaf origins (open addressing on their packed indices): the leaves a frame's pixels
+/// reach, each listed once.
+class LeafSet {
+  public:
+    /// True when `origin` was not in the set yet.
+    bool insert(const openvdb::Coord& origin) {
+        if (2 * (size_ + 1) > slots_.size()) grow();
+        return put(key(origin));
+    }
+
+  private:
+    static constexpr std::uint64_t kEmpty = ~std::uint64_t(0);
+    static std::uint64_t key(const openvdb::Coord& o) {
+        std::uint64_t k = 0;
+        for (int a = 0; a < 3; ++a) k = k << 21 | std::uint64_t((o[a] >> 3) + (1 << 20));
+        return k;
+    }
+    bool put(std::uint64_t k) {
+        const std::size_t mask = slots_.size() - 1;
+        std::size_t i = std::size_t((k * 0x9e3779b97f4a7c15ull) >> 32) & mask;
+        while (slots_[i] != k) {
+            if (slots_[i] == kEmpty) {
+                slots_[i] = k;
+                ++size_;
+                return true;
+            }
+            i = (i + 1) & mask;
+        }
+        return false;
+    }
+    void grow() {
+        std::vector<std::uint64_t> old(std::max<std::size_t>(1024, 2 * slots_.size()), kEmpty);
+        old.swap(slots_);
+        size_ = 0;
+        for (std::uint64_t k : old) {
+            if (k != kEmpty) put(k);
+        }
+    }
+    std::vector<std::uint64_t> slots_;
+    std::size_t size_ = 0;
+};
 
 }  // namespace
 
@@ -158,6 +204,7 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
     const int reach = int(std::ceil(truncation_ / voxel_));
     std::size_t valid = 0;
     openvdb::Coord last_lo(std::numeric_limits<int>::min()), last_hi = last_lo;
+    LeafSet seen;
     for (std::size_t i = 0; i < z.size(); ++i) {
         if (!measured[i]) continue;
         const std::array<double, 3>& c = points[i];
@@ -170,8 +217,8 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
                 const double wpt = m[std::size_t(4 * a)] * c[0] + m[std::size_t(4 * a + 1)] * c[1] +
                                    m[std::size_t(4 * a + 2)] * c[2] + m[std::size_t(4 * a + 3)] - origin_[std::size_t(a)];
                 const double k_real = wpt / voxel_;
-                if (!(std::fabs(k_real) < double(1 << 30))) {
-                    throw NumericalError("tsdf: a pixel's point lies more than 2^30 voxels from the "
+                if (!(std::fabs(k_real) < double(kMaxIndex))) {
+                    throw NumericalError("tsdf: a pixel's point lies more than 2^23 voxels from the "
                                          "origin. Hint: a larger --voxel or --max-depth");
                 }
                 const int k = int(round_half_away(k_real));
@@ -185,7 +232,9 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
             last_hi = hi;
             for (int a = lo[0]; a <= hi[0]; a += 8) {
                 for (int b = lo[1]; b <= hi[1]; b += 8) {
-                    for (int e = lo[2]; e <= hi[2]; e += 8) leaves.emplace_back(a, b, e);
+                    for (int e = lo[2]; e <= hi[2]; e += 8) {
+                        if (seen.insert(openvdb::Coord(a, b, e))) leaves.emplace_back(a, b, e);
+                    }
                 }
             }
         }
@@ -193,7 +242,6 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
     pixels_ += valid;
     if (valid == 0) return 0;
     std::sort(leaves.begin(), leaves.end());
-    leaves.erase(std::unique(leaves.begin(), leaves.end()), leaves.end());
     for (const openvdb::Coord& c : leaves) {  // serially: the trees' structure changes
         value_->tree().touchLeaf(c);
         weight_->tree().touchLeaf(c);

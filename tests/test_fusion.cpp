@@ -747,3 +747,21 @@ TEST_CASE("vdbrecon fuse --fusion tsdf: frames read in parallel, the library's v
         }
     }
 }
+
+TEST_CASE("tsdf fusion: a pixel beyond 2^23 voxels is one clear error, not a wrapped index", "[fusion][tsdf][bad]") {
+    const Shape sphere = make_shape("sphere");
+    const double voxel = bounding_box(sphere.mesh.vertices).diagonal() / 80.0;
+    const Views v = views_of(sphere.mesh, 2, 64, 48);
+    DepthOptions tsdf;
+    tsdf.rule = FusionRule::tsdf;
+    Fusion f(fusion_options(voxel), tsdf);
+    f.integrate(v.depths[0], v.K, v.poses[0]);
+    DepthImage far = v.depths[1];
+    far.depth[far.depth.size() / 2] = float(1e8 * voxel);  // ~10^8 voxels away
+    try {
+        f.integrate(far, v.K, v.poses[1]);
+        FAIL("no error");
+    } catch (const NumericalError& e) {
+        CHECK(std::string(e.what()).find("2^23 voxels") != std::string::npos);
+    }
+}

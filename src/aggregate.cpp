@@ -30,7 +30,6 @@ namespace vdbrecon {
 
 namespace {
 
-constexpr int kLevels = 15;  ///< sigma levels, half octaves above min_sigma_voxels
 constexpr int kCellBits = 20;
 constexpr std::int64_t kCellBias = std::int64_t(1) << (kCellBits - 1);
 /// No key: the level (<= 14) in the top four bits never makes one all ones.

@@ -71,7 +71,8 @@ class CellGroups {
 
     SplatOptions options_;
     bool colors_;
-    double inv_edge_[15];  ///< 1 / the cell edge of each sigma level, world units
+    static constexpr int kLevels = 15;  ///< sigma levels, half octaves above min_sigma_voxels
+    double inv_edge_[kLevels];          ///< 1 / the cell edge of each level, world units
     Blocks groups_;
     std::vector<Slot> slots_;  ///< open addressing, a power of two, at most half full
     std::size_t cells_ = 0;

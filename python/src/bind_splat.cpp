@@ -22,8 +22,8 @@ void bind_splat(py::module_& m) {
         .field("support", &SplatOptions::support,
                "Support radius of the kernel, sigmas (CLI --support).")
         .field("min_weight", &SplatOptions::min_weight,
-               "Voxels with less summed weight are invalid (inactive), dimensionless (CLI "
-               "--min-weight).")
+               "Voxels with less summed weight are invalid (inactive), but for those within two "
+               "voxels of the surface, which need a fifth of it; dimensionless (CLI --min-weight).")
         .field("max_memory", &SplatOptions::max_memory,
                "Memory budget of the run, bytes; 0 = half the physical memory. splat() refuses "
                "with a suggested voxel size, before allocating the grids, when its estimate "

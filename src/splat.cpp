@@ -31,6 +31,7 @@
 #endif
 
 #include "detail/creases.h"
+#include "detail/io_common.h"
 #include "detail/kernels.h"
 #include "detail/radix_sort.h"
 #include "detail/release.h"
@@ -1075,7 +1076,7 @@ void finish_volume(Grids g, const Vec3d& origin, std::size_t points, const Splat
     vol.metadata["sigma_min"] = std::to_string(result.sigma_min);
     vol.metadata["sigma_max"] = std::to_string(result.sigma_max);
     vol.metadata["scale_factor"] = std::to_string(options.scale_factor);
-    vol.metadata["min_weight"] = std::to_string(options.min_weight);
+    vol.metadata["min_weight"] = detail::format_number(options.min_weight);  // exact: the closing reads it
     vol.metadata["crease_angle"] = std::to_string(options.crease_angle);
     vol.metadata["points"] = std::to_string(points);
     result.memory_bytes = vol.memory_bytes();

@@ -123,9 +123,9 @@ void print_help() {
         << "]\n"
         << "  --support R            kernel support radius, sigmas [" << fmt(d.splat.support)
         << "]\n"
-        << "  --min-weight W         voxels with less summed weight are empty, but within\n"
-        << "                         2 voxels of the surface, which need W/5 ["
-        << fmt(d.splat.min_weight) << "]\n"
+        << "  --min-weight W         voxels with less summed weight are empty ["
+        << fmt(d.splat.min_weight) << "];\n"
+        << "                         within 2 voxels of the surface W/5 suffices\n"
         << "  --crease-angle A       sample normals this far apart (degrees) meet at a sharp\n"
         << "                         crease: each face's own field, no blend [" << fmt(d.splat.crease_angle)
         << "; 0: off]\n"

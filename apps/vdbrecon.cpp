@@ -123,9 +123,8 @@ void print_help() {
         << "]\n"
         << "  --support R            kernel support radius, sigmas [" << fmt(d.splat.support)
         << "]\n"
-        << "  --min-weight W         voxels with less summed weight are empty ["
-        << fmt(d.splat.min_weight) << "];\n"
-        << "                         within 2 voxels of the surface W/5 suffices\n"
+        << "  --min-weight W         voxels with less weight are empty (W/5 near the surface) ["
+        << fmt(d.splat.min_weight) << "]\n"
         << "  --crease-angle A       sample normals this far apart (degrees) meet at a sharp\n"
         << "                         crease: each face's own field, no blend [" << fmt(d.splat.crease_angle)
         << "; 0: off]\n"

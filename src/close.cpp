@@ -232,9 +232,9 @@ openvdb::FloatGrid::Ptr make_fill_grid(const MaskTree& mask, const openvdb::Floa
 /// those valid only for lying near the surface with a fifth of it (splat.h): their field is a
 /// thin overlap of kernel tails, which the extension into a hole must neither start from nor
 /// keep where it reaches (extrapolated from them, the bridged cap of a sphere was 0.65 voxel off
-/// at its rim instead of 0.39). All valid voxels when the volume does not say its threshold.
-MaskTree full_weight_voxels(const Volume& v) {
-    MaskTree mask(v.sdf->tree(), false, openvdb::TopologyCopy());
+/// at its rim instead of 0.39). `mask`: the valid voxels, all kept when the volume does not say
+/// its threshold.
+MaskTree full_weight_voxels(const Volume& v, MaskTree mask) {
     const auto it = v.metadata.find("min_weight");
     if (!v.weight || it == v.metadata.end()) return mask;
     const double min_weight = std::strtod(it->second.c_str(), nullptr);
@@ -259,7 +259,8 @@ Volume close_holes(const Volume& in, int radius, const MeshOptions& mesh, CloseR
 
     Volume out = in;
     auto sdf = openvdb::gridPtrCast<openvdb::FloatGrid>(in.sdf->deepCopyGrid());
-    const MaskTree original = full_weight_voxels(in);
+    const MaskTree valid(in.sdf->tree(), false, openvdb::TopologyCopy());
+    const MaskTree original = full_weight_voxels(in, valid);
     MaskTree known = original;
     // The holes of band and slab together get values; so do the closed voxels up to two
     // voxels past the band around the bridged holes (dents of the band's faces there, where the
@@ -287,7 +288,7 @@ Volume close_holes(const Volume& in, int radius, const MeshOptions& mesh, CloseR
     // Thin-overlap voxels (valid, but not of full weight) in the target get new values; they
     // were valid before, so they are not counted as filled.
     MaskTree revalued = target;
-    revalued.topologyIntersection(MaskTree(in.sdf->tree(), false, openvdb::TopologyCopy()));
+    revalued.topologyIntersection(valid);
     stats.filled_voxels = extend_layers(&sdf->tree(), &original, color ? &color->tree() : nullptr,
                                         known, target, in.sdf->background());
     revalued.topologyIntersection(known);

@@ -158,8 +158,6 @@ struct FramePoints {
     }
 
     std::size_t index(int u, int v) const { return std::size_t(v) * std::size_t(w) + std::size_t(u); }
-    /// The range of point i, 0 where nothing was measured.
-    double range(std::size_t i) const { return valid[i] ? r[i] : 0.0; }
     GridRow row(int v) const {
         const std::size_t i = index(0, v);
         return {p.data() + i, r.data() + i, valid.data() + i, count.data() + i};
@@ -195,7 +193,7 @@ class DepthRows {
             }
             for (const int end = std::min(w, u + 8); u < end; ++u) {
                 const double z = double(d[u]);
-                if (!(std::isfinite(z) && z > min_depth_ && z > 0.0 && z <= max_depth_)) continue;
+                if (!measured(z)) continue;
                 const V3 x = point(u, v, z);
                 p[u] = x;
                 r[u] = std::sqrt(dot(x, x));
@@ -211,15 +209,20 @@ class DepthRows {
         }
         return {p_[s].data(), r_[s].data(), valid_[s].data(), nullptr};
     }
+    /// The range of pixel i, 0 where nothing was measured.
     double range(std::size_t i) const {
         const int v = int(i / std::size_t(w)), u = int(i % std::size_t(w));
         const double z = double(depth_.depth[i]);
-        if (!(std::isfinite(z) && z > min_depth_ && z > 0.0 && z <= max_depth_)) return 0.0;
+        if (!measured(z)) return 0.0;
         const V3 x = point(u, v, z);
         return std::sqrt(dot(x, x));
     }
 
   private:
+    /// Whether a depth value is a measurement (0, NaN, inf and values out of range are not).
+    bool measured(double z) const {
+        return std::isfinite(z) && z > min_depth_ && z > 0.0 && z <= max_depth_;
+    }
     V3 point(int u, int v, double z) const {
         const V3 ray = {(u - K_.cx) / K_.fx, (v - K_.cy) / K_.fy, 1.0};
         if (kind_ == DepthKind::ray) z /= std::sqrt(dot(ray, ray));
@@ -249,8 +252,7 @@ FramePoints back_project(const DepthImage& depth, const Intrinsics& K, const Dep
 
 /// The pixel blocks (b x b) a frame is merged into where its footprint is below
 /// `merge_footprint`: b = floor(merge_footprint / the median footprint), at most 4.
-template <typename Grid>
-int merge_factor(const Grid& f, double focal, double merge_footprint) {
+int merge_factor(const DepthRows& f, double focal, double merge_footprint) {
     if (!(merge_footprint > 0.0)) return 1;
     std::vector<double> z;
     const std::size_t n = std::size_t(f.w) * std::size_t(f.h);

@@ -148,9 +148,9 @@ constexpr int kLeafVoxels = kLeafDim * kLeafDim * kLeafDim;
 constexpr int kBlockLog2 = kLeafLog2 + 1;
 constexpr int kBlockDim = 1 << kBlockLog2;
 constexpr int kBlockVoxels = kBlockDim * kBlockDim * kBlockDim;
-// Index coordinates stay within +-2^23 voxels: block coordinates then span at most 2^20 per
-// axis, and a packed block key (BlockCodec) at most 60 bits.
-constexpr double kMaxIndex = double(1 << 23) - 64.0;
+// Index coordinates stay within +-kMaxVoxelIndex (volume_grids.h): block coordinates then span
+// at most 2^20 per axis, and a packed block key (BlockCodec) at most 60 bits.
+using detail::kMaxVoxelIndex;
 
 inline int floor_div_block(int v) {
     return v >= 0 ? v >> kBlockLog2 : -((-v + kBlockDim - 1) >> kBlockLog2);
@@ -435,8 +435,7 @@ struct VoxelSums {
 /// valid voxels +1.3 %, against +17 % with min_weight / 5 everywhere); what the thin overlap
 /// adds past an open border is left to the support trims (mesh.h).
 template <typename At>
-bool valid_voxel(const At& at, int v, double min_weight, double voxel, float background) {
-    const double w = at.w(v);
+bool valid_voxel(const At& at, int v, double w, double min_weight, double voxel, float background) {
     if (!(w > 0.0)) return false;
     if (w >= min_weight) return true;
     if (w < 0.2 * min_weight) return false;
@@ -455,8 +454,9 @@ void emit_leaf(const openvdb::Coord& lo_world, At&& at, bool colors, double min_
     std::size_t active = 0;
     bool valid[kLeafVoxels];
     for (int v = 0; v < kLeafVoxels; ++v) {
-        out.touched += at.w(v) > 0.0;
-        valid[v] = valid_voxel(at, v, min_weight, voxel, background);
+        const double w = at.w(v);
+        out.touched += w > 0.0;
+        valid[v] = valid_voxel(at, v, w, min_weight, voxel, background);
         active += valid[v];
     }
     out.active += active;
@@ -942,11 +942,11 @@ void measure_kernels(const Kernels& kernels, double voxel, CloudSums& out) {
         throw InvalidArgument("splat: none of the " + std::to_string(n) +
                               " points has a usable (non-zero, finite) normal");
     }
-    if (max_index + max_r > kMaxIndex) {
+    if (max_index + max_r > kMaxVoxelIndex) {
         std::ostringstream s;
         s << "splat: voxel size " << voxel << " is too small for this scan: it would need "
           << std::ceil(max_index + max_r) << " voxels from the origin along one axis (limit "
-          << kMaxIndex << "). Hint: use a larger --voxel";
+          << kMaxVoxelIndex << "). Hint: use a larger --voxel";
         throw InvalidArgument(s.str());
     }
     if (voxel < SplatOptions::kMinVoxelSize) {

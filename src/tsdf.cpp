@@ -32,9 +32,6 @@ long pixel_of(double x, int size) {
     return round_half_away(x);
 }
 
-/// Voxel coordinates stay within +-2^23 (as the splat's): leaf indices then fit 21 bits.
-constexpr int kMaxIndex = (1 << 23) - 64;
-
 /// A set of leaf origins (open addressing on their packed indices): the leaves a frame's pixels
 /// reach, each listed once.
 class LeafSet {
@@ -217,7 +214,7 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
                 const double wpt = m[std::size_t(4 * a)] * c[0] + m[std::size_t(4 * a + 1)] * c[1] +
                                    m[std::size_t(4 * a + 2)] * c[2] + m[std::size_t(4 * a + 3)] - origin_[std::size_t(a)];
                 const double k_real = wpt / voxel_;
-                if (!(std::fabs(k_real) < double(kMaxIndex))) {
+                if (!(std::fabs(k_real) < kMaxVoxelIndex)) {  // leaf indices fit 21 bits
                     throw NumericalError("tsdf: a pixel's point lies more than 2^23 voxels from the "
                                          "origin. Hint: a larger --voxel or --max-depth");
                 }

@@ -198,6 +198,12 @@ void print_help() {
         << "                         (each with a halo of samples): less memory, the same mesh;\n"
         << "                         auto: the largest that fits --max-memory; no .vdb is\n"
         << "                         written [0: off]\n"
+        << "  --stream MODE          tiles: read a PLY file with normals a chunk at a time and\n"
+        << "                         run the point stages a region at a time (memory bounded\n"
+        << "                         by a region, the same mesh): " << choice_list(stream_mode_choices(), "|")
+        << "; auto: when\n"
+        << "                         the points would take over half of --max-memory ["
+        << choice_name(stream_mode_choices(), d.stream) << "]\n"
         << "  --preview PATH         write a shaded picture of the mesh: .png, or .exr with a\n"
         << "                         depth channel Z [none]\n"
         << "  -q, --quiet            no progress or timings on stderr\n"
@@ -393,6 +399,8 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.normals.mode = parse_choice(a, args.value(a), normal_mode_choices());
     } else if (a == "--k") {
         o.normals.k = parse_int(a, args.value(a));
+    } else if (a == "--stream") {
+        o.stream = parse_choice(a, args.value(a), stream_mode_choices());
     } else if (a == "--scale") {
         o.normals.scale = parse_choice(a, args.value(a), scale_mode_choices());
     } else if (a == "--knn") {
@@ -521,8 +529,8 @@ void report(const RunResult& r, const PipelineOptions& o,
             if (p.splat.points > 0) s << " as " << p.splat.points << " kernels";
             s << "\n";
         } else {
-            s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << "), "
-              << fmt_megabytes(r.read.bytes) << " in memory";
+            s << "vdbrecon: read " << r.read.rows << " rows (" << r.read.format << ")";
+            if (p.stream_units == 0) s << ", " << fmt_megabytes(r.read.bytes) << " in memory";
             if (r.read.dropped_nonfinite) s << ", dropped " << r.read.dropped_nonfinite << " NaN/inf";
             s << "\n";
         }
@@ -551,6 +559,11 @@ void report(const RunResult& r, const PipelineOptions& o,
             s << "; set --voxel to override)";
         }
         s << "\n";
+        if (p.stream_units > 0) {
+            s << "vdbrecon: points: streamed, never held whole; outliers and scales in "
+              << p.stream_units << " regions, the largest " << p.stream_largest
+              << " points with its halo\n";
+        }
         if (p.tile > 0) {
             s << "vdbrecon: tiles: " << p.tiles << " tiles of " << p.tile << "^3 voxels, halo "
               << p.tile_halo << " voxels, largest " << p.max_tile_points << " samples; "

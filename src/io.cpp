@@ -176,43 +176,51 @@ Vec3f local_point(const double* p, const Vec3d& origin, const std::string& path,
 
 namespace {
 
-/// choose_origin over rows row(i) (std::array<double, 3>).
-template <typename Row>
-Vec3d origin_of_rows(std::size_t rows, const Row& row) {
-    double lo[3], hi[3];
-    for (int a = 0; a < 3; ++a) {
-        lo[a] = std::numeric_limits<double>::infinity();
-        hi[a] = -lo[a];
-    }
+/// The box of finite rows, and the local frame choose_origin picks from it.
+struct RowBounds {
+    double lo[3] = {HUGE_VAL, HUGE_VAL, HUGE_VAL}, hi[3] = {-HUGE_VAL, -HUGE_VAL, -HUGE_VAL};
     bool any = false;
-    for (std::size_t i = 0; i < rows; ++i) {
-        const std::array<double, 3> p = row(i);
-        if (!finite_row(p.data())) continue;  // rows the reader drops
+    std::size_t rows = 0;  ///< finite ones
+
+    void add(const std::array<double, 3>& p) {
+        if (!finite_row(p.data())) return;  // rows the reader drops
         any = true;
+        ++rows;
         for (int a = 0; a < 3; ++a) {
             lo[a] = std::min(lo[a], p[std::size_t(a)]);
             hi[a] = std::max(hi[a], p[std::size_t(a)]);
         }
     }
-    if (!any) return {0.0, 0.0, 0.0};
-    double diag2 = 0.0, magnitude = 0.0;
-    for (int a = 0; a < 3; ++a) {
-        diag2 += (hi[a] - lo[a]) * (hi[a] - lo[a]);
-        magnitude = std::max({magnitude, std::fabs(lo[a]), std::fabs(hi[a])});
+
+    Vec3d origin() const {
+        if (!any) return {0.0, 0.0, 0.0};
+        double diag2 = 0.0, magnitude = 0.0;
+        for (int a = 0; a < 3; ++a) {
+            diag2 += (hi[a] - lo[a]) * (hi[a] - lo[a]);
+            magnitude = std::max({magnitude, std::fabs(lo[a]), std::fabs(hi[a])});
+        }
+        const double diag = std::sqrt(diag2);
+        // A float carries 24 bits: at magnitude M its spacing is M * 2^-23. Keep that below
+        // extent * 2^-20 (a millionth of the scan), i.e. re-centre once M > 8 * extent.
+        if (magnitude <= 8.0 * std::max(diag, 1e-30) || magnitude < 1.0) return {0.0, 0.0, 0.0};
+        const double q = std::ldexp(1.0, int(std::ceil(std::log2(std::max(diag, 1e-6)))));
+        Vec3d origin;
+        for (int a = 0; a < 3; ++a) {
+            // 0.5 lo + 0.5 hi, not 0.5 (lo + hi), which overflows near double's maximum; and
+            // beyond 2^52 q the centre is a multiple of q already (c / q could overflow).
+            const double c = 0.5 * lo[a] + 0.5 * hi[a];
+            origin[a] = std::fabs(c) < std::ldexp(q, 52) ? std::round(c / q) * q : c;
+        }
+        return origin;
     }
-    const double diag = std::sqrt(diag2);
-    // A float carries 24 bits: at magnitude M its spacing is M * 2^-23. Keep that below
-    // extent * 2^-20 (a millionth of the scan), i.e. re-centre once M > 8 * extent.
-    if (magnitude <= 8.0 * std::max(diag, 1e-30) || magnitude < 1.0) return {0.0, 0.0, 0.0};
-    const double q = std::ldexp(1.0, int(std::ceil(std::log2(std::max(diag, 1e-6)))));
-    Vec3d origin;
-    for (int a = 0; a < 3; ++a) {
-        // 0.5 lo + 0.5 hi, not 0.5 (lo + hi), which overflows near double's maximum; and beyond
-        // 2^52 q the centre is a multiple of q already (c / q could overflow).
-        const double c = 0.5 * lo[a] + 0.5 * hi[a];
-        origin[a] = std::fabs(c) < std::ldexp(q, 52) ? std::round(c / q) * q : c;
-    }
-    return origin;
+};
+
+/// choose_origin over rows row(i) (std::array<double, 3>).
+template <typename Row>
+Vec3d origin_of_rows(std::size_t rows, const Row& row) {
+    RowBounds b;
+    for (std::size_t i = 0; i < rows; ++i) b.add(row(i));
+    return b.origin();
 }
 
 }  // namespace
@@ -240,18 +248,18 @@ std::vector<Vec3f> take_rows(std::vector<float>&& flat, std::size_t rows) {
 
 }  // namespace
 
-ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::string& format,
-                           const ReadOptions& options) {
-    ReadResult result;
-    result.format = format;
-    const std::size_t rows = raw.rows();
-    result.rows = rows;
-    if (rows == 0) throw FormatError(where(path, "contains no points"));
+namespace {
 
-    // The local frame (from the finite rows), then one pass that drops rows with non-finite
-    // coordinates, converts the others and compacts every attribute in place.
+/// finalize_points for rows [first, first + raw.rows()) of a file, in the frame `origin`: the
+/// cloud and counts into `result` (whose counts add up over chunks), nothing logged.
+void finalize_rows(RawPoints&& raw, const std::string& path, const ReadOptions& options,
+                   const Vec3d& origin, std::size_t first, ReadResult& result) {
+    const std::size_t rows = raw.rows();
+    result.rows += rows;
+    // One pass that drops rows with non-finite coordinates, converts the others and compacts
+    // every attribute in place.
     PointCloud& cloud = result.cloud;
-    cloud.origin = options.local_frame ? choose_origin(raw) : Vec3d{0, 0, 0};
+    cloud.origin = origin;
     // Float rows become the positions in place (each row is read before it is overwritten).
     const bool in_place = !raw.xyz_float.empty();
     std::vector<Vec3f> positions;
@@ -260,7 +268,7 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
     } else {
         positions.resize(rows);
     }
-    std::size_t kept = 0, first_bad = rows;
+    std::size_t kept = 0;
     for (std::size_t i = 0; i < rows; ++i) {
         const std::array<double, 3> row =
             in_place ? std::array<double, 3>{double(positions[i][0]), double(positions[i][1]),
@@ -269,13 +277,13 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         const double* p = row.data();
         if (!finite_row(p)) {
             if (options.non_finite == NonFinitePolicy::error) {
-                throw FormatError(where(path, "row " + std::to_string(i) +
+                throw FormatError(where(path, "row " + std::to_string(first + i) +
                                                   ": NaN or infinite coordinate"));
             }
-            if (first_bad == rows) first_bad = i;
+            if (result.dropped_nonfinite++ == 0) result.first_dropped = first + i;
             continue;
         }
-        positions[kept] = local_point(p, cloud.origin, path, "row", i);
+        positions[kept] = local_point(p, cloud.origin, path, "row", first + i);
         if (kept != i) {
             for (auto* v : {&raw.normals, &raw.colors}) {
                 if (!v->empty()) std::copy_n(v->data() + 3 * i, 3, v->data() + 3 * kept);
@@ -296,17 +304,6 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
     detail::release(raw.xyz);  // (xyz_float, if any, became the positions)
     positions.resize(kept);
     cloud.positions = std::move(positions);
-    result.dropped_nonfinite = rows - kept;
-    if (result.dropped_nonfinite > 0) {
-        if (kept == 0) {
-            throw FormatError(where(path, "all " + std::to_string(rows) +
-                                              " rows have NaN or infinite coordinates"));
-        }
-        log_warning(where(path, "dropped " + std::to_string(result.dropped_nonfinite) + " of " +
-                                    std::to_string(rows) +
-                                    " rows with NaN or infinite coordinates (first: row " +
-                                    std::to_string(first_bad) + ")"));
-    }
 
     std::vector<Vec3f> normals = take_rows(std::move(raw.normals), kept);
     cloud.colors = take_rows(std::move(raw.colors), kept);
@@ -333,10 +330,6 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
             for (float& c : n) c = float(c / len);
         }
     }
-    if (result.invalid_normals > 0) {
-        log_warning(where(path, std::to_string(result.invalid_normals) +
-                                    " normals are zero or NaN; they will be re-estimated"));
-    }
     cloud.normals = std::move(normals);
     if (!raw.scales.empty()) {
         raw.scales.resize(kept);
@@ -345,6 +338,36 @@ ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::
         }
         cloud.scales = std::move(raw.scales);
     }
+}
+
+}  // namespace
+
+void report_read(const std::string& path, const ReadResult& result) {
+    if (result.rows == 0) throw FormatError(where(path, "contains no points"));
+    if (result.dropped_nonfinite > 0) {
+        if (result.dropped_nonfinite == result.rows) {
+            throw FormatError(where(path, "all " + std::to_string(result.rows) +
+                                              " rows have NaN or infinite coordinates"));
+        }
+        log_warning(where(path, "dropped " + std::to_string(result.dropped_nonfinite) + " of " +
+                                    std::to_string(result.rows) +
+                                    " rows with NaN or infinite coordinates (first: row " +
+                                    std::to_string(result.first_dropped) + ")"));
+    }
+    if (result.invalid_normals > 0) {
+        log_warning(where(path, std::to_string(result.invalid_normals) +
+                                    " normals are zero or NaN; they will be re-estimated"));
+    }
+}
+
+ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::string& format,
+                           const ReadOptions& options) {
+    ReadResult result;
+    result.format = format;
+    if (raw.rows() == 0) throw FormatError(where(path, "contains no points"));
+    const Vec3d origin = options.local_frame ? choose_origin(raw) : Vec3d{0, 0, 0};
+    finalize_rows(std::move(raw), path, options, origin, 0, result);
+    report_read(path, result);
     result.bytes = result.cloud.memory_bytes();
     return result;
 }
@@ -622,6 +645,59 @@ ReadResult read_points(const std::string& path, const ReadOptions& options) {
                        [&](const char* upto) { file.let_go(upto); });
     }  // the file's bytes are let go before the cloud is made from the rows
     return detail::finalize_points(std::move(raw), path, format, options);
+}
+
+bool detail::stream_points(const std::string& path, const ReadOptions& options,
+                           const PointsSink& sink, ReadResult& totals, int passes,
+                           StreamFrame* frame, bool need_normals) {
+    detail::FileBytes file(path);
+    const std::string_view bytes = file.bytes();
+    if (bytes.empty()) throw FormatError(detail::where(path, "file is empty"));
+    if (detect_format(path, bytes) != Format::ply) return false;
+    if (need_normals && !detail::ply_has_normals(path, bytes)) return false;
+    if (!options.classes.empty()) {
+        throw InvalidArgument(detail::where(path, "point classes are chosen only in LAS files"));
+    }
+    const detail::Consumed let_go = [&](const char* upto) { file.let_go(upto); };
+    // First pass: the frame, from the box of all finite rows.
+    RowBounds box;
+    std::string format;
+    detail::read_ply_raw(path, bytes, false, format, let_go,
+                         [&](detail::RawPoints& raw, std::size_t) {
+        for (std::size_t i = 0; i < raw.rows(); ++i) box.add(raw.row(i));
+    });
+    const Vec3d origin = options.local_frame ? box.origin() : Vec3d{0, 0, 0};
+    if (frame) {
+        frame->rows = box.rows;
+        double d2 = 0.0;
+        for (int a = 0; a < 3 && box.any; ++a) d2 += (box.hi[a] - box.lo[a]) * (box.hi[a] - box.lo[a]);
+        frame->diagonal = std::sqrt(d2);
+    }
+    // Then the passes over the chunks, finalized in that frame.
+    totals = ReadResult{};
+    totals.format = format;
+    totals.cloud.origin = origin;
+    ReadResult chunk;
+    for (int pass = 0; pass < passes; ++pass) {
+        detail::FileBytes again(path);  // the last pass let its pages go
+        detail::read_ply_raw(path, again.bytes(), false, format,
+                             [&](const char* upto) { again.let_go(upto); },
+                             [&](detail::RawPoints& raw, std::size_t first) {
+            chunk = ReadResult{};
+            finalize_rows(std::move(raw), path, options, origin, first, chunk);
+            if (pass == 0) {
+                totals.rows += chunk.rows;
+                if (chunk.dropped_nonfinite > 0 && totals.dropped_nonfinite == 0) {
+                    totals.first_dropped = chunk.first_dropped;
+                }
+                totals.dropped_nonfinite += chunk.dropped_nonfinite;
+                totals.invalid_normals += chunk.invalid_normals;
+            }
+            sink(chunk, first, pass);
+        });
+        if (pass == 0) detail::report_read(path, totals);
+    }
+    return true;
 }
 
 Mesh read_mesh(const std::string& path) {

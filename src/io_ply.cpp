@@ -397,7 +397,7 @@ void skip_element(const std::string& path, const Element& e, Cursor& c, Encoding
 }
 
 void read_vertices(const std::string& path, const Element& e, Cursor& c, Encoding enc,
-                   RawPoints& raw, const Consumed& consumed) {
+                   RawPoints& raw, const Consumed& consumed, const RowSink& sink) {
     std::vector<Role> roles;
     bool has[int(Role::scan) + 1] = {};  // one per role (scan is the last)
     PlyType colour_type = PlyType::uint8;
@@ -433,16 +433,23 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
         }
     }
     const std::size_t n = std::size_t(e.count);
-    if (float_xyz) {
-        raw.xyz_float.resize(n);
-    } else {
-        raw.xyz.resize(3 * n);
-    }
-    if (normals) raw.normals.resize(3 * n);
-    if (colors) raw.colors.resize(3 * n);
-    if (has[int(Role::scale)]) raw.scales.resize(n);
-    if (has[int(Role::confidence)]) raw.confidences.resize(n);
-    if (has[int(Role::scan)]) raw.scans.resize(n);
+    // Rows [base, base + m) are held, at row - base (all of them at once without a sink).
+    std::size_t base = 0;
+    const auto hold = [&](std::size_t first, std::size_t m) {
+        base = first;
+        const auto size = [](auto& v, bool want, std::size_t len) {
+            v.clear();
+            if (want) v.resize(len);
+        };
+        size(raw.xyz_float, float_xyz, m);
+        size(raw.xyz, !float_xyz, 3 * m);
+        size(raw.normals, normals, 3 * m);
+        size(raw.colors, colors, 3 * m);
+        size(raw.scales, has[int(Role::scale)], m);
+        size(raw.confidences, has[int(Role::confidence)], m);
+        size(raw.scans, has[int(Role::scan)], m);
+    };
+    if (!sink) hold(0, n);
 
     auto put_coordinate = [&](std::size_t row, int a, double v) {
         if (float_xyz) {
@@ -451,18 +458,19 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
             raw.xyz[3 * row + std::size_t(a)] = v;
         }
     };
-    auto read_row = [&](Cursor& cur, std::size_t row) {
+    auto read_row = [&](Cursor& cur, std::size_t file_row) {
+        const std::size_t row = file_row - base;
         double v;
         for (std::size_t k = 0; k < e.props.size(); ++k) {
             const Property& p = e.props[k];
             if (p.list) {
-                const std::uint64_t len = read_list_count(path, e, row, p, cur, enc);
+                const std::uint64_t len = read_list_count(path, e, file_row, p, cur, enc);
                 for (std::uint64_t i = 0; i < len; ++i) {
-                    if (!cur.read(p.type, v)) fail_at(path, e, row, cur, enc);
+                    if (!cur.read(p.type, v)) fail_at(path, e, file_row, cur, enc);
                 }
                 continue;
             }
-            if (!cur.read(p.type, v)) fail_at(path, e, row, cur, enc);
+            if (!cur.read(p.type, v)) fail_at(path, e, file_row, cur, enc);
             switch (roles[k]) {
                 case Role::ignore: break;
                 case Role::x: put_coordinate(row, 0, v); break;
@@ -492,21 +500,29 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
     if (fixed && c.remaining() / row_bytes >= n) {
         // A chunk of rows at a time, each chunk's bytes then handed to `consumed` (a mapped
         // file lets their pages go: the file is not held in memory beside its rows).
-        constexpr std::size_t kChunk = std::size_t(1) << 20;
-        for (std::size_t first = 0; first < n; first += kChunk) {
-            const std::size_t last = std::min(n, first + kChunk);
+        for (std::size_t first = 0; first < n; first += kStreamRows) {
+            const std::size_t last = std::min(n, first + kStreamRows);
+            if (sink) hold(first, last - first);
             tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 16384),
                               [&](const tbb::blocked_range<std::size_t>& r) {
                 Cursor cur = c;
                 cur.skip(r.begin() * row_bytes);
                 for (std::size_t row = r.begin(); row < r.end(); ++row) read_row(cur, row);
             });
+            if (sink) sink(raw, first);
             if (consumed) consumed(c.here() + last * row_bytes);
         }
         c.skip(n * row_bytes);
         return;
     }
-    for (std::size_t row = 0; row < n; ++row) read_row(c, row);
+    for (std::size_t row = 0; row < n; ++row) {
+        if (sink && row % kStreamRows == 0) {
+            if (row > 0) sink(raw, base);
+            hold(row, std::min(kStreamRows, n - row));
+        }
+        read_row(c, row);
+    }
+    if (sink && n > 0) sink(raw, base);
 }
 
 void read_faces(const std::string& path, const Element& e, Cursor& c, Encoding enc,
@@ -556,8 +572,22 @@ void read_faces(const std::string& path, const Element& e, Cursor& c, Encoding e
 
 }  // namespace
 
+bool ply_has_normals(const std::string& path, std::string_view content) {
+    const Header h = parse_header(path, content);
+    for (const Element& e : h.elements) {
+        if (e.name != "vertex") continue;
+        int found = 0;
+        for (const Property& p : e.props) {
+            const Role r = role_of(p.name);
+            found += !p.list && (r == Role::nx || r == Role::ny || r == Role::nz);
+        }
+        return found >= 3;
+    }
+    return false;
+}
+
 RawPoints read_ply_raw(const std::string& path, std::string_view content, bool want_faces,
-                       std::string& format, const Consumed& consumed) {
+                       std::string& format, const Consumed& consumed, const RowSink& sink) {
     const Header h = parse_header(path, content);
     format = h.encoding == Encoding::ascii       ? "ply ascii"
              : h.encoding == Encoding::binary_le ? "ply binary_little_endian"
@@ -596,7 +626,7 @@ RawPoints read_ply_raw(const std::string& path, std::string_view content, bool w
     bool have_faces = false;
     for (const Element& e : h.elements) {
         if (&e == &*vertex) {
-            read_vertices(path, e, c, h.encoding, raw, consumed);
+            read_vertices(path, e, c, h.encoding, raw, consumed, sink);
             if (!want_faces) break;
         } else if (want_faces && e.name == "face" && !have_faces) {
             read_faces(path, e, c, h.encoding, raw);

@@ -11,8 +11,8 @@
 #include <limits>
 #include <string>
 
+#include "detail/outlier_rules.h"
 #include "detail/parked.h"
-#include "detail/pca.h"
 #include "detail/release.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
@@ -173,7 +173,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
         r.neighbours.indices.resize(n * ku);
     }
     // Per point: d_i (-1 until its batch is searched), and the statistical rule's verdict.
-    enum : char { kUnknown, kFails, kPasses, kNoLocal };  // kNoLocal: coincident neighbours
+    using detail::kUnknown, detail::kFails, detail::kPasses, detail::kNoLocal;
     std::vector<float> spacing(n, -1.0f);  // float: 4 bytes a point of a large cloud
     std::vector<char> verdict(n, kUnknown);
     // For the spacing: its value from the first ks of all points, and whether one of those may
@@ -182,13 +182,6 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     std::vector<float> first_spacing(ks > 0 ? n : 0);
     std::vector<float> kth_sq(n);  // squared distance to the k-th neighbour: the density
     std::vector<std::uint16_t> near_code(ks > 0 ? n : 0, kWaiting);
-    // s plus the distances from point i to its neighbours nb[from..to), in that order.
-    const auto add_distances = [&](std::size_t i, const int* nb, int from, int to, double s) {
-        for (int j = from; j < to; ++j) {
-            s += std::sqrt(double(KnnResult::squared_distance(pts[i], pts[std::size_t(nb[j])])));
-        }
-        return s;
-    };
     // The statistical rule, once every neighbour has its d_j.
     const auto try_verdict = [&](std::size_t i, const int* nb) {
         double sum = 0.0;
@@ -197,15 +190,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
             if (d < 0.0) return false;
             sum += d;
         }
-        const double local = sum / k;
-        if (!(local > 0.0)) {
-            verdict[i] = kNoLocal;  // nothing to compare with
-        } else {
-            verdict[i] = options.statistical_ratio > 0.0 &&
-                                 spacing[i] / local > options.statistical_ratio
-                             ? kFails
-                             : kPasses;
-        }
+        verdict[i] = detail::statistical_verdict(spacing[i], sum, k, options);
         return true;
     };
     // What may take a near neighbour away, once the first ks neighbours have their verdicts.
@@ -232,9 +217,8 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
                 const std::size_t i = std::size_t(rows[t]);
                 const int* nb = idx + t * ku;
                 // The sum over the first ks neighbours is a prefix of the one over all k.
-                const double first = add_distances(i, nb, 0, ks, 0.0);
-                if (ks > 0) first_spacing[i] = float(first / double(ks));
-                spacing[i] = float(add_distances(i, nb, ks, k, first) / k);
+                spacing[i] = detail::mean_distance(pts, i, nb, k, ks,
+                                                   ks > 0 ? &first_spacing[i] : nullptr);
                 kth_sq[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k - 1])]);
                 if (hand_over.lists) std::copy_n(nb, ku, r.neighbours.indices.data() + i * ku);
             }
@@ -286,8 +270,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
         for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
             if (verdict[i] == kFails) {
                 rule[i] = 1;
-            } else if (verdict[i] == kPasses && options.planarity_ratio > 0.0 &&
-                       spacing[i] > options.planarity_spacing * median) {
+            } else if (detail::planarity_candidate(verdict[i], spacing[i], median, options)) {
                 rule[i] = 3;
             }
         }
@@ -304,10 +287,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
         for (std::size_t c = rg.begin(); c < rg.end(); ++c) {
             const std::size_t i = candidates[c];
             const int* nb = hand_over.lists ? r.neighbours.neighbours(i) : searched.neighbours(c);
-            Eigen::Vector3d ev, dir;
-            const bool scattered = detail::neighbourhood_pca(pts, i, nb, k, ev, dir) &&
-                                   ev[1] > 0.0 && ev[0] / ev[1] > options.planarity_ratio;
-            rule[i] = scattered ? 2 : 0;
+            rule[i] = detail::scattered(pts, i, nb, k, options) ? 2 : 0;
         }
     });
     for (std::size_t i = 0; i < n; ++i) {
@@ -349,8 +329,7 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
                 if (m < ks) {
                     short_row[a] = 1;
                 } else {
-                    first_spacing[rows[a]] =
-                        float(add_distances(rows[a], kept_nb.data(), 0, ks, 0.0) / double(ks));
+                    first_spacing[rows[a]] = detail::mean_distance(pts, rows[a], kept_nb.data(), ks);
                 }
             }
         });

@@ -18,6 +18,8 @@
 #include "detail/parked.h"
 #include "detail/release.h"
 #include "detail/run.h"
+#include "detail/spool.h"
+#include "detail/stream_tiles.h"
 #include "detail/tiles.h"
 #include "detail/volume_grids.h"
 #include "vdbrecon/error.h"
@@ -72,7 +74,10 @@ void PipelineOptions::validate() const {
 }
 
 double choose_voxel_size(const PointCloud& cloud, double spacing, const PipelineOptions& options) {
-    const double diag = bounding_box(cloud.positions).diagonal();
+    return detail::voxel_for(bounding_box(cloud.positions).diagonal(), spacing, options);
+}
+
+double detail::voxel_for(double diag, double spacing, const PipelineOptions& options) {
     double voxel = options.auto_voxel_factor * spacing;
     if (!(voxel > 0.0)) voxel = diag / 300.0;  // no spacing information
     voxel = std::max(voxel, diag / options.auto_voxel_max_cells);
@@ -245,9 +250,10 @@ void mesh_stages(PipelineResult& r, const PipelineOptions& options, const StageC
     mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
 }
 
-/// The tiles' options from the pipeline's.
-detail::TiledOptions tiled_options(const PipelineOptions& options, const SplatOptions& splat,
-                                   double spacing) {
+}  // namespace
+
+detail::TiledOptions detail::tiled_options(const PipelineOptions& options,
+                                           const SplatOptions& splat, double spacing) {
     detail::TiledOptions t;
     t.splat = splat;
     t.close = options.close;
@@ -256,6 +262,8 @@ detail::TiledOptions tiled_options(const PipelineOptions& options, const SplatOp
     t.sample_spacing = spacing;
     return t;
 }
+
+namespace {
 
 /// A tiled surface's mesh and statistics into the result.
 void take_tiled(PipelineResult& r, detail::TiledResult&& tiled) {
@@ -294,7 +302,7 @@ void tiled_stages(PipelineResult& r, PointCloud& cloud, bool consume,
     {
         StageClock clock(r.timings, on_stage, "tiles");
         detail::TiledResult tiled = detail::tiled_surface(
-            cloud, tiled_options(options, splat_options, sample_spacing(r)), consume);
+            cloud, detail::tiled_options(options, splat_options, sample_spacing(r)), consume);
         take_tiled(r, std::move(tiled));
     }
     tiled_cleanup_stages(r, options, splat_options.voxel_size, origin, on_stage, on_volume);
@@ -595,10 +603,63 @@ void write_outputs(RunResult& out, const PipelineOptions& options, const std::st
 
 }  // namespace detail
 
+namespace {
+
+/// A tiled run streamed through its input (detail/stream_tiles.h): the tile job in a temporary
+/// directory, its tiles one after another (their pieces waiting on disk), then the stitch and
+/// the stages after the mesh, as finish_tiles() does. False, with nothing done, when the input
+/// cannot be streamed.
+bool run_streamed(const std::string& input, const PipelineOptions& options,
+                  const StageCallback& on_stage, const VolumeCallback& on_volume, RunResult& out,
+                  std::vector<StageTiming>& timings, PipelineResult& r) {
+    if (options.tile == 0) return false;
+    const detail::ScratchDir dir("tiles: the tile job");
+    TileJob job;
+    {
+        StageClock clock(timings, on_stage, "read and point stages, streamed");
+        bool streamed = false;
+        in_arena(options.threads, [&] {
+            streamed = detail::prepare_streamed(input, dir.path(), options, job);
+        });
+        if (!streamed) return false;
+    }
+    out.read = std::move(job.read);
+    r = std::move(job.result);
+    in_arena(options.threads, [&] {
+        detail::Spool pieces("tiles: the tiles' pieces");
+        const detail::TiledOptions to = detail::tiled_options(options, options.splat, 0.0);
+        {
+            StageClock clock(r.timings, on_stage, "tiles");
+            for (std::size_t i = 0; i < job.tiles; ++i) {
+                pieces.add(detail::run_tile_job(dir.path(), i, to));
+            }
+            detail::trim_heap();  // what the tiles freed, before the surface is joined
+        }
+        double voxel = 0.0;
+        Vec3d origin{0.0, 0.0, 0.0};
+        {
+            StageClock clock(r.timings, on_stage, "stitch");
+            const PieceSource source = [&](std::size_t i, std::string& b) {
+                return pieces.get(i, b);
+            };
+            take_tiled(r, detail::finish_tile_job(dir.path(), job.tiles, source, to, voxel,
+                                                  origin));
+        }
+        tiled_cleanup_stages(r, options, voxel, origin, on_stage, on_volume);
+    });
+    return true;
+}
+
+}  // namespace
+
 RunResult run(const std::string& input, const std::string& output, const PipelineOptions& options,
               const StageCallback& on_stage) {
     auto compute = [&](RunResult& out, std::vector<StageTiming>& timings,
                        const VolumeCallback& write_vdb) {
+        PipelineResult streamed;
+        if (run_streamed(input, options, on_stage, write_vdb, out, timings, streamed)) {
+            return streamed;
+        }
         PointCloud cloud;
         {
             StageClock clock(timings, on_stage, "read");
@@ -651,15 +712,16 @@ TileJob prepare_tiles(const std::string& input, const std::string& dir,
     job.dir = dir;
     try {
         in_arena(options.threads, [&] {
+            if (detail::prepare_streamed(input, dir, options, job)) return;
             job.read = read_points(input, options.read);
             PointCloud cloud = std::move(job.read.cloud);
             job.read.cloud = PointCloud{};
             if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
             const SplatOptions splat_options = point_stages(job.result, cloud, options, {});
             job.voxel_size = splat_options.voxel_size;
+            const double spacing = sample_spacing(job.result);
             job.tiles = detail::write_tile_job(
-                cloud, tiled_options(options, splat_options, sample_spacing(job.result)), dir,
-                &job.tile);
+                cloud, detail::tiled_options(options, splat_options, spacing), dir, &job.tile);
         });
     } catch (const Error& e) {
         detail::rethrow_naming(input, e);
@@ -670,7 +732,7 @@ TileJob prepare_tiles(const std::string& input, const std::string& dir,
 std::string run_tile(const std::string& dir, std::size_t index, const PipelineOptions& options) {
     options.validate();
     return in_arena(options.threads, [&] {
-        return detail::run_tile_job(dir, index, tiled_options(options, options.splat, 0.0));
+        return detail::run_tile_job(dir, index, detail::tiled_options(options, options.splat, 0.0));
     });
 }
 
@@ -700,7 +762,7 @@ RunResult finish_tiles(const std::string& input, const std::string& output, cons
             {
                 StageClock clock(r.timings, on_stage, "stitch");
                 take_tiled(r, detail::finish_tile_job(dir, count, pieces,
-                                                      tiled_options(o, o.splat, 0.0), voxel,
+                                                      detail::tiled_options(o, o.splat, 0.0), voxel,
                                                       origin));
             }
             r.voxel_size = voxel;

@@ -938,24 +938,7 @@ void measure_kernels(const Kernels& kernels, double voxel, CloudSums& out) {
     out.max_r = max_r;
     out.skipped =
         std::accumulate(chunk_skipped.begin(), chunk_skipped.end(), std::size_t(0));
-    if (out.skipped == n) {
-        throw InvalidArgument("splat: none of the " + std::to_string(n) +
-                              " points has a usable (non-zero, finite) normal");
-    }
-    if (max_index + max_r > kMaxVoxelIndex) {
-        std::ostringstream s;
-        s << "splat: voxel size " << voxel << " is too small for this scan: it would need "
-          << std::ceil(max_index + max_r) << " voxels from the origin along one axis (limit "
-          << kMaxVoxelIndex << "). Hint: use a larger --voxel";
-        throw InvalidArgument(s.str());
-    }
-    if (voxel < SplatOptions::kMinVoxelSize) {
-        std::ostringstream s;
-        s << "splat: voxel size " << voxel << " is below " << SplatOptions::kMinVoxelSize
-          << " world units, the smallest OpenVDB's transforms accept. Hint: express the scan in "
-             "smaller units (e.g. millimetres instead of metres)";
-        throw InvalidArgument(s.str());
-    }
+    detail::check_kernel_range(max_index, max_r, out.skipped, n, voxel);
 
     // Sigma statistics (world units).
     {
@@ -1159,6 +1142,45 @@ SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
 
 SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     return splat_cloud(cloud, options, nullptr);
+}
+
+void detail::check_kernel_range(double max_index, float max_r, std::size_t skipped,
+                                std::size_t n, double voxel) {
+    if (skipped == n) {
+        throw InvalidArgument("splat: none of the " + std::to_string(n) +
+                              " points has a usable (non-zero, finite) normal");
+    }
+    if (max_index + max_r > kMaxVoxelIndex) {
+        std::ostringstream s;
+        s << "splat: voxel size " << voxel << " is too small for this scan: it would need "
+          << std::ceil(max_index + max_r) << " voxels from the origin along one axis (limit "
+          << kMaxVoxelIndex << "). Hint: use a larger --voxel";
+        throw InvalidArgument(s.str());
+    }
+    if (voxel < SplatOptions::kMinVoxelSize) {
+        std::ostringstream s;
+        s << "splat: voxel size " << voxel << " is below " << SplatOptions::kMinVoxelSize
+          << " world units, the smallest OpenVDB's transforms accept. Hint: express the scan in "
+             "smaller units (e.g. millimetres instead of metres)";
+        throw InvalidArgument(s.str());
+    }
+}
+
+void detail::kernel_sizes(const PointCloud& cloud, const SplatOptions& options,
+                          std::vector<float>& sigma, std::vector<float>& radius,
+                          double& max_index) {
+    options.validate();
+    check_cloud(cloud);
+    const Kernels kernels(cloud, options);
+    const std::size_t n = cloud.size();
+    sigma.resize(n);
+    radius.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+        const Kernel k = kernels(i, false);
+        max_index = std::max({max_index, std::fabs(k.cx), std::fabs(k.cy), std::fabs(k.cz)});
+        radius[i] = k.r;
+        sigma[i] = k.r == 0.0f ? -1.0f : k.s;
+    }
 }
 
 detail::KernelFrame detail::kernel_frame(const PointCloud& cloud, const SplatOptions& options) {

@@ -6,6 +6,7 @@
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 
 #include "vdbrecon/error.h"
 
@@ -49,10 +50,55 @@ void Spool::read(std::size_t i, char* to) const {
     }
 }
 
+void Spool::write_at(std::uint64_t offset, const void* from, std::size_t n) {
+    const char* p = static_cast<const char*>(from);
+    while (n > 0) {
+        const ssize_t w = ::pwrite(::fileno(file_), p, n, off_t(offset));
+        if (w <= 0) {
+            throw IoError(what_ + ": writing to a temporary file in " + dir_ +
+                          " failed (disk full?)");
+        }
+        p += w;
+        n -= std::size_t(w);
+        offset += std::uint64_t(w);
+    }
+}
+
+void Spool::read_at(std::uint64_t offset, void* to, std::size_t n) const {
+    char* p = static_cast<char*>(to);
+    while (n > 0) {
+        const ssize_t r = ::pread(::fileno(file_), p, n, off_t(offset));
+        if (r < 0) throw IoError(what_ + ": reading back from a temporary file in " + dir_ + " failed");
+        if (r == 0) {  // beyond what was written: zeros
+            std::memset(p, 0, n);
+            return;
+        }
+        p += r;
+        n -= std::size_t(r);
+        offset += std::uint64_t(r);
+    }
+}
+
 std::string_view Spool::get(std::size_t i, std::string& buffer) const {
     buffer.resize(std::size_t(offsets_[i + 1] - offsets_[i]));
     read(i, buffer.data());
     return buffer;
+}
+
+ScratchDir::ScratchDir(const std::string& what) {
+    const char* env = std::getenv("TMPDIR");
+    const std::string dir = env && *env ? env : "/tmp";
+    std::string name = dir + "/vdbrecon-tiles-XXXXXX";
+    if (!::mkdtemp(name.data())) {
+        throw IoError(what + ": cannot make a temporary directory in " + dir + ": " +
+                      std::strerror(errno) + " (set TMPDIR to a writable directory)");
+    }
+    path_ = name;
+}
+
+ScratchDir::~ScratchDir() {
+    std::error_code ignored;
+    std::filesystem::remove_all(path_, ignored);
 }
 
 }  // namespace vdbrecon::detail

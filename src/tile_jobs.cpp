@@ -46,6 +46,7 @@ class Bytes {
 class Reader {
   public:
     Reader(std::string_view bytes, std::string what) : bytes_(bytes), what_(std::move(what)) {}
+    bool at_end() const { return at_ == bytes_.size(); }
     template <typename T>
     T get() {
         need(sizeof(T));
@@ -102,20 +103,8 @@ void write_file(const std::string& path, const std::string& bytes) {
 }
 
 std::string plan_path(const std::string& dir) { return dir + "/plan.bin"; }
-std::string bucket_path(const std::string& dir, std::size_t j) {
-    return dir + "/bucket-" + std::to_string(j) + ".bin";
-}
 
-/// What every tile task reads first.
-struct Plan {
-    double voxel = 0.0;
-    Vec3d origin{0.0, 0.0, 0.0};
-    double sample_spacing = 0.0;
-    TileSetup setup;
-    std::uint64_t points = 0;
-    std::vector<TileKey> tiles;    ///< to visit, in order
-    std::vector<TileKey> buckets;  ///< occupied, sorted (bucket-<j>.bin)
-};
+using Plan = TilePlan;
 
 std::string plan_bytes(const Plan& p) {
     Bytes b;
@@ -172,12 +161,14 @@ PointCloud read_tile_samples(const std::string& dir, const Plan& plan, const Til
         const std::string bytes = read_file(path);
         Reader r(bytes, path);
         r.tag(kBucketTag);
-        r.append_to(index);
-        r.append_to(loaded.positions.edit());
-        r.append_to(loaded.normals.edit());
-        r.append_to(loaded.scales.edit());
-        r.append_to(loaded.colors.edit());
-        r.append_to(loaded.confidences.edit());
+        while (!r.at_end()) {  // its sections, one after another
+            r.append_to(index);
+            r.append_to(loaded.positions.edit());
+            r.append_to(loaded.normals.edit());
+            r.append_to(loaded.scales.edit());
+            r.append_to(loaded.colors.edit());
+            r.append_to(loaded.confidences.edit());
+        }
     });
     std::vector<std::uint32_t> rows;
     for (std::size_t i = 0; i < index.size(); ++i) {
@@ -194,6 +185,27 @@ PointCloud read_tile_samples(const std::string& dir, const Plan& plan, const Til
 
 }  // namespace
 
+std::string bucket_path(const std::string& dir, std::size_t j) {
+    return dir + "/bucket-" + std::to_string(j) + ".bin";
+}
+
+std::string bucket_tag() { return std::string(kBucketTag, 8); }
+
+std::string bucket_section(const std::vector<std::uint32_t>& index, const PointCloud& rows) {
+    Bytes out;
+    out.put_vector(index);
+    out.put_vector(rows.positions);
+    out.put_vector(rows.normals);
+    out.put_vector(rows.scales);
+    out.put_vector(rows.colors);
+    out.put_vector(rows.confidences);
+    return std::move(out.str());
+}
+
+void write_tile_plan(const std::string& dir, const TilePlan& plan) {
+    write_file(plan_path(dir), plan_bytes(plan));  // last: a job with a plan is whole
+}
+
 std::size_t write_tile_job(const PointCloud& cloud, const TiledOptions& options,
                            const std::string& dir, int* tile) {
     if (options.tile == 0) throw InvalidArgument("tile job: no tile size (tile = 0)");
@@ -209,18 +221,11 @@ std::size_t write_tile_job(const PointCloud& cloud, const TiledOptions& options,
     for (std::size_t j = 0; j < b.keys.size(); ++j) {
         const std::vector<std::uint32_t> index(b.order.begin() + std::ptrdiff_t(b.begin[j]),
                                                b.order.begin() + std::ptrdiff_t(b.begin[j + 1]));
-        const PointCloud rows = subset(cloud, index);
-        Bytes out;
-        out.str().append(kBucketTag, 8);
-        out.put_vector(index);
-        out.put_vector(rows.positions);
-        out.put_vector(rows.normals);
-        out.put_vector(rows.scales);
-        out.put_vector(rows.colors);
-        out.put_vector(rows.confidences);
-        write_file(bucket_path(dir, j), out.str());
+        std::string bytes(kBucketTag, 8);
+        bytes += bucket_section(index, subset(cloud, index));
+        write_file(bucket_path(dir, j), bytes);
     }
-    write_file(plan_path(dir), plan_bytes(plan));  // last: a job with a plan is whole
+    write_tile_plan(dir, plan);
     if (tile) *tile = plan.setup.grid.n;
     return plan.tiles.size();
 }

@@ -56,6 +56,8 @@ int sample_margin(const KernelFrame& frame) {
 }
 
 
+}  // namespace
+
 TileKey tile_of(const openvdb::Vec3d& c, const TileGrid& g) {
     TileKey k;
     for (int a = 0; a < 3; ++a) {
@@ -69,7 +71,16 @@ void sort_unique(std::vector<TileKey>& v) {
     v.erase(std::unique(v.begin(), v.end()), v.end());
 }
 
-}  // namespace
+void add_tiles_near(const openvdb::Vec3d& c, const TileGrid& g, std::vector<TileKey>& out) {
+    const TileKey lo = tile_of(c - openvdb::Vec3d(g.reach), g);
+    const TileKey hi = tile_of(c + openvdb::Vec3d(g.reach), g);
+    if (lo == hi) return;  // its own tile, an occupied one
+    for (int x = lo[0]; x <= hi[0]; ++x) {
+        for (int y = lo[1]; y <= hi[1]; ++y) {
+            for (int z = lo[2]; z <= hi[2]; ++z) out.push_back({x, y, z});
+        }
+    }
+}
 
 Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g) {
     // A counting sort by tile, stable (increasing index within a tile): two passes over the
@@ -103,19 +114,10 @@ Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g) 
 
 std::vector<TileKey> tiles_to_visit(const PointCloud& cloud, const Buckets& b, const TileGrid& g,
                                     double voxel) {
-    const double reach = g.reach;
     std::vector<TileKey> out = b.keys;
     const std::size_t flush = 2 * b.keys.size() + (std::size_t(1) << 20);
     for (std::size_t i = 0; i < cloud.size(); ++i) {
-        const openvdb::Vec3d c = kernel_centre(cloud, i, voxel);
-        const TileKey lo = tile_of(c - openvdb::Vec3d(reach), g);
-        const TileKey hi = tile_of(c + openvdb::Vec3d(reach), g);
-        if (lo == hi) continue;  // its own tile, an occupied one
-        for (int x = lo[0]; x <= hi[0]; ++x) {
-            for (int y = lo[1]; y <= hi[1]; ++y) {
-                for (int z = lo[2]; z <= hi[2]; ++z) out.push_back({x, y, z});
-            }
-        }
+        add_tiles_near(kernel_centre(cloud, i, voxel), g, out);
         if (out.size() > flush) sort_unique(out);
     }
     sort_unique(out);
@@ -223,12 +225,16 @@ namespace {
 /// halo should fit the memory budget left beside the cloud. A surface crossing a cube of E
 /// voxels touches about c (E / 8)^2 of its leaves (c = 1 for a plane through it; 3 allows for
 /// a folded surface), each costing SplatOptions::kBytesPerLeaf through the tile's stages.
-int auto_tile(const PointCloud& cloud, const SplatOptions& splat, int halo) {
-    const double budget = double(memory_budget(splat)) - 1.5 * double(cloud.memory_bytes());
+}  // namespace
+
+int auto_tile(std::size_t beside, const SplatOptions& splat, int halo) {
+    const double budget = double(memory_budget(splat)) - 1.5 * double(beside);
     const double leaves = std::max(0.0, budget) / double(SplatOptions::kBytesPerLeaf) / 3.0;
     const double edge = 8.0 * std::sqrt(leaves) - 2.0 * halo;
     return std::max(32, int(std::min(edge, 65536.0)) / 8 * 8);
 }
+
+namespace {
 
 bool any_usable(const PointCloud& part) {
     for (std::size_t i = 0; i < part.size(); ++i) {
@@ -294,7 +300,19 @@ TileGrid tile_margins(const KernelFrame& frame, const CloseOptions& close) {
     return g;
 }
 
-TileSetup tile_setup(const PointCloud& cloud, const TiledOptions& options) {
+int tile_edge(const TiledOptions& options, std::size_t beside, int halo) {
+    return options.tile == kAutoTile ? auto_tile(beside, options.splat, halo)
+                                     : round_up(options.tile, 8);
+}
+
+void place_grid(TileGrid& g, const Vec3f& lowest_point, double voxel) {
+    for (int a = 0; a < 3; ++a) {
+        const double lowest = double(lowest_point[a]) / voxel - g.reach;
+        g.origin[std::size_t(a)] = int(std::floor(lowest / 8.0)) * 8;
+    }
+}
+
+void check_tiled(const TiledOptions& options, std::size_t points) {
     if (options.close.solid_radius > 0) {
         throw InvalidArgument("tiles: a solid closing (--solid-close) needs the whole surface "
                               "at once and cannot run tile by tile");
@@ -302,20 +320,17 @@ TileSetup tile_setup(const PointCloud& cloud, const TiledOptions& options) {
     if (options.tile == 0 || options.tile < kAutoTile) {
         throw InvalidArgument("tiles: the tile edge must be positive (or kAutoTile)");
     }
-    if (cloud.size() >= std::size_t(UINT32_MAX)) {
-        throw InvalidArgument("tiles: more than 2^32 points");
-    }
+    if (points >= std::size_t(UINT32_MAX)) throw InvalidArgument("tiles: more than 2^32 points");
+}
+
+TileSetup tile_setup(const PointCloud& cloud, const TiledOptions& options) {
+    check_tiled(options, cloud.size());
     TileSetup setup;
     setup.frame = kernel_frame(cloud, options.splat);
     TileGrid& g = setup.grid;
     g = tile_margins(setup.frame, options.close);
-    g.n = options.tile == kAutoTile ? auto_tile(cloud, options.splat, g.halo)
-                                    : round_up(options.tile, 8);
-    const BBox box = bounding_box(cloud.positions);
-    for (int a = 0; a < 3; ++a) {
-        const double lowest = double(box.min[a]) / options.splat.voxel_size - g.reach;
-        g.origin[std::size_t(a)] = int(std::floor(lowest / 8.0)) * 8;
-    }
+    g.n = tile_edge(options, cloud.memory_bytes(), g.halo);
+    place_grid(g, bounding_box(cloud.positions).min, options.splat.voxel_size);
     return setup;
 }
 

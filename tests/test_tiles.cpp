@@ -270,3 +270,256 @@ TEST_CASE("tiles: planes and decimation after the tiles give the untiled mesh to
         check_same_mesh(whole.mesh, tiled.mesh, voxel);
     }
 }
+
+namespace {
+
+/// A random unit vector.
+Vec3f random_direction(std::mt19937& rng) {
+    std::normal_distribution<double> g(0.0, 1.0);
+    const double x = g(rng), y = g(rng), z = g(rng);
+    const double len = std::max(1e-9, std::sqrt(x * x + y * y + z * z));
+    return {float(x / len), float(y / len), float(z / len)};
+}
+
+/// A cloud a tiled run streams (its points read a chunk at a time, the point stages run a
+/// region at a time): a sphere and a plane below it sampled at random with exact normals, a
+/// sparse plane above, strays in the volume around them, a tight cluster of strays (the
+/// planarity rule's), exact copies of surface points, all shuffled. With `scales`, a per-point
+/// scale of which every tenth is 0 (unknown: the kNN scale replaces it).
+PointCloud streamable_cloud(std::uint32_t seed, bool scales) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<float> u(-1.6f, 1.6f);
+    std::normal_distribution<float> g(0.0f, 1.0f);
+    std::vector<Vec3f> p, n;
+    for (int i = 0; i < 30000; ++i) {
+        const Vec3f d = random_direction(rng);
+        p.push_back(d);
+        n.push_back(d);
+    }
+    for (int i = 0; i < 10000; ++i) {
+        p.push_back({u(rng), u(rng), -1.3f});
+        n.push_back({0.0f, 0.0f, 1.0f});
+    }
+    for (int i = 0; i < 400; ++i) {
+        p.push_back({u(rng), u(rng), u(rng)});
+        n.push_back(random_direction(rng));
+    }
+    for (int i = 0; i < 20; ++i) {  // a sparse plane: its neighbours are about a cell away
+        p.push_back({u(rng), u(rng), 2.5f});
+        n.push_back({0.0f, 0.0f, 1.0f});
+    }
+    for (int i = 0; i < 40; ++i) {
+        p.push_back({1.3f + 0.02f * g(rng), 1.3f + 0.02f * g(rng), 1.3f + 0.02f * g(rng)});
+        n.push_back({1.0f, 0.0f, 0.0f});
+    }
+    for (int i = 0; i < 300; ++i) {
+        const std::size_t j = std::size_t(rng()) % 40000;
+        p.push_back(p[j]);
+        n.push_back(n[j]);
+    }
+    std::vector<std::size_t> order(p.size());
+    std::iota(order.begin(), order.end(), std::size_t(0));
+    std::shuffle(order.begin(), order.end(), rng);
+    PointCloud out;
+    for (std::size_t i : order) {
+        out.positions.push_back(p[i]);
+        out.normals.push_back(n[i]);
+    }
+    if (scales) {
+        std::vector<float> s(out.size());
+        for (std::size_t i = 0; i < s.size(); ++i) {
+            s[i] = i % 10 == 0 ? 0.0f : 0.01f + 0.001f * float(i % 7);
+        }
+        out.scales = std::move(s);
+    }
+    return out;
+}
+
+}  // namespace
+
+TEST_CASE("streamed tiles: outliers, scales and the voxel a region at a time give the untiled mesh",
+          "[tiles][stream]") {
+    TempDir dir;
+    struct Case {
+        const char* name;
+        bool outliers, scales;
+        ScaleMode scale;
+        double voxel;
+    };
+    for (const Case& k : {Case{"defaults", true, false, ScaleMode::automatic, 0.03},
+                          Case{"no outliers", false, false, ScaleMode::automatic, 0.03},
+                          Case{"file scales", true, true, ScaleMode::automatic, 0.03},
+                          Case{"file scales, no outliers", false, true, ScaleMode::automatic, 0.03},
+                          Case{"knn scales over the file's", true, true, ScaleMode::knn, 0.03},
+                          Case{"no scales", true, true, ScaleMode::none, 0.03},
+                          Case{"automatic voxel", true, false, ScaleMode::automatic, 0.0}}) {
+        INFO(k.name);
+        write_points(dir.file("in.ply"), streamable_cloud(7, k.scales));
+        PipelineOptions o;
+        o.write_vdb = false;
+        o.outliers.enabled = k.outliers;
+        o.normals.scale = k.scale;
+        o.splat.voxel_size = k.voxel;
+        const RunResult whole = run(dir.file("in.ply"), dir.file("whole.ply"), o);
+        CHECK(whole.result.stream_units == 0);
+        o.tile = 48;
+        const RunResult fits = run(dir.file("in.ply"), dir.file("fits.ply"), o);
+        CHECK(fits.result.stream_units == 0);  // automatic: the points fit in memory
+        o.stream = StreamMode::always;
+        const RunResult tiled = run(dir.file("in.ply"), dir.file("tiled.ply"), o);
+        CHECK(read_bytes(dir.file("fits.ply")) == read_bytes(dir.file("tiled.ply")));
+        CHECK(tiled.result.tiles > 1);
+        CHECK(tiled.result.stream_units >= 8);  // regions, each with its halo
+        CHECK(tiled.result.stream_largest < 41040);
+        CHECK(tiled.result.outliers.statistical == whole.result.outliers.statistical);
+        CHECK(tiled.result.outliers.planarity == whole.result.outliers.planarity);
+        CHECK(tiled.result.voxel_size == whole.result.voxel_size);
+        if (k.outliers) CHECK(whole.result.outliers.planarity > 10);
+        check_same_mesh(read_mesh(dir.file("whole.ply")), read_mesh(dir.file("tiled.ply")),
+                        whole.result.voxel_size);
+    }
+    // Any thread count: the same bytes.
+    PipelineOptions o;
+    o.write_vdb = false;
+    o.splat.voxel_size = 0.03;
+    o.tile = 48;
+    o.stream = StreamMode::always;
+    o.threads = 1;
+    run(dir.file("in.ply"), dir.file("one.ply"), o);
+    o.threads = 2;
+    run(dir.file("in.ply"), dir.file("two.ply"), o);
+    CHECK(read_bytes(dir.file("one.ply")) == read_bytes(dir.file("two.ply")));
+}
+
+TEST_CASE("streamed tiles: points without normals are read whole, and still tiled exactly",
+          "[tiles][stream]") {
+    TempDir dir;
+    PointCloud c = streamable_cloud(3, false);
+    c.normals.clear();
+    write_points(dir.file("in.ply"), c);
+    PipelineOptions o;
+    o.write_vdb = false;
+    o.splat.voxel_size = 0.04;
+    run(dir.file("in.ply"), dir.file("whole.ply"), o);
+    o.tile = 48;
+    o.stream = StreamMode::always;
+    const RunResult tiled = run(dir.file("in.ply"), dir.file("tiled.ply"), o);
+    CHECK(tiled.result.stream_units == 0);  // the orientation of estimated normals spans the cloud
+    CHECK(tiled.result.tiles > 1);
+    check_same_mesh(read_mesh(dir.file("whole.ply")), read_mesh(dir.file("tiled.ply")), 0.04);
+}
+
+namespace {
+
+/// The samples of a tile job (every bucket's, by their row in the cloud): the columns its
+/// tiles splat. Reads the layout of tile_jobs.cpp: a tag, then sections of arrays, each a
+/// 64-bit length and the values.
+PointCloud job_samples(const std::string& dir, std::size_t buckets) {
+    std::vector<std::pair<std::uint32_t, std::size_t>> rows;
+    std::vector<Vec3f> p, n;
+    std::vector<float> s;
+    for (std::size_t j = 0; j < buckets; ++j) {
+        const std::string bytes = read_bytes(dir + "/bucket-" + std::to_string(j) + ".bin");
+        std::size_t at = 8;
+        const auto array = [&](auto& out) {
+            using T = typename std::decay_t<decltype(out)>::value_type;
+            std::uint64_t len = 0;
+            std::memcpy(&len, bytes.data() + at, 8);
+            at += 8;
+            const std::size_t first = out.size();
+            out.resize(first + len);
+            std::memcpy(out.data() + first, bytes.data() + at, len * sizeof(T));
+            at += len * sizeof(T);
+        };
+        while (at < bytes.size()) {
+            std::vector<std::uint32_t> index;
+            std::vector<Vec3f> colors;
+            std::vector<float> confidences;
+            array(index);
+            for (std::uint32_t i : index) rows.push_back({i, rows.size()});
+            array(p);
+            array(n);
+            array(s);
+            array(colors);
+            array(confidences);
+        }
+    }
+    std::sort(rows.begin(), rows.end());
+    PointCloud c;
+    for (const auto& r : rows) {
+        c.positions.push_back(p[r.second]);
+        c.normals.push_back(n[r.second]);
+        if (!s.empty()) c.scales.push_back(s[r.second]);
+    }
+    return c;
+}
+
+template <typename T>
+bool same_bits(const Column<T>& a, const Column<T>& b) {
+    return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(T)) == 0;
+}
+
+/// A streamed tile job of `input` (o.tile set) holds the samples the in-memory point stages
+/// leave in the cloud, bit for bit.
+void check_streamed_samples(const std::string& input, const std::string& job, PipelineOptions o) {
+    o.stream = StreamMode::always;
+    REQUIRE(::mkdir(job.c_str(), 0755) == 0);
+    const TileJob prepared = prepare_tiles(input, job, o);
+    CHECK(prepared.result.stream_units >= 8);
+    std::size_t buckets = 0;
+    while (file_exists(job + "/bucket-" + std::to_string(buckets) + ".bin")) ++buckets;
+    const PointCloud streamed = job_samples(job, buckets);
+    PointCloud whole = read_points(input).cloud;
+    o.tile = 0;
+    const PipelineResult r = reconstruct(whole, o);  // leaves the samples in `whole`
+    CHECK(prepared.result.outliers.statistical == r.outliers.statistical);
+    CHECK(prepared.result.outliers.planarity == r.outliers.planarity);
+    CHECK(same_bits(streamed.positions, whole.positions));
+    CHECK(same_bits(streamed.normals, whole.normals));
+    CHECK(same_bits(streamed.scales, whole.scales));
+}
+
+}  // namespace
+
+TEST_CASE("streamed tiles: the job's samples are the in-memory point stages', bit for bit",
+          "[tiles][stream]") {
+    TempDir dir;
+    for (const bool outliers : {true, false}) {
+        INFO("outliers " << outliers);
+        write_points(dir.file("in.ply"), streamable_cloud(11, true));
+        PipelineOptions o;
+        o.outliers.enabled = outliers;
+        o.splat.voxel_size = 0.03;
+        o.tile = 48;
+        check_streamed_samples(dir.file("in.ply"), dir.file(outliers ? "job1" : "job0"), o);
+    }
+}
+
+TEST_CASE("streamed tiles: lists reaching past a region's halo are searched again, wider",
+          "[tiles][stream]") {
+    // A plane of 400,000 random points with a hole at its centre, where the regions of the
+    // point stages meet, holding 40 sparse points: their 16 nearest lie further than a cell,
+    // past the halo of one cell around their region.
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<float> u(-10.0f, 10.0f), v(-4.0f, 4.0f);
+    PointCloud c;
+    while (c.size() < 400000) {
+        const float x = u(rng), y = u(rng);
+        if (x * x + y * y < 16.0f) continue;
+        c.positions.push_back({x, y, 0.0f});
+        c.normals.push_back({0.0f, 0.0f, 1.0f});
+    }
+    for (int i = 0; i < 40;) {
+        const float x = v(rng), y = v(rng);
+        if (x * x + y * y >= 16.0f) continue;
+        c.positions.push_back({x, y, 0.0f});
+        c.normals.push_back({0.0f, 0.0f, 1.0f});
+        ++i;
+    }
+    TempDir dir;
+    write_points(dir.file("in.ply"), c);
+    PipelineOptions o;
+    o.splat.voxel_size = 0.25;
+    o.tile = 64;
+    check_streamed_samples(dir.file("in.ply"), dir.file("job"), o);
+}

@@ -11,6 +11,7 @@
 #include "vdbrecon/io.h"
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/normals.h"
+#include "vdbrecon/pipeline.h"
 
 namespace vdbrecon {
 
@@ -26,6 +27,11 @@ inline const Choices<NormalMode>& normal_mode_choices() {
 inline const Choices<ScaleMode>& scale_mode_choices() {
     static const Choices<ScaleMode> c = {
         {"auto", ScaleMode::automatic}, {"knn", ScaleMode::knn}, {"none", ScaleMode::none}};
+    return c;
+}
+inline const Choices<StreamMode>& stream_mode_choices() {
+    static const Choices<StreamMode> c = {
+        {"auto", StreamMode::automatic}, {"on", StreamMode::always}, {"off", StreamMode::never}};
     return c;
 }
 inline const Choices<KnnBackend>& knn_backend_choices() {

@@ -51,6 +51,7 @@ struct ReadResult {
     std::string format;                 ///< e.g. "ply binary_little_endian", "xyz", "obj"
     std::size_t rows = 0;               ///< rows in the file (before dropping)
     std::size_t dropped_nonfinite = 0;  ///< rows dropped for NaN/inf coordinates
+    std::size_t first_dropped = 0;      ///< the first of them (when there are)
     std::size_t invalid_normals = 0;    ///< normals that were zero or NaN (set to 0,0,0)
     std::size_t bytes = 0;              ///< memory of the cloud as read (its arrays)
     /// The scan each point came from (PLY property `scan`, `scan_id` or `scan_index`, as the

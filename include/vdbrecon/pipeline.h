@@ -29,6 +29,16 @@ namespace vdbrecon {
 /// Library version, "major.minor.patch".
 const char* version();
 
+/// Whether a tiled run from a file streams its input: reads it a chunk at a time and runs the
+/// stages on the points a region at a time, so that its memory is bounded by a region and a
+/// tile, not by the input. The same mesh either way; streaming takes about twice as long in
+/// the point stages. Only a PLY file whose points all have normals streams.
+enum class StreamMode {
+    automatic,  ///< when the points in memory would take more than half of splat.max_memory
+    always,     ///< whenever the input allows it
+    never,
+};
+
 struct PipelineOptions {
     ReadOptions read;
     OutlierOptions outliers;  ///< on by default
@@ -70,6 +80,8 @@ struct PipelineOptions {
     /// -1 = automatic: the largest edge whose tile should fit splat.max_memory beside the
     /// cloud. Not with a solid closing (close.solid_radius), which needs the whole surface.
     int tile = 0;
+    /// Tiled runs from a file (run(), prepare_tiles()): stream the input (see StreamMode).
+    StreamMode stream = StreamMode::automatic;
     /// Return the splatted (and closed) volumes in the result. false frees them as soon as the
     /// mesh is made and the volume callback has returned, which lowers the peak memory of the
     /// clean stage by the grids' size; the CLI, which has written them to .vdb files by then,
@@ -119,6 +131,11 @@ struct PipelineResult {
     int tile_halo = 0;          ///< ... the halo of samples around each tile, voxels
     std::size_t tiles = 0;      ///< ... tiles that had samples near them
     std::size_t max_tile_points = 0;  ///< ... samples of the largest tile with its halo
+    /// Tiled runs that streamed their input (never held whole): the regions the point stages
+    /// ran on one at a time (0: the cloud was in memory), and the points of the largest with
+    /// its halo.
+    std::size_t stream_units = 0;
+    std::size_t stream_largest = 0;
     std::vector<StageTiming> timings;
 };
 

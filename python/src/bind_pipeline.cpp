@@ -1,5 +1,6 @@
 // The whole reconstruction (vdbrecon/pipeline.h).
 #include "bind.h"
+#include "vdbrecon/choices.h"
 #include "vdbrecon/pipeline.h"
 
 namespace vdbrecon::python {
@@ -48,6 +49,11 @@ void bind_pipeline(py::module_& m) {
                "multiple of 8), each from the samples within a halo of it: the same mesh in "
                "less memory, no volumes kept; 0 = untiled, -1 = the largest that fits "
                "splat.max_memory (CLI --tile N|auto).")
+        .choice("stream", &PipelineOptions::stream, stream_mode_choices(),
+                "Tiled runs from a file (run(), prepare_tiles()): read a PLY file with normals "
+                "a chunk at a time and run the point stages a region at a time, memory bounded "
+                "by a region, the same mesh; 'auto' when the points would take over half of "
+                "splat.max_memory, 'on' whenever the file allows it, 'off' (CLI --stream).")
         .field("threads", &PipelineOptions::threads,
                "Worker threads, 0 = all cores; the output does not depend on it (CLI --threads).")
         .field("write_vdb", &PipelineOptions::write_vdb,

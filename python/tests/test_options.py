@@ -34,6 +34,7 @@ CLI_FLAGS = {
     "--fill-holes": (vdbrecon.PipelineOptions, "fill_holes"),
     "--watertight": (vdbrecon.PipelineOptions, "watertight"),
     "--tile": (vdbrecon.PipelineOptions, "tile"),
+    "--stream": (vdbrecon.PipelineOptions, "stream"),
     "--planes": (vdbrecon.PlaneOptions, "enabled"),
     "--plane-angle": (vdbrecon.PlaneOptions, "angle"),
     "--plane-distance": (vdbrecon.PlaneOptions, "distance"),

@@ -73,6 +73,29 @@ class FileBytes {
 ReadResult finalize_points(RawPoints&& raw, const std::string& path, const std::string& format,
                            const ReadOptions& options);
 
+/// The warnings of a read (rows dropped, normals to re-estimate), or its error when no point
+/// is left.
+void report_read(const std::string& path, const ReadResult& result);
+
+/// Handed a chunk of a streamed file's points in pass `pass`: rows [first, ...) of the file
+/// (those dropped for non-finite coordinates left out), as read_points would have them.
+using PointsSink = std::function<void(ReadResult& chunk, std::size_t first, int pass)>;
+
+/// A PLY file's points a chunk at a time (kStreamRows rows), in the local frame of the whole
+/// file, so that the chunks' clouds joined are read_points' cloud; `passes` times over, after a
+/// first pass for the frame. No more than a chunk of rows in memory. `totals` gets the format,
+/// the frame (its cloud's origin, and no point) and the counts. Returns false, having read
+/// nothing, for a file of another format. Throws as read_points (its warnings and errors about
+/// the whole file come after the chunks of the first pass). `frame` gets what the frame's pass
+/// found. With `need_normals`, a file whose points have no normals is of another format.
+struct StreamFrame {
+    std::size_t rows = 0;   ///< rows with finite coordinates (the points of the cloud)
+    double diagonal = 0.0;  ///< of their bounding box, world units
+};
+bool stream_points(const std::string& path, const ReadOptions& options, const PointsSink& sink,
+                   ReadResult& totals, int passes = 1, StreamFrame* frame = nullptr,
+                   bool need_normals = false);
+
 /// Converts raw mesh rows into a Mesh (faces must index existing rows; checked by the reader).
 Mesh finalize_mesh(RawPoints&& raw, const std::string& path);
 
@@ -191,10 +214,20 @@ std::string format_number(double v);
 /// Told that the bytes before a point of the content will not be read again.
 using Consumed = std::function<void(const char* upto)>;
 
+/// Handed the vertex rows [first, first + chunk.rows()) of a file, a chunk at a time, instead of
+/// their being kept (a streamed read: the whole file's rows are never in memory at once).
+using RowSink = std::function<void(RawPoints& chunk, std::size_t first)>;
+
 /// Reads a PLY file into raw rows; `want_faces` also reads the face element. `consumed` (may be
-/// empty) hears of the vertex rows read, a chunk at a time.
+/// empty) hears of the vertex rows read, a chunk at a time. With a `sink`, the vertex rows go to
+/// it, kStreamRows at a time, and the RawPoints returned holds none.
 RawPoints read_ply_raw(const std::string& path, std::string_view content, bool want_faces,
-                       std::string& format, const Consumed& consumed = {});
+                       std::string& format, const Consumed& consumed = {},
+                       const RowSink& sink = {});
+constexpr std::size_t kStreamRows = std::size_t(1) << 20;
+/// Whether a PLY file's vertex element has normals (nx ny nz or an alias). Throws FormatError
+/// for a bad header.
+bool ply_has_normals(const std::string& path, std::string_view content);
 /// Reads XYZ / PTS text.
 RawPoints read_xyz_raw(const std::string& path, std::string_view content);
 /// Reads OBJ (v, vn, f).

@@ -4,6 +4,9 @@
 // splat sums them.
 #pragma once
 
+#include <cstddef>
+#include <vector>
+
 #include "vdbrecon/splat.h"
 #include "vdbrecon/types.h"
 
@@ -17,6 +20,17 @@ struct KernelFrame {
 
 /// The frame of a whole cloud (throws as splat() does for a cloud it refuses).
 KernelFrame kernel_frame(const PointCloud& cloud, const SplatOptions& options);
+
+/// What kernel_frame takes its statistics from, per point of `cloud`: its kernel's sigma
+/// (voxels; -1 for a point without a usable kernel) and support radius (voxels; 0 without);
+/// max_index is raised to the largest |coordinate| of a kernel centre (index space).
+void kernel_sizes(const PointCloud& cloud, const SplatOptions& options, std::vector<float>& sigma,
+                  std::vector<float>& radius, double& max_index);
+
+/// The splat's refusals of a cloud's kernels: none usable (skipped == n), a grid too large for
+/// OpenVDB's index range, a voxel below SplatOptions::kMinVoxelSize.
+void check_kernel_range(double max_index, float max_r, std::size_t skipped, std::size_t n,
+                        double voxel);
 
 /// splat() in a given frame instead of the cloud's own: every voxel whose kernels are all in
 /// `cloud` gets the value the whole cloud's splat gives it, bit for bit.

@@ -39,11 +39,30 @@ class Spool {
         return v;
     }
 
+    /// A spool used as a plain scratch file instead of blocks: n bytes at an offset (the file
+    /// grows as needed; bytes never written read as zeros). Not mixed with add() on one spool.
+    void write_at(std::uint64_t offset, const void* from, std::size_t n);
+    void read_at(std::uint64_t offset, void* to, std::size_t n) const;
+
   private:
     void read(std::size_t i, char* to) const;
     std::FILE* file_ = nullptr;
     std::string what_, dir_;
     std::vector<std::uint64_t> offsets_{0};
+};
+
+/// A temporary directory in $TMPDIR (else /tmp), removed with what it holds when destroyed.
+/// Throws IoError naming the directory when none can be made; `what` starts its messages.
+class ScratchDir {
+  public:
+    explicit ScratchDir(const std::string& what);
+    ~ScratchDir();
+    ScratchDir(const ScratchDir&) = delete;
+    ScratchDir& operator=(const ScratchDir&) = delete;
+    const std::string& path() const { return path_; }
+
+  private:
+    std::string path_;
 };
 
 }  // namespace vdbrecon::detail

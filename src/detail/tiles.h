@@ -66,6 +66,20 @@ struct TileSetup {
 /// The halo and reach of tiles for these kernels and options (n and origin left 0).
 TileGrid tile_margins(const KernelFrame& frame, const CloseOptions& close);
 
+/// The tile edge for `--tile auto`: the largest multiple of 8 (at least 32) whose tile with its
+/// halo should fit the memory budget left beside `beside` bytes held through the tiles.
+int auto_tile(std::size_t beside, const SplatOptions& splat, int halo);
+
+/// The tile edge: options.tile rounded up to a multiple of 8, or auto_tile's first guess.
+int tile_edge(const TiledOptions& options, std::size_t beside, int halo);
+
+/// Sets g.origin from the cloud's lowest corner (g.reach set).
+void place_grid(TileGrid& g, const Vec3f& lowest_point, double voxel);
+
+/// Throws InvalidArgument for options a tiled run refuses (a solid closing, no tile edge) and for
+/// 2^32 points or more.
+void check_tiled(const TiledOptions& options, std::size_t points);
+
 /// Checks the options and sets the tiles of `cloud` up (kAutoTile: auto_tile's first guess).
 TileSetup tile_setup(const PointCloud& cloud, const TiledOptions& options);
 
@@ -101,6 +115,16 @@ void for_each_bucket_near(const std::vector<TileKey>& keys, const TileKey& t, co
     }
 }
 
+/// The tile holding a kernel centre (index space).
+TileKey tile_of(const openvdb::Vec3d& c, const TileGrid& g);
+
+/// Sorts v and drops repeated keys.
+void sort_unique(std::vector<TileKey>& v);
+
+/// Appends the tiles other than its own within g.reach voxels of a kernel centre (tiles_to_visit
+/// is those of every sample, and the occupied tiles).
+void add_tiles_near(const openvdb::Vec3d& c, const TileGrid& g, std::vector<TileKey>& out);
+
 /// The points of a cloud bucketed by the tile of their kernel centre.
 struct Buckets {
     std::vector<TileKey> keys;         ///< occupied tiles, sorted
@@ -133,6 +157,34 @@ void append(ClassifiedSurface& all, ClassifiedSurface&& piece);
 TiledResult tiled_surface(PointCloud& cloud, const TiledOptions& options, bool release = false);
 
 // ---- Tile jobs (tile_jobs.cpp): the same tiles in other processes --------------------------
+
+/// The tiles' options from the pipeline's (pipeline.cpp), at the voxel and sample spacing the
+/// point stages gave.
+TiledOptions tiled_options(const PipelineOptions& options, const SplatOptions& splat,
+                           double spacing);
+
+/// choose_voxel_size for a cloud of this bounding-box diagonal (pipeline.cpp).
+double voxel_for(double diag, double spacing, const PipelineOptions& options);
+
+/// What every tile task reads first (<dir>/plan.bin).
+struct TilePlan {
+    double voxel = 0.0;
+    Vec3d origin{0.0, 0.0, 0.0};
+    double sample_spacing = 0.0;
+    TileSetup setup;
+    std::uint64_t points = 0;
+    std::vector<TileKey> tiles;    ///< to visit, in order
+    std::vector<TileKey> buckets;  ///< occupied, sorted (bucket-<j>.bin)
+};
+
+/// Writes the plan, the last file of a job (a job with a plan is whole).
+void write_tile_plan(const std::string& dir, const TilePlan& plan);
+
+/// Occupied tile j's bucket file in a job's directory: its tag, then sections of samples (each
+/// their rows in the whole cloud, increasing, and their columns), read one after another.
+std::string bucket_path(const std::string& dir, std::size_t j);
+std::string bucket_tag();
+std::string bucket_section(const std::vector<std::uint32_t>& index, const PointCloud& rows);
 
 /// Writes the oriented cloud into `dir` bucketed by tile, with the plan every tile shares
 /// (options.tile: an edge, or kAutoTile for auto_tile's guess); returns the number of tiles

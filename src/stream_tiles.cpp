@@ -1,0 +1,1010 @@
+// Streamed tile jobs (see detail/stream_tiles.h).
+//
+// Passes over the input, a chunk of rows at a time (detail::stream_points: the first finds the
+// local frame): the box and count; the points per cell; the points into a scratch file grouped
+// by cell (cubes holding about kCellPoints points of a surface), cells in key order, each cell's
+// points in the cloud's order. Then passes over regions ("units", boxes of G^3 cells), each
+// loaded with a halo of cells around it:
+//   1. each point's d_i (mean distance to its k nearest) and squared distance to the k-th;
+//      then the median d of the cloud (the planarity rule's), by selection over the scratch;
+//   2. the outlier rules and the kNN scale (the mean distance to the nearest kept points); then
+//      the density spacing and the voxel;
+//   3. the kernel sizes of the kept samples; then the kernel frame and the tile grid;
+//   4. the kept samples into the tile job's buckets.
+//
+// Exactness. A point's k nearest among the loaded points are its k nearest in the cloud when
+// the k-th is closer than the nearest face of the loaded box beyond which there are points (a
+// point outside is at least that far): its list is certified. Each result reads only certified
+// lists: d_i its own; a verdict its own list and the d_j of its neighbours (pass 1's, exact in
+// their own unit); the scale the lists of the points its walk passes (whether they are kept). A
+// unit that needs a list not certified is loaded again with a wider halo. The loaded points keep
+// the cloud's order (sorted by row), so ties between equal distances break by index as in the
+// whole cloud, every sum is taken in the same order, and the results are those of the stages on
+// the whole cloud (outliers.cpp, normals.cpp, kernel_frame), bit for bit.
+#include "detail/stream_tiles.h"
+
+#include <sys/stat.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <deque>
+#include <functional>
+#include <limits>
+#include <map>
+#include <numeric>
+#include <unordered_map>
+
+#include "detail/io_common.h"
+#include "detail/outlier_rules.h"
+#include "detail/radix_sort.h"
+#include "detail/splat_frame.h"
+#include "detail/spool.h"
+#include "detail/tiles.h"
+#include "vdbrecon/error.h"
+#include "vdbrecon/knn.h"
+#include "vdbrecon/log.h"
+
+namespace vdbrecon::detail {
+namespace {
+
+using Key = std::array<int, 3>;
+
+struct KeyHash {
+    std::size_t operator()(const Key& k) const {
+        return std::size_t(k[0]) * 73856093u ^ std::size_t(k[1]) * 19349663u ^
+               std::size_t(k[2]) * 83492791u;
+    }
+};
+
+/// Points a cell holds on average, were the cloud a surface spread evenly over its box.
+constexpr double kCellPoints = 1024.0;
+
+/// Thrown inside, and caught by prepare_streamed(), when the file turns out not to be
+/// streamable.
+struct NotStreamable {
+    std::string why;
+};
+
+/// A record's columns: its row in the cloud (uint32), position and normal, and those of the
+/// optional columns the file has.
+struct Layout {
+    bool colors = false, scales = false, confidences = false;
+    std::size_t bytes() const {
+        return 28 + (colors ? 12 : 0) + (scales ? 4 : 0) + (confidences ? 4 : 0);
+    }
+};
+
+/// Points of the store loaded for a region, in the cloud's order.
+struct Loaded {
+    PointCloud cloud;
+    std::vector<std::uint32_t> row;  ///< each point's row in the whole cloud (increasing)
+    std::vector<char> core;          ///< whether it lies in the region, not the halo
+    /// The cells read, in the store's order: their first record and size, and whether the
+    /// region holds them; and where each loaded point was among their records.
+    std::vector<std::array<std::uint64_t, 3>> ranges;
+    std::vector<std::uint32_t> order;
+    Key lo{}, hi{};  ///< the cells loaded (a box)
+    std::size_t size() const { return row.size(); }
+};
+
+/// The cloud on disk, grouped by cell.
+class CellStore {
+  public:
+    CellStore(Layout layout, double edge)
+        : layout_(layout), edge_(edge), file_("tiles: the points by cell") {}
+
+    double edge() const { return edge_; }
+    bool has_scales() const { return layout_.scales; }
+    const std::vector<Key>& keys() const { return keys_; }
+    std::uint64_t cell_size(std::size_t j) const { return begin_[j + 1] - begin_[j]; }
+    std::uint64_t points() const { return begin_.empty() ? 0 : begin_.back(); }
+    const Key& lowest() const { return lowest_; }
+    const Key& highest() const { return highest_; }
+
+    Key key_of(const Vec3f& p) const {
+        Key k;
+        for (int a = 0; a < 3; ++a) k[std::size_t(a)] = int(std::floor(double(p[a]) / edge_));
+        return k;
+    }
+
+    void count(const PointCloud& chunk) {
+        for (std::size_t i = 0; i < chunk.size(); ++i) ++counts_[key_of(chunk.positions[i])];
+    }
+
+    /// After count(): the cells' ranges.
+    void place() {
+        for (const auto& e : counts_) keys_.push_back(e.first);
+        std::sort(keys_.begin(), keys_.end());
+        begin_.assign(1, 0);
+        lowest_ = highest_ = keys_.front();
+        for (std::size_t j = 0; j < keys_.size(); ++j) {
+            begin_.push_back(begin_.back() + counts_[keys_[j]]);
+            counts_[keys_[j]] = j;  // from here on: the cell's number
+            for (std::size_t a = 0; a < 3; ++a) {
+                lowest_[a] = std::min(lowest_[a], keys_[j][a]);
+                highest_[a] = std::max(highest_[a], keys_[j][a]);
+            }
+        }
+        fill_.assign(begin_.begin(), begin_.end() - 1);
+    }
+
+    /// After place(): a chunk's points (rows first_row on) into their cells (a counting sort
+    /// of the chunk by cell, then a write per cell it touches).
+    void write(const PointCloud& chunk, std::uint32_t first_row) {
+        const std::size_t n = chunk.size(), rec = layout_.bytes();
+        std::vector<std::uint32_t> cell(n);
+        std::vector<std::size_t> at(keys_.size() + 1, 0);  // counts, then offsets
+        for (std::size_t i = 0; i < n; ++i) {
+            cell[i] = std::uint32_t(counts_.find(key_of(chunk.positions[i]))->second);
+            ++at[cell[i] + 1];
+        }
+        std::partial_sum(at.begin(), at.end(), at.begin());
+        const std::vector<std::size_t> start = at;
+        std::string bytes(n * rec, '\0');
+        for (std::size_t i = 0; i < n; ++i) {
+            pack(chunk, i, first_row + std::uint32_t(i), bytes.data() + at[cell[i]]++ * rec);
+        }
+        for (std::size_t j = 0; j < keys_.size(); ++j) {
+            const std::size_t count = start[j + 1] - start[j];
+            if (count == 0) continue;
+            file_.write_at(fill_[j] * rec, bytes.data() + start[j] * rec, count * rec);
+            fill_[j] += count;
+        }
+    }
+
+    /// The cells in the box [lo, hi] (fn(j) for occupied cell j, in key order).
+    template <typename Fn>
+    void cells_in(const Key& lo, const Key& hi, Fn&& fn) const {
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+            for (int y = lo[1]; y <= hi[1]; ++y) {
+                auto it = std::lower_bound(keys_.begin(), keys_.end(), Key{x, y, lo[2]});
+                for (; it != keys_.end() && (*it)[0] == x && (*it)[1] == y && (*it)[2] <= hi[2];
+                     ++it) {
+                    fn(std::size_t(it - keys_.begin()));
+                }
+            }
+        }
+    }
+
+    /// The points of the cells in [lo, hi]; those of the cells `core` (sorted) are the core.
+    Loaded load(const Key& lo, const Key& hi, const std::vector<std::size_t>& core_cells) const {
+        Loaded l;
+        l.lo = lo;
+        l.hi = hi;
+        std::uint64_t total = 0;
+        cells_in(lo, hi, [&](std::size_t j) {
+            const bool core = std::binary_search(core_cells.begin(), core_cells.end(), j);
+            l.ranges.push_back({begin_[j], cell_size(j), core ? 1u : 0u});
+            total += cell_size(j);
+        });
+        const std::size_t rec = layout_.bytes();
+        std::string bytes(std::size_t(total) * rec, '\0');
+        std::vector<char> core(total);
+        std::size_t o = 0;
+        for (const auto& r : l.ranges) {
+            file_.read_at(r[0] * rec, bytes.data() + o * rec, std::size_t(r[1]) * rec);
+            std::fill_n(core.begin() + std::ptrdiff_t(o), r[1], char(r[2]));
+            o += std::size_t(r[1]);
+        }
+        // In the cloud's order: (row, record) pairs sorted by row.
+        std::vector<std::array<std::uint32_t, 2>> by_row(total);
+        for (std::size_t i = 0; i < total; ++i) {
+            std::memcpy(&by_row[i][0], bytes.data() + i * rec, 4);
+            by_row[i][1] = std::uint32_t(i);
+        }
+        int bits = 1;
+        while (bits < 32 && (std::uint64_t(1) << bits) < points()) ++bits;
+        radix_sort(by_row, bits, [](const std::array<std::uint32_t, 2>& e) { return e[0]; });
+        l.order.resize(total);
+        for (std::size_t i = 0; i < total; ++i) l.order[i] = by_row[i][1];
+        unpack(bytes, l);
+        l.core.resize(total);
+        for (std::size_t i = 0; i < total; ++i) l.core[i] = core[l.order[i]];
+        return l;
+    }
+
+    /// A scratch file of one value per point, in the store's order.
+    template <typename T>
+    class Side {
+      public:
+        explicit Side(const char* what) : file_(what) {}
+        /// The loaded points' values, in their order.
+        std::vector<T> read(const Loaded& l) const {
+            std::vector<T> flat(l.size());
+            std::size_t o = 0;
+            for (const auto& r : l.ranges) {
+                file_.read_at(r[0] * sizeof(T), flat.data() + o, std::size_t(r[1]) * sizeof(T));
+                o += std::size_t(r[1]);
+            }
+            std::vector<T> out(l.size());
+            for (std::size_t i = 0; i < l.size(); ++i) out[i] = flat[l.order[i]];
+            return out;
+        }
+        /// The core points' values (v has one per loaded point; the halo's are not written).
+        void write(const Loaded& l, const std::vector<T>& v) {
+            std::vector<T> flat(l.size());
+            for (std::size_t i = 0; i < l.size(); ++i) flat[l.order[i]] = v[i];
+            std::size_t o = 0;
+            for (const auto& r : l.ranges) {
+                if (r[2]) {
+                    file_.write_at(r[0] * sizeof(T), flat.data() + o,
+                                   std::size_t(r[1]) * sizeof(T));
+                }
+                o += std::size_t(r[1]);
+            }
+        }
+        /// Values [first, first + n) of the store's order.
+        void scan_range(std::uint64_t first, T* to, std::size_t n) const {
+            file_.read_at(first * sizeof(T), to, n * sizeof(T));
+        }
+        /// fn(values, first, count) over the first n values, a chunk at a time.
+        template <typename Fn>
+        void scan(std::uint64_t n, Fn&& fn) const {
+            constexpr std::uint64_t kChunk = std::uint64_t(1) << 20;
+            std::vector<T> buffer;
+            for (std::uint64_t first = 0; first < n; first += kChunk) {
+                buffer.resize(std::size_t(std::min(kChunk, n - first)));
+                file_.read_at(first * sizeof(T), buffer.data(), buffer.size() * sizeof(T));
+                fn(buffer.data(), first, buffer.size());  // (values, first index, count)
+            }
+        }
+
+      private:
+        Spool file_;
+    };
+
+  private:
+    void pack(const PointCloud& c, std::size_t i, std::uint32_t row, char* p) const {
+        const auto put = [&p](const void* v, std::size_t n) {
+            std::memcpy(p, v, n);
+            p += n;
+        };
+        put(&row, 4);
+        put(&c.positions[i], 12);
+        put(&c.normals[i], 12);
+        if (layout_.colors) put(&c.colors[i], 12);
+        if (layout_.scales) put(&c.scales[i], 4);
+        if (layout_.confidences) put(&c.confidences[i], 4);
+    }
+
+    void unpack(const std::string& bytes, Loaded& l) const {
+        const std::size_t n = l.order.size(), rec = layout_.bytes();
+        std::vector<Vec3f> pos(n), nrm(n), col(layout_.colors ? n : 0);
+        std::vector<float> sc(layout_.scales ? n : 0), conf(layout_.confidences ? n : 0);
+        l.row.resize(n);
+        for (std::size_t i = 0; i < n; ++i) {
+            const char* p = bytes.data() + std::size_t(l.order[i]) * rec;
+            const auto get = [&p](void* v, std::size_t len) {
+                std::memcpy(v, p, len);
+                p += len;
+            };
+            get(&l.row[i], 4);
+            get(&pos[i], 12);
+            get(&nrm[i], 12);
+            if (layout_.colors) get(&col[i], 12);
+            if (layout_.scales) get(&sc[i], 4);
+            if (layout_.confidences) get(&conf[i], 4);
+        }
+        l.cloud.positions = std::move(pos);
+        l.cloud.normals = std::move(nrm);
+        l.cloud.colors = std::move(col);
+        l.cloud.scales = std::move(sc);
+        l.cloud.confidences = std::move(conf);
+    }
+
+    Layout layout_;
+    double edge_;
+    std::unordered_map<Key, std::uint64_t, KeyHash> counts_;
+    std::vector<Key> keys_;
+    std::vector<std::uint64_t> begin_, fill_;
+    Key lowest_{}, highest_{};
+    mutable Spool file_;
+};
+
+/// The value of rank `rank` (what std::nth_element puts there) among values >= 0 that
+/// scan(fn) hands over a chunk at a time (fn(values, count)), in two scans: a histogram of
+/// their top 16 bits (such floats order like their bit patterns), then the values of the
+/// bucket that holds the rank.
+template <typename Scan>
+float select_rank(std::uint64_t rank, const Scan& scan) {
+    const auto bucket = [](float x) {
+        std::uint32_t bits;
+        std::memcpy(&bits, &x, sizeof bits);
+        return std::size_t(bits >> 16);
+    };
+    std::vector<std::uint64_t> count(std::size_t(1) << 16, 0);
+    scan([&](const float* v, std::size_t n) {
+        for (std::size_t i = 0; i < n; ++i) ++count[bucket(v[i])];
+    });
+    std::size_t b = 0;
+    std::uint64_t below = 0;
+    while (below + count[b] <= rank) below += count[b++];
+    std::vector<float> in;
+    in.reserve(std::size_t(count[b]));
+    scan([&](const float* v, std::size_t n) {
+        for (std::size_t i = 0; i < n; ++i) {
+            if (bucket(v[i]) == b) in.push_back(v[i]);
+        }
+    });
+    const auto at = in.begin() + std::ptrdiff_t(rank - below);
+    std::nth_element(in.begin(), at, in.end());
+    return *at;
+}
+
+
+/// A unit: the cells whose points it decides.
+struct Unit {
+    std::vector<std::size_t> cells;  ///< sorted
+    Key lo, hi;                      ///< their box
+};
+
+/// The faces of a loaded box beyond which there are points (infinitely far where none are):
+/// a point's k nearest among the loaded points are certified when the k-th is nearer than
+/// margin().
+struct Reach {
+    double lo[3], hi[3];
+    double margin(const Vec3f& p) const {
+        double m = HUGE_VAL;
+        for (int a = 0; a < 3; ++a) m = std::min({m, double(p[a]) - lo[a], hi[a] - double(p[a])});
+        return m;
+    }
+    bool certified(const Vec3f& p, float kth_sq) const {
+        const double r = std::sqrt(double(kth_sq));
+        // float positions and distances: a margin of their rounding
+        const double size = std::max({std::fabs(p[0]), std::fabs(p[1]), std::fabs(p[2])});
+        return r + 1e-6 * (r + double(size)) + 1e-30 < margin(p);
+    }
+};
+
+class StreamJob {
+  public:
+    StreamJob(const std::string& input, const std::string& dir, const PipelineOptions& options)
+        : input_(input), dir_(dir), options_(options) {
+        outliers_ = options.outliers.enabled;
+        k_ = outliers_ ? options.outliers.k : options.normals.k;
+    }
+
+    void run(TileJob& job);
+
+  private:
+    void read();
+    void make_units();
+    Loaded load(const Unit& u, int ring) const;
+    Reach reach_of(const Loaded& l) const;
+    int ring_for(const Unit& u, const Vec3f& p, float kth_sq) const;
+    void spacing_pass(const Unit& u);
+    void rules_pass(const Unit& u);
+    struct Rules;
+    void decide(Rules& st, const Unit& u, const std::vector<std::size_t>& rows) const;
+    std::vector<float> scales(Rules& st, const Unit& u, const std::vector<std::size_t>& core,
+                              std::vector<int>& needed) const;
+    int walk(const Rules& st, std::size_t i, const Unit& u, std::vector<int>& kept_nb,
+             std::size_t* missing, float& spacing) const;
+    bool keeps(const Loaded& l, std::size_t i) const {
+        return options_.normals.scale == ScaleMode::automatic && l.cloud.has_scales() &&
+               l.cloud.scales[i] > 0.0f;
+    }
+    PointCloud samples(const Unit& u, std::vector<std::uint32_t>& rows) const;
+    KernelFrame frame(const SplatOptions& splat);
+    void buckets(const TileGrid& g, double voxel, TilePlan& plan);
+    double sample_spacing();
+
+    const std::string& input_;
+    const std::string& dir_;
+    const PipelineOptions& options_;
+    ReadResult totals_;
+    std::unique_ptr<CellStore> store_;
+    std::uint64_t n_ = 0;
+    std::vector<Unit> units_;
+    bool outliers_ = false, need_scale_ = false;
+    int k_ = 0;  ///< neighbours of pass 1: the outlier rules', else the kNN scale's
+    CellStore::Side<float> d_{"tiles: d of the points"}, kth_{"tiles: k-th distances"};
+    CellStore::Side<float> scale_{"tiles: scales"};
+    CellStore::Side<char> removed_{"tiles: outlier flags"};
+    double median_d_ = 0.0;
+    std::uint64_t statistical_ = 0, planarity_ = 0, kept_ = 0;
+    std::uint64_t largest_ = 0;  ///< points of the largest unit loaded, with its halo
+    Vec3f lowest_{HUGE_VALF, HUGE_VALF, HUGE_VALF}, highest_{-HUGE_VALF, -HUGE_VALF, -HUGE_VALF};
+};
+
+/// rules_pass's states of a point without a rule: no list searched yet, or one not certified.
+constexpr char kNoList = -2, kUncertified = -1;
+
+/// What rules_pass knows of one loading of a unit: per point its rule (0 kept, 1 statistical,
+/// 2 planarity, or kNoList / kUncertified with the halo that would certify its list) and list.
+struct StreamJob::Rules {
+    const Loaded& l;
+    Reach reach;
+    const KnnIndex& index;
+    std::vector<float> d;
+    std::vector<char> rule;
+    std::vector<int> need;
+    std::vector<const int*> list_of;
+    std::deque<KnnResult> lists;
+};
+
+void StreamJob::read() {
+    bool any_zero_scale = false;
+    std::uint32_t row = 0;
+    StreamFrame frame;
+    const auto sink = [&](ReadResult& chunk, std::size_t, int pass) {
+        const PointCloud& c = chunk.cloud;
+        if (pass == 0) {
+            if (c.size() > 0 && !c.has_normals()) {
+                throw NotStreamable{"its points have no normals (to estimate)"};
+            }
+            if (chunk.invalid_normals > 0) throw NotStreamable{"a normal is zero (to estimate)"};
+            if (frame.rows >= std::size_t(UINT32_MAX)) {
+                throw InvalidArgument("tiles: more than 2^32 points");
+            }
+            if (frame.rows < std::size_t(k_) + 1) throw NotStreamable{"too few points"};
+            if (!store_) {
+                const double edge =
+                    frame.diagonal * std::sqrt(std::min(1.0, kCellPoints / double(frame.rows)));
+                store_ = std::make_unique<CellStore>(
+                    Layout{c.has_colors(), c.has_scales(), c.has_confidences()},
+                    edge > 0.0 ? edge : 1.0);
+            }
+            for (std::size_t i = 0; i < c.size(); ++i) {
+                for (int a = 0; a < 3; ++a) {
+                    lowest_[a] = std::min(lowest_[a], c.positions[i][a]);
+                    highest_[a] = std::max(highest_[a], c.positions[i][a]);
+                }
+                any_zero_scale = any_zero_scale || (c.has_scales() && !(c.scales[i] > 0.0f));
+            }
+            store_->count(c);
+            return;
+        }
+        if (row == 0) store_->place();
+        store_->write(c, row);
+        row += std::uint32_t(c.size());
+    };
+    if (!stream_points(input_, options_.read, sink, totals_, 2, &frame, true)) {
+        throw NotStreamable{"not a PLY file whose points have normals (to estimate them, their "
+                            "orientation spans the whole cloud)"};
+    }
+    n_ = store_->points();
+    const bool scales = totals_.rows > 0 && store_->has_scales();
+    need_scale_ = options_.normals.scale == ScaleMode::knn ||
+                  (options_.normals.scale == ScaleMode::automatic && (!scales || any_zero_scale));
+    if (!outliers_) k_ = std::min<int>(options_.normals.k, int(n_) - 1);
+}
+
+/// Units: the cubes of an octree over the cells, split while a cube holds more than a budget's
+/// worth of points (about 1 KB a point through the neighbour searches) or an eighth of the cloud
+/// (so that every cloud goes through units and their halos). Dense regions get small cubes;
+/// sparse ones (strays in empty space) few large ones.
+void StreamJob::make_units() {
+    const std::uint64_t target = std::clamp<std::uint64_t>(
+        std::min<std::uint64_t>(memory_budget(options_.splat) / 1024, n_ / 8),
+        std::uint64_t(1) << 12, std::uint64_t(1) << 22);
+    int side = 1;
+    for (std::size_t a = 0; a < 3; ++a) {
+        while (side <= store_->highest()[a] - store_->lowest()[a]) side *= 2;
+    }
+    const std::function<void(const Key&, int)> split = [&](const Key& lo, int n) {
+        const Key hi{lo[0] + n - 1, lo[1] + n - 1, lo[2] + n - 1};
+        Unit u;
+        std::uint64_t points = 0;
+        store_->cells_in(lo, hi, [&](std::size_t j) {
+            u.cells.push_back(j);
+            points += store_->cell_size(j);
+        });
+        if (u.cells.empty()) return;
+        if (points <= target || n == 1) {
+            std::sort(u.cells.begin(), u.cells.end());
+            u.lo = lo;
+            u.hi = hi;
+            units_.push_back(std::move(u));
+            return;
+        }
+        const int h = n / 2;
+        for (int c = 0; c < 8; ++c) {
+            split({lo[0] + (c & 1) * h, lo[1] + (c >> 1 & 1) * h, lo[2] + (c >> 2 & 1) * h}, h);
+        }
+    };
+    split(store_->lowest(), side);
+}
+
+Loaded StreamJob::load(const Unit& u, int ring) const {
+    Key lo = u.lo, hi = u.hi;
+    for (std::size_t a = 0; a < 3; ++a) {
+        // no cells beyond the occupied ones: the box stops there
+        lo[a] = std::max(lo[a] - ring, store_->lowest()[a]);
+        hi[a] = std::min(hi[a] + ring, store_->highest()[a]);
+    }
+    Loaded l = store_->load(lo, hi, u.cells);
+    l.cloud.origin = totals_.cloud.origin;
+    return l;
+}
+
+Reach StreamJob::reach_of(const Loaded& l) const {
+    Reach r;
+    const double e = store_->edge();
+    for (std::size_t a = 0; a < 3; ++a) {
+        r.lo[a] = l.lo[a] <= store_->lowest()[a] ? -HUGE_VAL : double(l.lo[a]) * e;
+        r.hi[a] = l.hi[a] >= store_->highest()[a] ? HUGE_VAL : double(l.hi[a] + 1) * e;
+    }
+    return r;
+}
+
+/// The halo (cells) whose box holds the ball of this point's k-th neighbour, with a cell spare.
+int StreamJob::ring_for(const Unit& u, const Vec3f& p, float kth_sq) const {
+    const double r = 1.01 * std::sqrt(double(kth_sq)) + 1e-6 * store_->edge();
+    int ring = 0;
+    for (int a = 0; a < 3; ++a) {
+        const double lo = (double(p[a]) - r) / store_->edge();
+        const double hi = (double(p[a]) + r) / store_->edge();
+        ring = std::max({ring, u.lo[std::size_t(a)] - int(std::floor(lo)),
+                         int(std::floor(hi)) - u.hi[std::size_t(a)]});
+    }
+    return ring + 1;
+}
+
+/// Pass 1: d_i and the k-th neighbour's squared distance of the unit's points (without the
+/// outlier rules, d_i is the kNN scale).
+void StreamJob::spacing_pass(const Unit& u) {
+    for (int ring = 1;;) {
+        Loaded l = load(u, ring);
+        if (l.size() <= std::size_t(k_)) {
+            ring *= 2;
+            continue;
+        }
+        const Reach reach = reach_of(l);
+        // The unit's points in the store's order, cell after cell: near ones searched together.
+        std::vector<std::size_t> rows(l.size());
+        for (std::size_t i = 0; i < l.size(); ++i) rows[l.order[i]] = i;
+        rows.erase(std::remove_if(rows.begin(), rows.end(),
+                                  [&](std::size_t i) { return !l.core[i]; }),
+                   rows.end());
+        const KnnIndex index(l.cloud.positions, options_.outliers.knn);
+        const KnnResult lists = index.self_neighbours_of(rows, k_);
+        const Span<Vec3f> pts = l.cloud.positions;
+        std::vector<float> d(l.size()), kth(l.size());
+        std::vector<int> need(rows.size(), 0);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
+                          [&](const tbb::blocked_range<std::size_t>& rg) {
+            for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
+                const std::size_t i = rows[a];
+                const int* nb = lists.neighbours(a);
+                kth[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k_ - 1])]);
+                if (!reach.certified(pts[i], kth[i])) {
+                    need[a] = ring_for(u, pts[i], kth[i]);
+                } else {
+                    d[i] = mean_distance(pts, i, nb, k_);
+                }
+            }
+        });
+        const int needed = *std::max_element(need.begin(), need.end());
+        if (needed > 0) {
+            ring = std::max(ring + 1, needed);
+            continue;
+        }
+        largest_ = std::max<std::uint64_t>(largest_, l.size());
+        d_.write(l, d);
+        kth_.write(l, kth);
+        if (!outliers_ && need_scale_) {
+            for (std::size_t i = 0; i < l.size(); ++i) {
+                if (keeps(l, i)) d[i] = l.cloud.scales[i];
+            }
+            scale_.write(l, d);
+        }
+        return;
+    }
+}
+
+/// The scale of kept point i: the mean distance to its ks nearest kept points, walking its
+/// list (or, when fewer than ks of those are kept, longer ones). Returns 0 when found; or the
+/// halo needed to certify what the walk reads (-1: more points); or kNoList, with the point
+/// whose rule it needs in *missing.
+int StreamJob::walk(const Rules& st, std::size_t i, const Unit& u, std::vector<int>& kept_nb,
+                    std::size_t* missing, float& spacing) const {
+    const Loaded& l = st.l;
+    const KnnIndex& index = st.index;
+    const Reach& reach = st.reach;
+    const std::vector<char>& rule = st.rule;
+    const std::vector<int>& need = st.need;
+    const int* first = st.list_of[i];
+    const int ks = options_.normals.k;
+    const Span<Vec3f> pts = l.cloud.positions;
+    kept_nb.reserve(std::size_t(ks));
+    for (int K = k_;; K *= 2) {
+        if (std::size_t(K) >= l.size()) return -1;  // more points needed: a wider halo
+        KnnResult longer;
+        if (K > k_) {  // (the first list is certified: point i has a rule)
+            longer = index.self_neighbours_of({i}, K);
+            const float kth = KnnResult::squared_distance(
+                pts[i], pts[std::size_t(longer.neighbours(0)[K - 1])]);
+            if (!reach.certified(pts[i], kth)) return ring_for(u, pts[i], kth);
+        }
+        const int* nb = K > k_ ? longer.neighbours(0) : first;
+        kept_nb.clear();
+        for (int j = 0; j < K && int(kept_nb.size()) < ks; ++j) {
+            const std::size_t q = std::size_t(nb[j]);
+            if (rule[q] == kNoList) {
+                *missing = q;
+                return kNoList;
+            }
+            if (rule[q] == kUncertified) return need[q];  // whether q goes is not known here
+            if (rule[q] == 0) kept_nb.push_back(int(q));
+        }
+        if (int(kept_nb.size()) == ks) {
+            spacing = mean_distance(pts, i, kept_nb.data(), ks);
+            return 0;
+        }
+    }
+}
+
+/// Lists are searched for the points of a loading, then its rule, or why it has none.
+void StreamJob::decide(Rules& st, const Unit& u, const std::vector<std::size_t>& rows) const {
+    const OutlierOptions& o = options_.outliers;
+    const Span<Vec3f> pts = st.l.cloud.positions;
+    st.lists.push_back(st.index.self_neighbours_of(rows, k_));
+    const KnnResult& got = st.lists.back();
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
+            const std::size_t i = rows[a];
+            const int* nb = st.list_of[i] = got.neighbours(a);
+            const float kth = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k_ - 1])]);
+            if (!st.reach.certified(pts[i], kth)) {
+                st.rule[i] = kUncertified;
+                st.need[i] = ring_for(u, pts[i], kth);
+                continue;
+            }
+            double sum = 0.0;
+            for (int j = 0; j < k_; ++j) sum += double(st.d[std::size_t(nb[j])]);
+            const char v = statistical_verdict(st.d[i], sum, k_, o);
+            st.rule[i] = v == kFails ? 1
+                         : planarity_candidate(v, st.d[i], median_d_, o) &&
+                                 scattered(pts, i, nb, k_, o)
+                             ? 2
+                             : 0;
+        }
+    });
+}
+
+/// The kNN scale of the kept `core` points (walk), the rules of the points the walks pass
+/// decided as they are met; `needed` gets the halo each would need.
+std::vector<float> StreamJob::scales(Rules& st, const Unit& u, const std::vector<std::size_t>& core,
+                                     std::vector<int>& needed) const {
+    const Loaded& l = st.l;
+    std::vector<float> scale(l.size(), 0.0f);
+    std::vector<std::size_t> walkers, missing(l.size(), 0), more;
+    for (std::size_t i : core) {
+        if (st.rule[i] != 0 || !need_scale_) continue;
+        if (keeps(l, i)) {
+            scale[i] = l.cloud.scales[i];
+        } else {
+            walkers.push_back(i);
+        }
+    }
+    while (!walkers.empty()) {
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, walkers.size(), 256),
+                          [&](const tbb::blocked_range<std::size_t>& rg) {
+            std::vector<int> kept_nb;
+            for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
+                const std::size_t i = walkers[a];
+                needed[i] = walk(st, i, u, kept_nb, &missing[i], scale[i]);
+            }
+        });
+        more.clear();
+        std::vector<std::size_t> again;
+        for (std::size_t i : walkers) {
+            if (needed[i] != kNoList) continue;
+            needed[i] = 0;
+            again.push_back(i);
+            more.push_back(missing[i]);
+        }
+        std::sort(more.begin(), more.end());
+        more.erase(std::unique(more.begin(), more.end()), more.end());
+        if (!more.empty()) decide(st, u, more);
+        walkers = std::move(again);
+    }
+    return scale;
+}
+
+/// Pass 2: the outlier rules on the unit's points, and the kNN scale of those kept. Lists are
+/// searched for the unit's points, then for the points of the halo their rules and walks read.
+void StreamJob::rules_pass(const Unit& u) {
+    for (int ring = 1;;) {
+        const Loaded l = load(u, ring);
+        const std::size_t m = l.size();
+        if (m <= std::size_t(k_)) {
+            ring *= 2;
+            continue;
+        }
+        const KnnIndex index(l.cloud.positions, options_.outliers.knn);
+        Rules st{l, reach_of(l), index, d_.read(l), std::vector<char>(m, kNoList),
+                 std::vector<int>(m, 0), std::vector<const int*>(m, nullptr), {}};
+        // The unit's points in the store's order (near ones searched together).
+        std::vector<std::size_t> core(m);
+        for (std::size_t i = 0; i < m; ++i) core[l.order[i]] = i;
+        core.erase(std::remove_if(core.begin(), core.end(),
+                                  [&](std::size_t i) { return !l.core[i]; }),
+                   core.end());
+        decide(st, u, core);
+        std::vector<std::size_t> more;  // the neighbours of the halo they read
+        for (std::size_t i : core) {
+            for (int j = 0; j < k_ && st.rule[i] >= 0; ++j) {
+                const std::size_t q = std::size_t(st.list_of[i][j]);
+                if (st.rule[q] == kNoList && !l.core[q]) more.push_back(q);
+            }
+        }
+        std::sort(more.begin(), more.end());
+        more.erase(std::unique(more.begin(), more.end()), more.end());
+        if (!more.empty()) decide(st, u, more);
+        std::vector<int> needed(m, 0);
+        for (std::size_t i : core) {
+            if (st.rule[i] == kUncertified) needed[i] = st.need[i];
+        }
+        const std::vector<float> scale = scales(st, u, core, needed);
+        int wider = 0;
+        for (int v : needed) wider = v < 0 ? std::max(wider, 2 * ring) : std::max(wider, v);
+        if (wider > 0 && l.lo == store_->lowest() && l.hi == store_->highest()) {
+            // every point is loaded and a walk still finds too few kept ones
+            throw NotStreamable{"too few points kept for the kNN scale"};
+        }
+        if (wider > 0) {
+            ring = std::max(ring + 1, wider);
+            continue;
+        }
+        largest_ = std::max<std::uint64_t>(largest_, m);
+        std::vector<char> removed(m, 0);
+        for (std::size_t i : core) {
+            removed[i] = st.rule[i] != 0;
+            statistical_ += st.rule[i] == 1;
+            planarity_ += st.rule[i] == 2;
+            if (removed[i]) continue;
+            ++kept_;
+            for (int a = 0; a < 3; ++a) {
+                lowest_[a] = std::min(lowest_[a], l.cloud.positions[i][a]);
+                highest_[a] = std::max(highest_[a], l.cloud.positions[i][a]);
+            }
+        }
+        removed_.write(l, removed);
+        if (need_scale_) scale_.write(l, scale);
+        return;
+    }
+}
+
+/// The unit's kept points as the tiles' samples (the columns the in-memory stages leave in the
+/// cloud), and their rows in the whole cloud.
+PointCloud StreamJob::samples(const Unit& u, std::vector<std::uint32_t>& rows) const {
+    Loaded l = load(u, 0);
+    const std::vector<char> removed = outliers_ ? removed_.read(l) : std::vector<char>(l.size(), 0);
+    if (options_.normals.scale == ScaleMode::none) {
+        l.cloud.scales.clear();
+    } else if (need_scale_) {
+        l.cloud.scales = scale_.read(l);
+    }
+    std::vector<std::uint32_t> keep;
+    rows.clear();
+    for (std::size_t i = 0; i < l.size(); ++i) {
+        if (!l.core[i] || removed[i]) continue;
+        keep.push_back(std::uint32_t(i));
+        rows.push_back(l.row[i]);
+    }
+    return subset(l.cloud, keep);
+}
+
+/// Pass 3: the whole cloud's kernel statistics (kernel_frame's, by selection over the
+/// kernels' sizes spilled a unit at a time).
+KernelFrame StreamJob::frame(const SplatOptions& splat) {
+    Spool sigmas("tiles: kernel sizes"), radii("tiles: kernel radii");
+    double max_index = 0.0;
+    std::uint64_t usable = 0;
+    float max_r = 0.0f;
+    std::vector<std::uint32_t> rows;
+    for (const Unit& u : units_) {
+        const PointCloud part = samples(u, rows);
+        if (part.empty()) continue;
+        std::vector<float> sigma, radius;
+        kernel_sizes(part, splat, sigma, radius, max_index);
+        sigma.erase(std::remove(sigma.begin(), sigma.end(), -1.0f), sigma.end());
+        usable += sigma.size();
+        max_r = std::max(max_r, *std::max_element(radius.begin(), radius.end()));
+        sigmas.add_vector(sigma);
+        radii.add_vector(radius);
+    }
+    check_kernel_range(max_index, max_r, kept_ - usable, kept_, splat.voxel_size);
+    const auto scan = [](const Spool& spool) {
+        return [&spool](const auto& fn) {
+            for (std::size_t b = 0; b < spool.size(); ++b) {
+                const std::vector<float> v = spool.get_vector<float>(b);
+                fn(v.data(), v.size());
+            }
+        };
+    };
+    KernelFrame f;
+    f.sigma_median = double(select_rank(usable / 2, scan(sigmas))) * splat.voxel_size;
+    f.max_r = max_r;
+    f.r_typical = select_rank(std::uint64_t(0.95 * double(kept_ - 1)), scan(radii));
+    return f;
+}
+
+/// Pass 4: the kept samples into the buckets of their tiles, and the tiles to visit.
+void StreamJob::buckets(const TileGrid& g, double voxel, TilePlan& plan) {
+    std::map<Key, std::string> parts;  // occupied tile -> its file while being written
+    std::vector<TileKey> near;
+    std::vector<std::uint32_t> rows;
+    for (const Unit& u : units_) {
+        const PointCloud part = samples(u, rows);
+        std::map<Key, std::vector<std::uint32_t>> by_tile;
+        for (std::size_t i = 0; i < part.size(); ++i) {
+            const openvdb::Vec3d c = kernel_centre(part, i, voxel);
+            by_tile[tile_of(c, g)].push_back(std::uint32_t(i));
+            add_tiles_near(c, g, near);
+        }
+        sort_unique(near);
+        for (const auto& e : by_tile) {
+            std::vector<std::uint32_t> index;
+            for (std::uint32_t i : e.second) index.push_back(rows[i]);
+            auto it = parts.find(e.first);
+            const bool fresh = it == parts.end();
+            if (fresh) {
+                it = parts.emplace(e.first, dir_ + "/bucket-part-" + std::to_string(parts.size()) +
+                                                ".tmp").first;
+            }
+            std::FILE* f = std::fopen(it->second.c_str(), fresh ? "wb" : "ab");
+            const std::string bytes =
+                (fresh ? bucket_tag() : std::string()) +
+                bucket_section(index, subset(part, e.second));
+            const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
+            if ((f && std::fclose(f) != 0) || !ok) throw IoError(it->second + ": write failed");
+        }
+    }
+    for (const auto& e : parts) {
+        const std::string to = bucket_path(dir_, plan.buckets.size());
+        if (std::rename(e.second.c_str(), to.c_str()) != 0) throw IoError(to + ": rename failed");
+        plan.buckets.push_back(e.first);
+    }
+    plan.tiles = plan.buckets;
+    plan.tiles.insert(plan.tiles.end(), near.begin(), near.end());
+    sort_unique(plan.tiles);
+}
+
+/// The median sample spacing the in-memory stages would give (pipeline.cpp's sample_spacing).
+double StreamJob::sample_spacing() {
+    const auto scan_side = [&](const CellStore::Side<float>& side, bool kept_only) {
+        return [&side, kept_only, this](const auto& fn) {
+            std::vector<char> removed;
+            std::vector<float> kept;
+            side.scan(n_, [&](const float* v, std::uint64_t first, std::size_t count) {
+                if (!kept_only) return fn(v, count);
+                removed.resize(count);
+                removed_.scan_range(first, removed.data(), count);
+                kept.clear();
+                for (std::size_t i = 0; i < count; ++i) {
+                    if (!removed[i]) kept.push_back(v[i]);
+                }
+                fn(kept.data(), kept.size());
+            });
+        };
+    };
+    if (outliers_ || need_scale_) {  // the density spacing of the first search
+        const double kth = select_rank(kept_ / 2, scan_side(kth_, outliers_));
+        return std::sqrt(kth * M_PI / double(k_));
+    }
+    if (options_.normals.scale == ScaleMode::none) return 0.0;
+    // the file's scales (all > 0 here): their median
+    std::vector<std::uint32_t> rows;
+    Spool scales("tiles: scales");
+    for (const Unit& u : units_) scales.add_vector(samples(u, rows).scales.to_vector());
+    return select_rank(kept_ / 2, [&](const auto& fn) {
+        for (std::size_t b = 0; b < scales.size(); ++b) {
+            const std::vector<float> v = scales.get_vector<float>(b);
+            fn(v.data(), v.size());
+        }
+    });
+}
+
+void StreamJob::run(TileJob& job) {
+    read();
+    make_units();
+    if (outliers_ || need_scale_) {
+        for (const Unit& u : units_) spacing_pass(u);
+    }
+    kept_ = n_;
+    if (outliers_) {
+        median_d_ = select_rank(n_ / 2, [&](const auto& fn) {
+            d_.scan(n_, [&](const float* v, std::uint64_t, std::size_t c) { fn(v, c); });
+        });
+        kept_ = 0;
+        lowest_ = {HUGE_VALF, HUGE_VALF, HUGE_VALF};
+        highest_ = {-HUGE_VALF, -HUGE_VALF, -HUGE_VALF};
+        for (const Unit& u : units_) rules_pass(u);
+        if (kept_ == 0) throw InvalidArgument("reconstruct: every point was an outlier");
+    }
+    PipelineResult& r = job.result;
+    r.outliers.statistical = statistical_;
+    r.outliers.planarity = planarity_;
+    const double spacing = sample_spacing();
+    (outliers_ ? r.outliers.density_spacing
+               : need_scale_ ? r.normals.density_spacing : r.normals.median_scale) = spacing;
+    SplatOptions splat = options_.splat;
+    const double diag = BBox{lowest_, highest_}.diagonal();
+    if (splat.voxel_size == 0.0) {
+        r.spacing = spacing;
+        splat.voxel_size = voxel_for(diag, spacing, options_);
+        r.voxel_chosen = true;
+    }
+    r.voxel_size = splat.voxel_size;
+    if (!(diag > 0.0)) {
+        throw NumericalError("reconstruct: all " + std::to_string(kept_) +
+                             " points coincide; no surface can be reconstructed");
+    }
+    const TiledOptions to = tiled_options(options_, splat, spacing);
+    check_tiled(to, kept_);
+    TilePlan plan;
+    plan.voxel = splat.voxel_size;
+    plan.origin = totals_.cloud.origin;
+    plan.sample_spacing = spacing;
+    plan.points = kept_;
+    plan.setup.frame = frame(splat);
+    TileGrid& g = plan.setup.grid;
+    g = tile_margins(plan.setup.frame, to.close);
+    g.n = tile_edge(to, 0, g.halo);
+    place_grid(g, lowest_, splat.voxel_size);
+    buckets(g, splat.voxel_size, plan);
+    write_tile_plan(dir_, plan);
+    r.stream_units = units_.size();
+    r.stream_largest = largest_;
+    job.tiles = plan.tiles.size();
+    job.tile = g.n;
+    job.voxel_size = splat.voxel_size;
+    job.read = std::move(totals_);
+    job.read.cloud = PointCloud{};
+}
+
+}  // namespace
+
+std::string stream_refusal(const PipelineOptions& options) {
+    if (options.tile == 0) return "no tiles";
+    if (options.stream == StreamMode::never) return "--stream off";
+    if (options.texture.enabled) return "a texture reads every point's colour";
+    if (options.normals.mode == NormalMode::estimate) {
+        return "normals to estimate (their orientation spans the cloud)";
+    }
+    if (options.outliers.knn.backend != KnnBackend::grid ||
+        options.normals.knn.backend != KnnBackend::grid) {
+        return "--knn flann (the streamed stages use the grid search, whose ties break by index)";
+    }
+    if (options.outliers.enabled && options.normals.k > options.outliers.k) {
+        return "more neighbours for the scale than for the outlier rules";
+    }
+    return "";
+}
+
+bool prepare_streamed(const std::string& input, const std::string& dir,
+                      const PipelineOptions& options, TileJob& job) {
+    std::string why = stream_refusal(options);
+    if (why.empty() && options.stream == StreamMode::automatic) {
+        // The in-memory point stages take about twice a binary PLY file's size.
+        struct stat st {};
+        const double need = ::stat(input.c_str(), &st) == 0 ? 2.0 * double(st.st_size) : 0.0;
+        const double budget = double(memory_budget(options.splat));
+        if (need <= 0.5 * budget) {
+            why = "the points fit in memory (about " + std::to_string(int(need / 1e6)) +
+                  " MB, half of --max-memory is " + std::to_string(int(0.5 * budget / 1e6)) +
+                  " MB; --stream on streams them)";
+        }
+    }
+    if (why.empty()) {
+        try {
+            StreamJob(input, dir, options).run(job);
+            return true;
+        } catch (const NotStreamable& e) {
+            why = e.why;
+        }
+    }
+    log_info(input + ": tiles: the points are read whole, not streamed: " + why);
+    return false;
+}
+
+}  // namespace vdbrecon::detail

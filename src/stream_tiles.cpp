@@ -378,13 +378,18 @@ class StreamJob {
     Reach reach_of(const Loaded& l) const;
     int ring_for(const Unit& u, const Vec3f& p, float kth_sq) const;
     void spacing_pass(const Unit& u);
+    struct Lists;
+    void search(Lists& st, const Unit& u, const std::vector<std::size_t>& rows) const;
+    std::vector<std::size_t> halo_of(const Lists& st, const std::vector<std::size_t>& rows,
+                                     int width, int& needed) const;
+    void verdict_pass(const Unit& u);
+    char rule_of(char verdict, char scattered_nb, float d) const;
+    int walk(const Loaded& l, const KnnIndex& index, const Reach& reach, std::size_t i,
+             const std::vector<char>& rule, const Unit& u, std::vector<int>& kept_nb,
+             float& spacing) const;
+    void walk_again(const Unit& u, const std::vector<std::uint32_t>& rows,
+                    std::vector<float>& spacing) const;
     void rules_pass(const Unit& u);
-    struct Rules;
-    void decide(Rules& st, const Unit& u, const std::vector<std::size_t>& rows) const;
-    std::vector<float> scales(Rules& st, const Unit& u, const std::vector<std::size_t>& core,
-                              std::vector<int>& needed) const;
-    int walk(const Rules& st, std::size_t i, const Unit& u, std::vector<int>& kept_nb,
-             std::size_t* missing, float& spacing) const;
     bool keeps(const Loaded& l, std::size_t i) const {
         return options_.normals.scale == ScaleMode::automatic && l.cloud.has_scales() &&
                l.cloud.scales[i] > 0.0f;
@@ -406,25 +411,30 @@ class StreamJob {
     CellStore::Side<float> d_{"tiles: d of the points"}, kth_{"tiles: k-th distances"};
     CellStore::Side<float> scale_{"tiles: scales"};
     CellStore::Side<char> removed_{"tiles: outlier flags"};
+    CellStore::Side<char> verdict_{"tiles: verdicts"}, scattered_{"tiles: planarity tests"};
+    CellStore::Side<char> touched_{"tiles: neighbours failing"};
+    CellStore::Side<float> first_{"tiles: first scales"}, most_{"tiles: neighbours' d"};
     double median_d_ = 0.0;
     std::uint64_t statistical_ = 0, planarity_ = 0, kept_ = 0;
     std::uint64_t largest_ = 0;  ///< points of the largest unit loaded, with its halo
     Vec3f lowest_{HUGE_VALF, HUGE_VALF, HUGE_VALF}, highest_{-HUGE_VALF, -HUGE_VALF, -HUGE_VALF};
 };
 
-/// rules_pass's states of a point without a rule: no list searched yet, or one not certified.
-constexpr char kNoList = -2, kUncertified = -1;
-
-/// What rules_pass knows of one loading of a unit: per point its rule (0 kept, 1 statistical,
-/// 2 planarity, or kNoList / kUncertified with the halo that would certify its list) and list.
-struct StreamJob::Rules {
+/// What verdict_pass knows of one loading of a unit: per point whose list was searched, the
+/// list and whether it is certified (else the halo that would certify it), d_i, the k-th
+/// distance and the mean distance to its first ks neighbours.
+struct StreamJob::Lists {
+    Lists(const Loaded& loaded, const Reach& r, const KnnIndex& i)
+        : l(loaded), reach(r), index(i), list_of(loaded.size(), nullptr),
+          certified(loaded.size(), 0), need(loaded.size(), 0), d(loaded.size(), 0.0f),
+          kth(loaded.size(), 0.0f), first(loaded.size(), 0.0f) {}
     const Loaded& l;
     Reach reach;
     const KnnIndex& index;
-    std::vector<float> d;
-    std::vector<char> rule;
+    std::vector<const int*> list_of;  ///< nullptr: not searched
+    std::vector<char> certified;
     std::vector<int> need;
-    std::vector<const int*> list_of;
+    std::vector<float> d, kth, first;
     std::deque<KnnResult> lists;
 };
 
@@ -598,40 +608,166 @@ void StreamJob::spacing_pass(const Unit& u) {
     }
 }
 
+/// Searches the lists of `rows` of a loading: each point's list, d_i, k-th distance and the
+/// mean distance to its first ks (the kNN scale when those are kept), or why its list is not
+/// certified (the halo that would certify it).
+void StreamJob::search(Lists& st, const Unit& u, const std::vector<std::size_t>& rows) const {
+    const Span<Vec3f> pts = st.l.cloud.positions;
+    const int ks = need_scale_ ? options_.normals.k : 0;
+    st.lists.push_back(st.index.self_neighbours_of(rows, k_));
+    const KnnResult& got = st.lists.back();
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
+            const std::size_t i = rows[a];
+            const int* nb = st.list_of[i] = got.neighbours(a);
+            st.kth[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k_ - 1])]);
+            if (!st.reach.certified(pts[i], st.kth[i])) {
+                st.need[i] = ring_for(u, pts[i], st.kth[i]);
+                continue;
+            }
+            st.certified[i] = 1;
+            st.d[i] = mean_distance(pts, i, nb, k_, ks, ks > 0 ? &st.first[i] : nullptr);
+        }
+    });
+}
+
+/// The points of the halo among the first `width` entries of the lists of `rows`, not yet
+/// searched (sorted); the halo that `rows` would need when one of their lists is uncertified.
+std::vector<std::size_t> StreamJob::halo_of(const Lists& st, const std::vector<std::size_t>& rows,
+                                            int width, int& needed) const {
+    std::vector<std::size_t> out;
+    for (std::size_t i : rows) {
+        if (!st.certified[i]) {
+            needed = std::max(needed, st.need[i]);
+            continue;
+        }
+        for (int j = 0; j < width; ++j) {
+            const std::size_t q = std::size_t(st.list_of[i][j]);
+            if (!st.list_of[q]) out.push_back(q);
+        }
+    }
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
+    return out;
+}
+
+/// Pass 1 with the outlier rules: what the rules and the kNN scale take from each point's list,
+/// all but what waits for the median d: d_i, its k-th distance, its statistical verdict,
+/// whether its neighbourhood is scattered (the planarity test), the mean distance to its first
+/// ks neighbours, and what may take one of those away (one fails the statistical rule; the
+/// largest d_j of those passing it with a scattered neighbourhood). The verdicts need the d_j of
+/// the neighbours, and those of the first ks neighbours their neighbours' d: the lists of the
+/// halo points within two steps are searched too.
+void StreamJob::verdict_pass(const Unit& u) {
+    const OutlierOptions& o = options_.outliers;
+    const int ks = need_scale_ ? options_.normals.k : 0;
+    for (int ring = 1;;) {
+        const Loaded l = load(u, ring);
+        const std::size_t m = l.size();
+        if (m <= std::size_t(k_)) {
+            ring *= 2;
+            continue;
+        }
+        const KnnIndex index(l.cloud.positions, o.knn);
+        Lists st(l, reach_of(l), index);
+        std::vector<std::size_t> core(m);  // in the store's order: near ones searched together
+        for (std::size_t i = 0; i < m; ++i) core[l.order[i]] = i;
+        core.erase(std::remove_if(core.begin(), core.end(),
+                                  [&](std::size_t i) { return !l.core[i]; }),
+                   core.end());
+        int needed = 0;
+        search(st, u, core);
+        search(st, u, halo_of(st, core, k_, needed));  // the d_j of their neighbours
+        // The points whose verdicts are needed: the unit's, and the halo's among their first ks
+        // neighbours; then the d_j of those neighbours' neighbours.
+        std::vector<std::size_t> judged = core;
+        for (std::size_t i : core) {
+            for (int j = 0; j < ks && st.certified[i]; ++j) {
+                const std::size_t q = std::size_t(st.list_of[i][j]);
+                if (!l.core[q]) judged.push_back(q);
+            }
+        }
+        std::sort(judged.begin() + std::ptrdiff_t(core.size()), judged.end());
+        judged.erase(std::unique(judged.begin() + std::ptrdiff_t(core.size()), judged.end()),
+                     judged.end());
+        search(st, u, halo_of(st, judged, k_, needed));
+        std::vector<char> verdict(m, kUnknown), scattered_nb(m, 0);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, judged.size(), 1024),
+                          [&](const tbb::blocked_range<std::size_t>& rg) {
+            for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
+                const std::size_t i = judged[a];
+                const int* nb = st.list_of[i];
+                if (!nb || !st.certified[i]) continue;
+                double sum = 0.0;
+                bool known = true;
+                for (int j = 0; j < k_ && known; ++j) {
+                    const std::size_t q = std::size_t(nb[j]);
+                    known = st.certified[q] != 0;
+                    sum += double(st.d[q]);
+                }
+                if (!known) continue;
+                verdict[i] = statistical_verdict(st.d[i], sum, k_, o);
+                scattered_nb[i] = verdict[i] == kPasses && o.planarity_ratio > 0.0 &&
+                                  scattered(l.cloud.positions, i, nb, k_, o);
+            }
+        });
+        for (std::size_t i : judged) {
+            if (verdict[i] != kUnknown) continue;
+            needed = std::max(needed, st.need[i]);
+            for (int j = 0; j < k_ && st.list_of[i]; ++j) {
+                needed = std::max(needed, st.need[std::size_t(st.list_of[i][j])]);
+            }
+            needed = std::max(needed, ring + 1);
+        }
+        if (needed > 0) {
+            ring = std::max(ring + 1, needed);
+            continue;
+        }
+        largest_ = std::max<std::uint64_t>(largest_, m);
+        std::vector<char> touched(m, 0);
+        std::vector<float> most(m, -1.0f);
+        for (std::size_t i : core) {
+            for (int j = 0; j < ks; ++j) {
+                const std::size_t q = std::size_t(st.list_of[i][j]);
+                touched[i] = touched[i] || verdict[q] == kFails;
+                if (scattered_nb[q]) most[i] = std::max(most[i], st.d[q]);
+            }
+        }
+        d_.write(l, st.d);
+        kth_.write(l, st.kth);
+        verdict_.write(l, verdict);
+        scattered_.write(l, scattered_nb);
+        first_.write(l, st.first);
+        touched_.write(l, touched);
+        most_.write(l, most);
+        return;
+    }
+}
+
+/// The rule on a point from what verdict_pass spilled: 0 kept, 1 statistical, 2 planarity.
+char StreamJob::rule_of(char verdict, char scattered_nb, float d) const {
+    if (verdict == kFails) return 1;
+    return planarity_candidate(verdict, d, median_d_, options_.outliers) && scattered_nb ? 2 : 0;
+}
+
 /// The scale of kept point i: the mean distance to its ks nearest kept points, walking its
-/// list (or, when fewer than ks of those are kept, longer ones). Returns 0 when found; or the
-/// halo needed to certify what the walk reads (-1: more points); or kNoList, with the point
-/// whose rule it needs in *missing.
-int StreamJob::walk(const Rules& st, std::size_t i, const Unit& u, std::vector<int>& kept_nb,
-                    std::size_t* missing, float& spacing) const {
-    const Loaded& l = st.l;
-    const KnnIndex& index = st.index;
-    const Reach& reach = st.reach;
-    const std::vector<char>& rule = st.rule;
-    const std::vector<int>& need = st.need;
-    const int* first = st.list_of[i];
+/// lists (of k, then 2k, ... points) until ks are kept. Returns 0 when found; or the halo
+/// needed to certify a list (-1: more points).
+int StreamJob::walk(const Loaded& l, const KnnIndex& index, const Reach& reach, std::size_t i,
+                    const std::vector<char>& rule, const Unit& u, std::vector<int>& kept_nb,
+                    float& spacing) const {
     const int ks = options_.normals.k;
     const Span<Vec3f> pts = l.cloud.positions;
-    kept_nb.reserve(std::size_t(ks));
     for (int K = k_;; K *= 2) {
         if (std::size_t(K) >= l.size()) return -1;  // more points needed: a wider halo
-        KnnResult longer;
-        if (K > k_) {  // (the first list is certified: point i has a rule)
-            longer = index.self_neighbours_of({i}, K);
-            const float kth = KnnResult::squared_distance(
-                pts[i], pts[std::size_t(longer.neighbours(0)[K - 1])]);
-            if (!reach.certified(pts[i], kth)) return ring_for(u, pts[i], kth);
-        }
-        const int* nb = K > k_ ? longer.neighbours(0) : first;
+        const KnnResult list = index.self_neighbours_of({i}, K);
+        const int* nb = list.neighbours(0);
+        const float kth = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[K - 1])]);
+        if (!reach.certified(pts[i], kth)) return ring_for(u, pts[i], kth);
         kept_nb.clear();
         for (int j = 0; j < K && int(kept_nb.size()) < ks; ++j) {
-            const std::size_t q = std::size_t(nb[j]);
-            if (rule[q] == kNoList) {
-                *missing = q;
-                return kNoList;
-            }
-            if (rule[q] == kUncertified) return need[q];  // whether q goes is not known here
-            if (rule[q] == 0) kept_nb.push_back(int(q));
+            if (rule[std::size_t(nb[j])] == 0) kept_nb.push_back(nb[j]);
         }
         if (int(kept_nb.size()) == ks) {
             spacing = mean_distance(pts, i, kept_nb.data(), ks);
@@ -640,137 +776,82 @@ int StreamJob::walk(const Rules& st, std::size_t i, const Unit& u, std::vector<i
     }
 }
 
-/// Lists are searched for the points of a loading, then its rule, or why it has none.
-void StreamJob::decide(Rules& st, const Unit& u, const std::vector<std::size_t>& rows) const {
-    const OutlierOptions& o = options_.outliers;
-    const Span<Vec3f> pts = st.l.cloud.positions;
-    st.lists.push_back(st.index.self_neighbours_of(rows, k_));
-    const KnnResult& got = st.lists.back();
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
-            const std::size_t i = rows[a];
-            const int* nb = st.list_of[i] = got.neighbours(a);
-            const float kth = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k_ - 1])]);
-            if (!st.reach.certified(pts[i], kth)) {
-                st.rule[i] = kUncertified;
-                st.need[i] = ring_for(u, pts[i], kth);
-                continue;
-            }
-            double sum = 0.0;
-            for (int j = 0; j < k_; ++j) sum += double(st.d[std::size_t(nb[j])]);
-            const char v = statistical_verdict(st.d[i], sum, k_, o);
-            st.rule[i] = v == kFails ? 1
-                         : planarity_candidate(v, st.d[i], median_d_, o) &&
-                                 scattered(pts, i, nb, k_, o)
-                             ? 2
-                             : 0;
-        }
-    });
-}
-
-/// The kNN scale of the kept `core` points (walk), the rules of the points the walks pass
-/// decided as they are met; `needed` gets the halo each would need.
-std::vector<float> StreamJob::scales(Rules& st, const Unit& u, const std::vector<std::size_t>& core,
-                                     std::vector<int>& needed) const {
-    const Loaded& l = st.l;
-    std::vector<float> scale(l.size(), 0.0f);
-    std::vector<std::size_t> walkers, missing(l.size(), 0), more;
-    for (std::size_t i : core) {
-        if (st.rule[i] != 0 || !need_scale_) continue;
-        if (keeps(l, i)) {
-            scale[i] = l.cloud.scales[i];
-        } else {
-            walkers.push_back(i);
-        }
-    }
-    while (!walkers.empty()) {
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, walkers.size(), 256),
+/// The scales of the kept points `rows` (rows in the whole cloud) that one of their first ks
+/// neighbours may have left: walked from lists searched again, with the rules of every loaded
+/// point from what verdict_pass spilled.
+void StreamJob::walk_again(const Unit& u, const std::vector<std::uint32_t>& rows,
+                           std::vector<float>& spacing) const {
+    for (int ring = 1;;) {
+        const Loaded l = load(u, ring);
+        const std::vector<float> d = d_.read(l);
+        const std::vector<char> verdict = verdict_.read(l), scattered_nb = scattered_.read(l);
+        std::vector<char> rule(l.size());
+        for (std::size_t i = 0; i < l.size(); ++i) rule[i] = rule_of(verdict[i], scattered_nb[i], d[i]);
+        const KnnIndex index(l.cloud.positions, options_.outliers.knn);
+        const Reach reach = reach_of(l);
+        std::vector<int> needed(rows.size(), 0);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 16),
                           [&](const tbb::blocked_range<std::size_t>& rg) {
             std::vector<int> kept_nb;
             for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
-                const std::size_t i = walkers[a];
-                needed[i] = walk(st, i, u, kept_nb, &missing[i], scale[i]);
+                const auto at = std::lower_bound(l.row.begin(), l.row.end(), rows[a]);
+                needed[a] = walk(l, index, reach, std::size_t(at - l.row.begin()), rule, u,
+                                 kept_nb, spacing[a]);
             }
         });
-        more.clear();
-        std::vector<std::size_t> again;
-        for (std::size_t i : walkers) {
-            if (needed[i] != kNoList) continue;
-            needed[i] = 0;
-            again.push_back(i);
-            more.push_back(missing[i]);
-        }
-        std::sort(more.begin(), more.end());
-        more.erase(std::unique(more.begin(), more.end()), more.end());
-        if (!more.empty()) decide(st, u, more);
-        walkers = std::move(again);
-    }
-    return scale;
-}
-
-/// Pass 2: the outlier rules on the unit's points, and the kNN scale of those kept. Lists are
-/// searched for the unit's points, then for the points of the halo their rules and walks read.
-void StreamJob::rules_pass(const Unit& u) {
-    for (int ring = 1;;) {
-        const Loaded l = load(u, ring);
-        const std::size_t m = l.size();
-        if (m <= std::size_t(k_)) {
-            ring *= 2;
-            continue;
-        }
-        const KnnIndex index(l.cloud.positions, options_.outliers.knn);
-        Rules st{l, reach_of(l), index, d_.read(l), std::vector<char>(m, kNoList),
-                 std::vector<int>(m, 0), std::vector<const int*>(m, nullptr), {}};
-        // The unit's points in the store's order (near ones searched together).
-        std::vector<std::size_t> core(m);
-        for (std::size_t i = 0; i < m; ++i) core[l.order[i]] = i;
-        core.erase(std::remove_if(core.begin(), core.end(),
-                                  [&](std::size_t i) { return !l.core[i]; }),
-                   core.end());
-        decide(st, u, core);
-        std::vector<std::size_t> more;  // the neighbours of the halo they read
-        for (std::size_t i : core) {
-            for (int j = 0; j < k_ && st.rule[i] >= 0; ++j) {
-                const std::size_t q = std::size_t(st.list_of[i][j]);
-                if (st.rule[q] == kNoList && !l.core[q]) more.push_back(q);
-            }
-        }
-        std::sort(more.begin(), more.end());
-        more.erase(std::unique(more.begin(), more.end()), more.end());
-        if (!more.empty()) decide(st, u, more);
-        std::vector<int> needed(m, 0);
-        for (std::size_t i : core) {
-            if (st.rule[i] == kUncertified) needed[i] = st.need[i];
-        }
-        const std::vector<float> scale = scales(st, u, core, needed);
         int wider = 0;
         for (int v : needed) wider = v < 0 ? std::max(wider, 2 * ring) : std::max(wider, v);
         if (wider > 0 && l.lo == store_->lowest() && l.hi == store_->highest()) {
             // every point is loaded and a walk still finds too few kept ones
             throw NotStreamable{"too few points kept for the kNN scale"};
         }
-        if (wider > 0) {
-            ring = std::max(ring + 1, wider);
-            continue;
-        }
-        largest_ = std::max<std::uint64_t>(largest_, m);
-        std::vector<char> removed(m, 0);
-        for (std::size_t i : core) {
-            removed[i] = st.rule[i] != 0;
-            statistical_ += st.rule[i] == 1;
-            planarity_ += st.rule[i] == 2;
-            if (removed[i]) continue;
-            ++kept_;
-            for (int a = 0; a < 3; ++a) {
-                lowest_[a] = std::min(lowest_[a], l.cloud.positions[i][a]);
-                highest_[a] = std::max(highest_[a], l.cloud.positions[i][a]);
-            }
-        }
-        removed_.write(l, removed);
-        if (need_scale_) scale_.write(l, scale);
-        return;
+        if (wider == 0) return;
+        ring = std::max(ring + 1, wider);
     }
+}
+
+/// Pass 2: the outlier rules on the unit's points, now that the median d is known, and the kNN
+/// scale of those kept: the mean distance to their first ks neighbours, or, where one of those
+/// may go, a walk (walk_again).
+void StreamJob::rules_pass(const Unit& u) {
+    const Loaded l = load(u, 0);
+    const std::size_t m = l.size();
+    const std::vector<float> d = d_.read(l), first = first_.read(l), most = most_.read(l);
+    const std::vector<char> verdict = verdict_.read(l), scattered_nb = scattered_.read(l);
+    const std::vector<char> touched = touched_.read(l);
+    std::vector<char> removed(m, 0);
+    std::vector<float> scale(m, 0.0f);
+    std::vector<std::size_t> again;
+    for (std::size_t i = 0; i < m; ++i) {
+        if (!l.core[i]) continue;
+        const char rule = rule_of(verdict[i], scattered_nb[i], d[i]);
+        removed[i] = rule != 0;
+        statistical_ += rule == 1;
+        planarity_ += rule == 2;
+        if (removed[i]) continue;
+        ++kept_;
+        for (int a = 0; a < 3; ++a) {
+            lowest_[a] = std::min(lowest_[a], l.cloud.positions[i][a]);
+            highest_[a] = std::max(highest_[a], l.cloud.positions[i][a]);
+        }
+        if (!need_scale_) continue;
+        if (keeps(l, i)) {
+            scale[i] = l.cloud.scales[i];
+        } else if (touched[i] || planarity_candidate(kPasses, most[i], median_d_, options_.outliers)) {
+            again.push_back(i);  // one of its first ks neighbours may go
+        } else {
+            scale[i] = first[i];
+        }
+    }
+    if (!again.empty()) {
+        std::vector<std::uint32_t> rows;
+        for (std::size_t i : again) rows.push_back(l.row[i]);
+        std::vector<float> walked(rows.size(), 0.0f);
+        walk_again(u, rows, walked);
+        for (std::size_t a = 0; a < again.size(); ++a) scale[again[a]] = walked[a];
+    }
+    removed_.write(l, removed);
+    if (need_scale_) scale_.write(l, scale);
 }
 
 /// The unit's kept points as the tiles' samples (the columns the in-memory stages leave in the
@@ -907,7 +988,9 @@ double StreamJob::sample_spacing() {
 void StreamJob::run(TileJob& job) {
     read();
     make_units();
-    if (outliers_ || need_scale_) {
+    if (outliers_) {
+        for (const Unit& u : units_) verdict_pass(u);
+    } else if (need_scale_) {
         for (const Unit& u : units_) spacing_pass(u);
     }
     kept_ = n_;

@@ -1,24 +1,27 @@
 // Streamed tile jobs (see detail/stream_tiles.h).
 //
 // Passes over the input, a chunk of rows at a time (detail::stream_points: the first finds the
-// local frame): the box and count; the points per cell; the points into a scratch file grouped
-// by cell (cubes holding about kCellPoints points of a surface), cells in key order, each cell's
-// points in the cloud's order. Then passes over regions ("units", boxes of G^3 cells), each
-// loaded with a halo of cells around it:
-//   1. each point's d_i (mean distance to its k nearest) and squared distance to the k-th;
-//      then the median d of the cloud (the planarity rule's), by selection over the scratch;
-//   2. the outlier rules and the kNN scale (the mean distance to the nearest kept points); then
-//      the density spacing and the voxel;
+// local frame and the box): the points per cell; the points into a scratch file grouped by cell
+// (cubes holding about kCellPoints points of a surface), cells in key order, each cell's points
+// in the cloud's order. Then passes over regions ("units": the cubes of an octree over the
+// cells), each loaded with a halo of cells around it:
+//   1. what the outlier rules and the kNN scale take from each point's list but the median d:
+//      d_i, the k-th distance, the statistical verdict, the planarity test, the mean distance
+//      to the first ks neighbours and what may take one of those away (without the outlier
+//      rules: d_i over the scale's k, the scale); then the median d, by selection;
+//   2. the rules, and the scale of the kept points: the first ks neighbours' mean distance, or
+//      a walk over a list searched again where one of those may go; then the density spacing
+//      and the voxel;
 //   3. the kernel sizes of the kept samples; then the kernel frame and the tile grid;
 //   4. the kept samples into the tile job's buckets.
 //
 // Exactness. A point's k nearest among the loaded points are its k nearest in the cloud when
 // the k-th is closer than the nearest face of the loaded box beyond which there are points (a
 // point outside is at least that far): its list is certified. Each result reads only certified
-// lists: d_i its own; a verdict its own list and the d_j of its neighbours (pass 1's, exact in
-// their own unit); the scale the lists of the points its walk passes (whether they are kept). A
-// unit that needs a list not certified is loaded again with a wider halo. The loaded points keep
-// the cloud's order (sorted by row), so ties between equal distances break by index as in the
+// lists: d_i its own; a verdict its own list and the d_j of its neighbours; the planarity test
+// its own list; a walk its own lists and the spilled rules of the points it passes. A unit that
+// needs a list not certified is loaded again with a wider halo. The loaded points keep the
+// cloud's order (sorted by row), so ties between equal distances break by index as in the
 // whole cloud, every sum is taken in the same order, and the results are those of the stages on
 // the whole cloud (outliers.cpp, normals.cpp, kernel_frame), bit for bit.
 #include "detail/stream_tiles.h"

@@ -119,6 +119,11 @@ void bind_pipeline(py::module_& m) {
                       "Tiled runs: the tiles that had samples near them.")
         .def_readonly("max_tile_points", &PipelineResult::max_tile_points,
                       "Tiled runs: samples of the largest tile with its halo.")
+        .def_readonly("stream_units", &PipelineResult::stream_units,
+                      "Streamed tiled runs: the regions the point stages ran on one at a time "
+                      "(0: the cloud was in memory).")
+        .def_readonly("stream_largest", &PipelineResult::stream_largest,
+                      "Streamed tiled runs: the points of the largest region with its halo.")
         .def_readonly("timings", &PipelineResult::timings, "StageTiming per stage.")
         .def("__repr__", [](const PipelineResult& r) {
             return "PipelineResult(" + std::to_string(r.mesh.faces.size()) +

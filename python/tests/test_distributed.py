@@ -43,6 +43,17 @@ def test_the_cli_bytes_from_tasks(client, cli, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cli.ply", "dask.ply"]  # job removed
 
 
+def test_streamed_jobs_give_the_same_bytes(client, cli, tmp_path):
+    # The client streams the file (its points never held whole) into the job; the tiles, and
+    # the bytes, are those of the run that holds the points.
+    expected = cli_tiled(cli, SRC, tmp_path / "cli.ply", "--tile", "32", "--stream", "off")
+    r = vdbrecon.distributed.run(SRC, tmp_path / "dask.ply", client=client, tile=32,
+                                 stream="on")
+    assert (tmp_path / "dask.ply").read_bytes() == expected
+    assert r.result.tiles > 8
+    assert cli_tiled(cli, SRC, tmp_path / "on.ply", "--tile", "32", "--stream", "on") == expected
+
+
 def test_a_worker_killed_mid_run_changes_nothing(client, cli, tmp_path):
     expected = cli_tiled(cli, SRC, tmp_path / "cli.ply", "--tile", "48", "--close", "2")
     killed = []

@@ -91,7 +91,8 @@ struct Loaded {
     /// region holds them; and where each loaded point was among their records.
     std::vector<std::array<std::uint64_t, 3>> ranges;
     std::vector<std::uint32_t> order;
-    Key lo{}, hi{};  ///< the cells loaded (a box)
+    Key lo{}, hi{};                  ///< the box of cells loaded around the region
+    std::vector<std::size_t> cells;  ///< every cell loaded (sorted): that box's, and others
     std::size_t size() const { return row.size(); }
 };
 
@@ -174,17 +175,22 @@ class CellStore {
         }
     }
 
-    /// The points of the cells in [lo, hi]; those of the cells `core` (sorted) are the core.
-    Loaded load(const Key& lo, const Key& hi, const std::vector<std::size_t>& core_cells) const {
+    /// The points of the cells in boxes[0] (the loaded box) and the other boxes; those of the
+    /// cells `core` (sorted) are the core.
+    Loaded load(const std::vector<std::array<Key, 2>>& boxes,
+                const std::vector<std::size_t>& core_cells) const {
         Loaded l;
-        l.lo = lo;
-        l.hi = hi;
+        l.lo = boxes[0][0];
+        l.hi = boxes[0][1];
+        for (const auto& b : boxes) cells_in(b[0], b[1], [&](std::size_t j) { l.cells.push_back(j); });
+        std::sort(l.cells.begin(), l.cells.end());
+        l.cells.erase(std::unique(l.cells.begin(), l.cells.end()), l.cells.end());
         std::uint64_t total = 0;
-        cells_in(lo, hi, [&](std::size_t j) {
+        for (std::size_t j : l.cells) {
             const bool core = std::binary_search(core_cells.begin(), core_cells.end(), j);
             l.ranges.push_back({begin_[j], cell_size(j), core ? 1u : 0u});
             total += cell_size(j);
-        });
+        }
         const std::size_t rec = layout_.bytes();
         std::string bytes(std::size_t(total) * rec, '\0');
         std::vector<char> core(total);
@@ -351,17 +357,41 @@ struct Unit {
 /// margin().
 struct Reach {
     double lo[3], hi[3];
+    const CellStore* store = nullptr;
+    const Loaded* loaded = nullptr;
     double margin(const Vec3f& p) const {
         double m = HUGE_VAL;
         for (int a = 0; a < 3; ++a) m = std::min({m, double(p[a]) - lo[a], hi[a] - double(p[a])});
         return m;
     }
+    /// Within the loaded box, or else every occupied cell the k-th neighbour's ball meets is
+    /// loaded (the ball of a point beyond the box, loaded on its own).
     bool certified(const Vec3f& p, float kth_sq) const {
         const double r = std::sqrt(double(kth_sq));
         // float positions and distances: a margin of their rounding
         const double size = std::max({std::fabs(p[0]), std::fabs(p[1]), std::fabs(p[2])});
-        return r + 1e-6 * (r + double(size)) + 1e-30 < margin(p);
+        const double reach = r + 1e-6 * (r + double(size)) + 1e-30;
+        if (reach < margin(p)) return true;
+        if (loaded->cells.size() == store->keys().size()) return true;  // all of them
+        Key a, b;
+        for (std::size_t x = 0; x < 3; ++x) {
+            a[x] = int(std::floor((double(p[x]) - reach) / store->edge()));
+            b[x] = int(std::floor((double(p[x]) + reach) / store->edge()));
+        }
+        bool all = true;
+        store->cells_in(a, b, [&](std::size_t j) {
+            all = all && std::binary_search(loaded->cells.begin(), loaded->cells.end(), j);
+        });
+        return all;
     }
+};
+
+/// How a unit is loaded: a halo of `ring` cells around its box, and the boxes of the balls of
+/// single points whose k-th neighbour lies further (a far stray needs the points around it,
+/// not a ring that wide around the whole unit).
+struct Halo {
+    int ring = 1;
+    std::vector<std::array<Key, 2>> balls;
 };
 
 class StreamJob {
@@ -377,14 +407,18 @@ class StreamJob {
   private:
     void read();
     void make_units();
+    Loaded load(const Unit& u, const Halo& h) const;
     Loaded load(const Unit& u, int ring) const;
+    void widen(Halo& next, const Unit& u, const Vec3f& p, float kth_sq) const;
     Reach reach_of(const Loaded& l) const;
     int ring_for(const Unit& u, const Vec3f& p, float kth_sq) const;
     void spacing_pass(const Unit& u);
     struct Lists;
-    void search(Lists& st, const Unit& u, const std::vector<std::size_t>& rows) const;
+    void search(Lists& st, const std::vector<std::size_t>& rows) const;
     std::vector<std::size_t> halo_of(const Lists& st, const std::vector<std::size_t>& rows,
-                                     int width, int& needed) const;
+                                     int width, std::vector<std::size_t>& fails) const;
+    bool widen_for(Halo& h, const Unit& u, const Loaded& l, const std::vector<float>& kth,
+                   const std::vector<std::size_t>& fails) const;
     void verdict_pass(const Unit& u);
     char rule_of(char verdict, char scattered_nb, float d) const;
     int walk(const Loaded& l, const KnnIndex& index, const Reach& reach, std::size_t i,
@@ -424,19 +458,18 @@ class StreamJob {
 };
 
 /// What verdict_pass knows of one loading of a unit: per point whose list was searched, the
-/// list and whether it is certified (else the halo that would certify it), d_i, the k-th
+/// list and whether it is certified, d_i, the k-th
 /// distance and the mean distance to its first ks neighbours.
 struct StreamJob::Lists {
     Lists(const Loaded& loaded, const Reach& r, const KnnIndex& i)
         : l(loaded), reach(r), index(i), list_of(loaded.size(), nullptr),
-          certified(loaded.size(), 0), need(loaded.size(), 0), d(loaded.size(), 0.0f),
+          certified(loaded.size(), 0), d(loaded.size(), 0.0f),
           kth(loaded.size(), 0.0f), first(loaded.size(), 0.0f) {}
     const Loaded& l;
     Reach reach;
     const KnnIndex& index;
     std::vector<const int*> list_of;  ///< nullptr: not searched
     std::vector<char> certified;
-    std::vector<int> need;
     std::vector<float> d, kth, first;
     std::deque<KnnResult> lists;
 };
@@ -524,20 +557,58 @@ void StreamJob::make_units() {
     split(store_->lowest(), side);
 }
 
-Loaded StreamJob::load(const Unit& u, int ring) const {
+Loaded StreamJob::load(const Unit& u, const Halo& h) const {
     Key lo = u.lo, hi = u.hi;
     for (std::size_t a = 0; a < 3; ++a) {
         // no cells beyond the occupied ones: the box stops there
-        lo[a] = std::max(lo[a] - ring, store_->lowest()[a]);
-        hi[a] = std::min(hi[a] + ring, store_->highest()[a]);
+        lo[a] = std::max(lo[a] - h.ring, store_->lowest()[a]);
+        hi[a] = std::min(hi[a] + h.ring, store_->highest()[a]);
     }
-    Loaded l = store_->load(lo, hi, u.cells);
+    std::vector<std::array<Key, 2>> boxes{{lo, hi}};
+    boxes.insert(boxes.end(), h.balls.begin(), h.balls.end());
+    Loaded l = store_->load(boxes, u.cells);
     l.cloud.origin = totals_.cloud.origin;
     return l;
 }
 
+Loaded StreamJob::load(const Unit& u, int ring) const {
+    Halo h;
+    h.ring = ring;
+    return load(u, h);
+}
+
+/// Widens a unit's halo for a point whose list is not certified: a ring of up to two cells
+/// more, else the ball of its k-th neighbour.
+void StreamJob::widen(Halo& next, const Unit& u, const Vec3f& p, float kth_sq) const {
+    const int ring = ring_for(u, p, kth_sq);
+    if (ring <= 2) {
+        next.ring = std::max(next.ring, ring);
+        return;
+    }
+    const double r = 1.01 * std::sqrt(double(kth_sq)) + 1e-6 * store_->edge();
+    std::array<Key, 2> ball;
+    for (std::size_t a = 0; a < 3; ++a) {
+        ball[0][a] = int(std::floor((double(p[a]) - r) / store_->edge()));
+        ball[1][a] = int(std::floor((double(p[a]) + r) / store_->edge()));
+    }
+    next.balls.push_back(ball);
+}
+
+/// Widens the halo for the points `fails` of a loading; false when there are none.
+bool StreamJob::widen_for(Halo& h, const Unit& u, const Loaded& l, const std::vector<float>& kth,
+                          const std::vector<std::size_t>& fails) const {
+    if (fails.empty()) return false;
+    Halo next = h;
+    for (std::size_t i : fails) widen(next, u, l.cloud.positions[i], kth[i]);
+    if (next.ring == h.ring && next.balls.size() == h.balls.size()) ++next.ring;  // (progress)
+    h = std::move(next);
+    return true;
+}
+
 Reach StreamJob::reach_of(const Loaded& l) const {
     Reach r;
+    r.store = store_.get();
+    r.loaded = &l;
     const double e = store_->edge();
     for (std::size_t a = 0; a < 3; ++a) {
         r.lo[a] = l.lo[a] <= store_->lowest()[a] ? -HUGE_VAL : double(l.lo[a]) * e;
@@ -562,10 +633,10 @@ int StreamJob::ring_for(const Unit& u, const Vec3f& p, float kth_sq) const {
 /// Pass 1: d_i and the k-th neighbour's squared distance of the unit's points (without the
 /// outlier rules, d_i is the kNN scale).
 void StreamJob::spacing_pass(const Unit& u) {
-    for (int ring = 1;;) {
-        Loaded l = load(u, ring);
+    for (Halo h;;) {
+        Loaded l = load(u, h);
         if (l.size() <= std::size_t(k_)) {
-            ring *= 2;
+            h.ring *= 2;
             continue;
         }
         const Reach reach = reach_of(l);
@@ -579,7 +650,7 @@ void StreamJob::spacing_pass(const Unit& u) {
         const KnnResult lists = index.self_neighbours_of(rows, k_);
         const Span<Vec3f> pts = l.cloud.positions;
         std::vector<float> d(l.size()), kth(l.size());
-        std::vector<int> need(rows.size(), 0);
+        std::vector<char> failed(rows.size(), 0);
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
                           [&](const tbb::blocked_range<std::size_t>& rg) {
             for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
@@ -587,17 +658,17 @@ void StreamJob::spacing_pass(const Unit& u) {
                 const int* nb = lists.neighbours(a);
                 kth[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k_ - 1])]);
                 if (!reach.certified(pts[i], kth[i])) {
-                    need[a] = ring_for(u, pts[i], kth[i]);
+                    failed[a] = 1;
                 } else {
                     d[i] = mean_distance(pts, i, nb, k_);
                 }
             }
         });
-        const int needed = *std::max_element(need.begin(), need.end());
-        if (needed > 0) {
-            ring = std::max(ring + 1, needed);
-            continue;
+        std::vector<std::size_t> fails;
+        for (std::size_t a = 0; a < rows.size(); ++a) {
+            if (failed[a]) fails.push_back(rows[a]);
         }
+        if (widen_for(h, u, l, kth, fails)) continue;
         largest_ = std::max<std::uint64_t>(largest_, l.size());
         d_.write(l, d);
         kth_.write(l, kth);
@@ -612,9 +683,9 @@ void StreamJob::spacing_pass(const Unit& u) {
 }
 
 /// Searches the lists of `rows` of a loading: each point's list, d_i, k-th distance and the
-/// mean distance to its first ks (the kNN scale when those are kept), or why its list is not
-/// certified (the halo that would certify it).
-void StreamJob::search(Lists& st, const Unit& u, const std::vector<std::size_t>& rows) const {
+/// mean distance to its first ks (the kNN scale when those are kept), when its list is
+/// certified.
+void StreamJob::search(Lists& st, const std::vector<std::size_t>& rows) const {
     const Span<Vec3f> pts = st.l.cloud.positions;
     const int ks = need_scale_ ? options_.normals.k : 0;
     st.lists.push_back(st.index.self_neighbours_of(rows, k_));
@@ -625,10 +696,7 @@ void StreamJob::search(Lists& st, const Unit& u, const std::vector<std::size_t>&
             const std::size_t i = rows[a];
             const int* nb = st.list_of[i] = got.neighbours(a);
             st.kth[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k_ - 1])]);
-            if (!st.reach.certified(pts[i], st.kth[i])) {
-                st.need[i] = ring_for(u, pts[i], st.kth[i]);
-                continue;
-            }
+            if (!st.reach.certified(pts[i], st.kth[i])) continue;
             st.certified[i] = 1;
             st.d[i] = mean_distance(pts, i, nb, k_, ks, ks > 0 ? &st.first[i] : nullptr);
         }
@@ -638,11 +706,11 @@ void StreamJob::search(Lists& st, const Unit& u, const std::vector<std::size_t>&
 /// The points of the halo among the first `width` entries of the lists of `rows`, not yet
 /// searched (sorted); the halo that `rows` would need when one of their lists is uncertified.
 std::vector<std::size_t> StreamJob::halo_of(const Lists& st, const std::vector<std::size_t>& rows,
-                                            int width, int& needed) const {
+                                            int width, std::vector<std::size_t>& fails) const {
     std::vector<std::size_t> out;
     for (std::size_t i : rows) {
         if (!st.certified[i]) {
-            needed = std::max(needed, st.need[i]);
+            fails.push_back(i);
             continue;
         }
         for (int j = 0; j < width; ++j) {
@@ -665,11 +733,11 @@ std::vector<std::size_t> StreamJob::halo_of(const Lists& st, const std::vector<s
 void StreamJob::verdict_pass(const Unit& u) {
     const OutlierOptions& o = options_.outliers;
     const int ks = need_scale_ ? options_.normals.k : 0;
-    for (int ring = 1;;) {
-        const Loaded l = load(u, ring);
+    for (Halo h;;) {
+        const Loaded l = load(u, h);
         const std::size_t m = l.size();
         if (m <= std::size_t(k_)) {
-            ring *= 2;
+            h.ring *= 2;
             continue;
         }
         const KnnIndex index(l.cloud.positions, o.knn);
@@ -679,9 +747,9 @@ void StreamJob::verdict_pass(const Unit& u) {
         core.erase(std::remove_if(core.begin(), core.end(),
                                   [&](std::size_t i) { return !l.core[i]; }),
                    core.end());
-        int needed = 0;
-        search(st, u, core);
-        search(st, u, halo_of(st, core, k_, needed));  // the d_j of their neighbours
+        std::vector<std::size_t> fails;  // points whose lists are to be certified
+        search(st, core);
+        search(st, halo_of(st, core, k_, fails));  // the d_j of their neighbours
         // The points whose verdicts are needed: the unit's, and the halo's among their first ks
         // neighbours; then the d_j of those neighbours' neighbours.
         std::vector<std::size_t> judged = core;
@@ -694,7 +762,7 @@ void StreamJob::verdict_pass(const Unit& u) {
         std::sort(judged.begin() + std::ptrdiff_t(core.size()), judged.end());
         judged.erase(std::unique(judged.begin() + std::ptrdiff_t(core.size()), judged.end()),
                      judged.end());
-        search(st, u, halo_of(st, judged, k_, needed));
+        search(st, halo_of(st, judged, k_, fails));
         std::vector<char> verdict(m, kUnknown), scattered_nb(m, 0);
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, judged.size(), 1024),
                           [&](const tbb::blocked_range<std::size_t>& rg) {
@@ -716,17 +784,13 @@ void StreamJob::verdict_pass(const Unit& u) {
             }
         });
         for (std::size_t i : judged) {
-            if (verdict[i] != kUnknown) continue;
-            needed = std::max(needed, st.need[i]);
-            for (int j = 0; j < k_ && st.list_of[i]; ++j) {
-                needed = std::max(needed, st.need[std::size_t(st.list_of[i][j])]);
+            if (verdict[i] != kUnknown || !st.certified[i]) continue;  // (the latter in fails)
+            for (int j = 0; j < k_; ++j) {
+                const std::size_t q = std::size_t(st.list_of[i][j]);
+                if (!st.certified[q]) fails.push_back(q);
             }
-            needed = std::max(needed, ring + 1);
         }
-        if (needed > 0) {
-            ring = std::max(ring + 1, needed);
-            continue;
-        }
+        if (widen_for(h, u, l, st.kth, fails)) continue;
         largest_ = std::max<std::uint64_t>(largest_, m);
         std::vector<char> touched(m, 0);
         std::vector<float> most(m, -1.0f);

@@ -192,14 +192,19 @@ struct RowBounds {
         }
     }
 
+    double diagonal() const {
+        double diag2 = 0.0;
+        for (int a = 0; a < 3 && any; ++a) diag2 += (hi[a] - lo[a]) * (hi[a] - lo[a]);
+        return std::sqrt(diag2);
+    }
+
     Vec3d origin() const {
         if (!any) return {0.0, 0.0, 0.0};
-        double diag2 = 0.0, magnitude = 0.0;
+        double magnitude = 0.0;
         for (int a = 0; a < 3; ++a) {
-            diag2 += (hi[a] - lo[a]) * (hi[a] - lo[a]);
             magnitude = std::max({magnitude, std::fabs(lo[a]), std::fabs(hi[a])});
         }
-        const double diag = std::sqrt(diag2);
+        const double diag = diagonal();
         // A float carries 24 bits: at magnitude M its spacing is M * 2^-23. Keep that below
         // extent * 2^-20 (a millionth of the scan), i.e. re-centre once M > 8 * extent.
         if (magnitude <= 8.0 * std::max(diag, 1e-30) || magnitude < 1.0) return {0.0, 0.0, 0.0};
@@ -650,28 +655,29 @@ ReadResult read_points(const std::string& path, const ReadOptions& options) {
 bool detail::stream_points(const std::string& path, const ReadOptions& options,
                            const PointsSink& sink, ReadResult& totals, int passes,
                            StreamFrame* frame, bool need_normals) {
-    detail::FileBytes file(path);
-    const std::string_view bytes = file.bytes();
-    if (bytes.empty()) throw FormatError(detail::where(path, "file is empty"));
-    if (detect_format(path, bytes) != Format::ply) return false;
-    if (need_normals && !detail::ply_has_normals(path, bytes)) return false;
-    if (!options.classes.empty()) {
-        throw InvalidArgument(detail::where(path, "point classes are chosen only in LAS files"));
-    }
-    const detail::Consumed let_go = [&](const char* upto) { file.let_go(upto); };
     // First pass: the frame, from the box of all finite rows.
     RowBounds box;
     std::string format;
-    detail::read_ply_raw(path, bytes, false, format, let_go,
-                         [&](detail::RawPoints& raw, std::size_t) {
-        for (std::size_t i = 0; i < raw.rows(); ++i) box.add(raw.row(i));
-    });
+    {
+        detail::FileBytes file(path);
+        const std::string_view bytes = file.bytes();
+        if (bytes.empty()) throw FormatError(detail::where(path, "file is empty"));
+        if (detect_format(path, bytes) != Format::ply) return false;
+        if (need_normals && !detail::ply_has_normals(path, bytes)) return false;
+        if (!options.classes.empty()) {
+            throw InvalidArgument(
+                detail::where(path, "point classes are chosen only in LAS files"));
+        }
+        detail::read_ply_raw(path, bytes, false, format,
+                             [&](const char* upto) { file.let_go(upto); },
+                             [&](detail::RawPoints& raw, std::size_t) {
+            for (std::size_t i = 0; i < raw.rows(); ++i) box.add(raw.row(i));
+        });
+    }
     const Vec3d origin = options.local_frame ? box.origin() : Vec3d{0, 0, 0};
     if (frame) {
         frame->rows = box.rows;
-        double d2 = 0.0;
-        for (int a = 0; a < 3 && box.any; ++a) d2 += (box.hi[a] - box.lo[a]) * (box.hi[a] - box.lo[a]);
-        frame->diagonal = std::sqrt(d2);
+        frame->diagonal = box.diagonal();
     }
     // Then the passes over the chunks, finalized in that frame.
     totals = ReadResult{};
@@ -679,7 +685,7 @@ bool detail::stream_points(const std::string& path, const ReadOptions& options,
     totals.cloud.origin = origin;
     ReadResult chunk;
     for (int pass = 0; pass < passes; ++pass) {
-        detail::FileBytes again(path);  // the last pass let its pages go
+        detail::FileBytes again(path);  // (the last pass let its pages go)
         detail::read_ply_raw(path, again.bytes(), false, format,
                              [&](const char* upto) { again.let_go(upto); },
                              [&](detail::RawPoints& raw, std::size_t first) {

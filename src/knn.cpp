@@ -723,7 +723,9 @@ double median_density_spacing(std::vector<float>& kth_sq, int k) {
     if (kth_sq.empty() || k <= 0) return 0.0;
     const auto mid = kth_sq.begin() + std::ptrdiff_t(kth_sq.size() / 2);
     std::nth_element(kth_sq.begin(), mid, kth_sq.end());
-    return std::sqrt(double(*mid) * M_PI / double(k));
+    return density_spacing(*mid, k);
 }
+
+double density_spacing(float kth_sq, int k) { return std::sqrt(double(kth_sq) * M_PI / double(k)); }
 
 }  // namespace vdbrecon

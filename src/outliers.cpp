@@ -14,6 +14,7 @@
 #include "detail/outlier_rules.h"
 #include "detail/parked.h"
 #include "detail/release.h"
+#include "detail/select.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
 
@@ -69,28 +70,10 @@ Column<T> copy_borrowed(const Column<T>& v, const std::vector<char>& removed, st
     return out;
 }
 
-/// The element of rank n / 2 of v (what std::nth_element puts there), without a copy of v:
-/// values >= 0 order like their bit patterns, so a histogram of the top 16 bits finds the
-/// bucket that holds that rank, and only that bucket's values are copied and selected.
+/// The element of rank n / 2 of v (what std::nth_element puts there), without a copy of v
+/// (detail::select_rank).
 double median_of(const std::vector<float>& v) {
-    const std::size_t n = v.size(), rank = n / 2;
-    constexpr int kShift = 32 - 16;
-    const auto bucket = [](float x) {
-        std::uint32_t bits;
-        std::memcpy(&bits, &x, sizeof bits);
-        return std::size_t(bits >> kShift);
-    };
-    std::vector<std::size_t> count(std::size_t(1) << 16, 0);
-    for (float x : v) ++count[bucket(x)];
-    std::size_t b = 0, below = 0;
-    while (below + count[b] <= rank) below += count[b++];
-    std::vector<float> in;
-    in.reserve(count[b]);
-    for (float x : v) {
-        if (bucket(x) == b) in.push_back(x);
-    }
-    std::nth_element(in.begin(), in.begin() + std::ptrdiff_t(rank - below), in.end());
-    return double(in[rank - below]);
+    return double(detail::select_rank(v.size() / 2, v));
 }
 
 /// Rows whose neighbour lists wait for something of their neighbours (see classify), with the

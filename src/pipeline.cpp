@@ -605,6 +605,22 @@ void write_outputs(RunResult& out, const PipelineOptions& options, const std::st
 
 namespace {
 
+/// A tile job's pieces welded (the "stitch"), then the stages after the mesh, into r.
+void stitch_stages(PipelineResult& r, const std::string& dir, std::size_t count,
+                   const PieceSource& pieces, const PipelineOptions& options,
+                   const StageCallback& on_stage, const VolumeCallback& on_volume) {
+    double voxel = 0.0;
+    Vec3d origin{0.0, 0.0, 0.0};
+    {
+        StageClock clock(r.timings, on_stage, "stitch");
+        take_tiled(r, detail::finish_tile_job(dir, count, pieces,
+                                              detail::tiled_options(options, options.splat, 0.0),
+                                              voxel, origin));
+    }
+    r.voxel_size = voxel;
+    tiled_cleanup_stages(r, options, voxel, origin, on_stage, on_volume);
+}
+
 /// A tiled run streamed through its input (detail/stream_tiles.h): the tile job in a temporary
 /// directory, its tiles one after another (their pieces waiting on disk), then the stitch and
 /// the stages after the mesh, as finish_tiles() does. False, with nothing done, when the input
@@ -635,17 +651,8 @@ bool run_streamed(const std::string& input, const PipelineOptions& options,
             }
             detail::trim_heap();  // what the tiles freed, before the surface is joined
         }
-        double voxel = 0.0;
-        Vec3d origin{0.0, 0.0, 0.0};
-        {
-            StageClock clock(r.timings, on_stage, "stitch");
-            const PieceSource source = [&](std::size_t i, std::string& b) {
-                return pieces.get(i, b);
-            };
-            take_tiled(r, detail::finish_tile_job(dir.path(), job.tiles, source, to, voxel,
-                                                  origin));
-        }
-        tiled_cleanup_stages(r, options, voxel, origin, on_stage, on_volume);
+        const PieceSource source = [&](std::size_t i, std::string& b) { return pieces.get(i, b); };
+        stitch_stages(r, dir.path(), job.tiles, source, options, on_stage, on_volume);
     });
     return true;
 }
@@ -756,18 +763,7 @@ RunResult finish_tiles(const std::string& input, const std::string& output, cons
     if (o.tile == 0) o.tile = -1;  // a tiled run's outputs: no .vdb
     auto compute = [&](RunResult&, std::vector<StageTiming>&, const VolumeCallback& write_vdb) {
         PipelineResult r;
-        in_arena(o.threads, [&] {
-            double voxel = 0.0;
-            Vec3d origin{0.0, 0.0, 0.0};
-            {
-                StageClock clock(r.timings, on_stage, "stitch");
-                take_tiled(r, detail::finish_tile_job(dir, count, pieces,
-                                                      detail::tiled_options(o, o.splat, 0.0), voxel,
-                                                      origin));
-            }
-            r.voxel_size = voxel;
-            tiled_cleanup_stages(r, o, voxel, origin, on_stage, write_vdb);
-        });
+        in_arena(o.threads, [&] { stitch_stages(r, dir, count, pieces, o, on_stage, write_vdb); });
         return r;
     };
     return detail::run_to_files(input, output, o, on_stage, compute);

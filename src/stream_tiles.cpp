@@ -45,6 +45,7 @@
 #include "detail/io_common.h"
 #include "detail/outlier_rules.h"
 #include "detail/radix_sort.h"
+#include "detail/select.h"
 #include "detail/splat_frame.h"
 #include "detail/spool.h"
 #include "detail/tiles.h"
@@ -55,14 +56,7 @@
 namespace vdbrecon::detail {
 namespace {
 
-using Key = std::array<int, 3>;
-
-struct KeyHash {
-    std::size_t operator()(const Key& k) const {
-        return std::size_t(k[0]) * 73856093u ^ std::size_t(k[1]) * 19349663u ^
-               std::size_t(k[2]) * 83492791u;
-    }
-};
+using Key = TileKey;  // a cell's coordinates
 
 /// Points a cell holds on average, were the cloud a surface spread evenly over its box.
 constexpr double kCellPoints = 1024.0;
@@ -308,42 +302,13 @@ class CellStore {
 
     Layout layout_;
     double edge_;
-    std::unordered_map<Key, std::uint64_t, KeyHash> counts_;
+    std::unordered_map<Key, std::uint64_t, TileKeyHash> counts_;
     std::vector<Key> keys_;
     std::vector<std::uint64_t> begin_, fill_;
     Key lowest_{}, highest_{};
     mutable Spool file_;
 };
 
-/// The value of rank `rank` (what std::nth_element puts there) among values >= 0 that
-/// scan(fn) hands over a chunk at a time (fn(values, count)), in two scans: a histogram of
-/// their top 16 bits (such floats order like their bit patterns), then the values of the
-/// bucket that holds the rank.
-template <typename Scan>
-float select_rank(std::uint64_t rank, const Scan& scan) {
-    const auto bucket = [](float x) {
-        std::uint32_t bits;
-        std::memcpy(&bits, &x, sizeof bits);
-        return std::size_t(bits >> 16);
-    };
-    std::vector<std::uint64_t> count(std::size_t(1) << 16, 0);
-    scan([&](const float* v, std::size_t n) {
-        for (std::size_t i = 0; i < n; ++i) ++count[bucket(v[i])];
-    });
-    std::size_t b = 0;
-    std::uint64_t below = 0;
-    while (below + count[b] <= rank) below += count[b++];
-    std::vector<float> in;
-    in.reserve(std::size_t(count[b]));
-    scan([&](const float* v, std::size_t n) {
-        for (std::size_t i = 0; i < n; ++i) {
-            if (bucket(v[i]) == b) in.push_back(v[i]);
-        }
-    });
-    const auto at = in.begin() + std::ptrdiff_t(rank - below);
-    std::nth_element(in.begin(), at, in.end());
-    return *at;
-}
 
 
 /// A unit: the cells whose points it decides.
@@ -411,7 +376,8 @@ class StreamJob {
     Loaded load(const Unit& u, int ring) const;
     void widen(Halo& next, const Unit& u, const Vec3f& p, float kth_sq) const;
     Reach reach_of(const Loaded& l) const;
-    int ring_for(const Unit& u, const Vec3f& p, float kth_sq) const;
+    std::array<Key, 2> ball_of(const Vec3f& p, float kth_sq) const;
+    int ring_for(const Unit& u, const std::array<Key, 2>& ball) const;
     void spacing_pass(const Unit& u);
     struct Lists;
     void search(Lists& st, const std::vector<std::size_t>& rows) const;
@@ -444,7 +410,8 @@ class StreamJob {
     std::uint64_t n_ = 0;
     std::vector<Unit> units_;
     bool outliers_ = false, need_scale_ = false;
-    int k_ = 0;  ///< neighbours of pass 1: the outlier rules', else the kNN scale's
+    int k_ = 0;   ///< neighbours of pass 1: the outlier rules', else the kNN scale's
+    int ks_ = 0;  ///< with the outlier rules, the kNN scale's (0: no scale to find)
     CellStore::Side<float> d_{"tiles: d of the points"}, kth_{"tiles: k-th distances"};
     CellStore::Side<float> scale_{"tiles: scales"};
     CellStore::Side<char> removed_{"tiles: outlier flags"};
@@ -457,9 +424,9 @@ class StreamJob {
     Vec3f lowest_{HUGE_VALF, HUGE_VALF, HUGE_VALF}, highest_{-HUGE_VALF, -HUGE_VALF, -HUGE_VALF};
 };
 
-/// What verdict_pass knows of one loading of a unit: per point whose list was searched, the
-/// list and whether it is certified, d_i, the k-th
-/// distance and the mean distance to its first ks neighbours.
+/// What a pass knows of one loading of a unit: per point whose list was searched, the list and
+/// whether it is certified, d_i, the k-th distance and the mean distance to its first ks_
+/// neighbours.
 struct StreamJob::Lists {
     Lists(const Loaded& loaded, const Reach& r, const KnnIndex& i)
         : l(loaded), reach(r), index(i), list_of(loaded.size(), nullptr),
@@ -519,6 +486,7 @@ void StreamJob::read() {
     need_scale_ = options_.normals.scale == ScaleMode::knn ||
                   (options_.normals.scale == ScaleMode::automatic && (!scales || any_zero_scale));
     if (!outliers_) k_ = std::min<int>(options_.normals.k, int(n_) - 1);
+    ks_ = outliers_ && need_scale_ ? options_.normals.k : 0;
 }
 
 /// Units: the cubes of an octree over the cells, split while a cube holds more than a budget's
@@ -580,18 +548,13 @@ Loaded StreamJob::load(const Unit& u, int ring) const {
 /// Widens a unit's halo for a point whose list is not certified: a ring of up to two cells
 /// more, else the ball of its k-th neighbour.
 void StreamJob::widen(Halo& next, const Unit& u, const Vec3f& p, float kth_sq) const {
-    const int ring = ring_for(u, p, kth_sq);
+    const std::array<Key, 2> ball = ball_of(p, kth_sq);
+    const int ring = ring_for(u, ball);
     if (ring <= 2) {
         next.ring = std::max(next.ring, ring);
-        return;
+    } else {
+        next.balls.push_back(ball);
     }
-    const double r = 1.01 * std::sqrt(double(kth_sq)) + 1e-6 * store_->edge();
-    std::array<Key, 2> ball;
-    for (std::size_t a = 0; a < 3; ++a) {
-        ball[0][a] = int(std::floor((double(p[a]) - r) / store_->edge()));
-        ball[1][a] = int(std::floor((double(p[a]) + r) / store_->edge()));
-    }
-    next.balls.push_back(ball);
 }
 
 /// Widens the halo for the points `fails` of a loading; false when there are none.
@@ -617,67 +580,59 @@ Reach StreamJob::reach_of(const Loaded& l) const {
     return r;
 }
 
-/// The halo (cells) whose box holds the ball of this point's k-th neighbour, with a cell spare.
-int StreamJob::ring_for(const Unit& u, const Vec3f& p, float kth_sq) const {
+/// The box of the cells the ball of this point's k-th neighbour meets (1 % wider).
+std::array<Key, 2> StreamJob::ball_of(const Vec3f& p, float kth_sq) const {
     const double r = 1.01 * std::sqrt(double(kth_sq)) + 1e-6 * store_->edge();
+    std::array<Key, 2> ball;
+    for (std::size_t a = 0; a < 3; ++a) {
+        ball[0][a] = int(std::floor((double(p[a]) - r) / store_->edge()));
+        ball[1][a] = int(std::floor((double(p[a]) + r) / store_->edge()));
+    }
+    return ball;
+}
+
+/// The halo (cells) whose box around the unit holds a ball, with a cell spare.
+int StreamJob::ring_for(const Unit& u, const std::array<Key, 2>& ball) const {
     int ring = 0;
-    for (int a = 0; a < 3; ++a) {
-        const double lo = (double(p[a]) - r) / store_->edge();
-        const double hi = (double(p[a]) + r) / store_->edge();
-        ring = std::max({ring, u.lo[std::size_t(a)] - int(std::floor(lo)),
-                         int(std::floor(hi)) - u.hi[std::size_t(a)]});
+    for (std::size_t a = 0; a < 3; ++a) {
+        ring = std::max({ring, u.lo[a] - ball[0][a], ball[1][a] - u.hi[a]});
     }
     return ring + 1;
 }
 
-/// Pass 1: d_i and the k-th neighbour's squared distance of the unit's points (without the
-/// outlier rules, d_i is the kNN scale).
+/// A loading's core points in the store's order, cell after cell: near ones searched together.
+std::vector<std::size_t> core_rows(const Loaded& l) {
+    std::vector<std::size_t> rows(l.size());
+    for (std::size_t i = 0; i < l.size(); ++i) rows[l.order[i]] = i;
+    rows.erase(std::remove_if(rows.begin(), rows.end(), [&](std::size_t i) { return !l.core[i]; }),
+               rows.end());
+    return rows;
+}
+
+/// Pass 1 without the outlier rules: the kNN scale of the unit's points (their mean distance to
+/// their k nearest, unless the file's scale stays) and the k-th neighbour's squared distance.
 void StreamJob::spacing_pass(const Unit& u) {
     for (Halo h;;) {
-        Loaded l = load(u, h);
+        const Loaded l = load(u, h);
         if (l.size() <= std::size_t(k_)) {
             h.ring *= 2;
             continue;
         }
-        const Reach reach = reach_of(l);
-        // The unit's points in the store's order, cell after cell: near ones searched together.
-        std::vector<std::size_t> rows(l.size());
-        for (std::size_t i = 0; i < l.size(); ++i) rows[l.order[i]] = i;
-        rows.erase(std::remove_if(rows.begin(), rows.end(),
-                                  [&](std::size_t i) { return !l.core[i]; }),
-                   rows.end());
-        const KnnIndex index(l.cloud.positions, options_.outliers.knn);
-        const KnnResult lists = index.self_neighbours_of(rows, k_);
-        const Span<Vec3f> pts = l.cloud.positions;
-        std::vector<float> d(l.size()), kth(l.size());
-        std::vector<char> failed(rows.size(), 0);
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
-                          [&](const tbb::blocked_range<std::size_t>& rg) {
-            for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
-                const std::size_t i = rows[a];
-                const int* nb = lists.neighbours(a);
-                kth[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k_ - 1])]);
-                if (!reach.certified(pts[i], kth[i])) {
-                    failed[a] = 1;
-                } else {
-                    d[i] = mean_distance(pts, i, nb, k_);
-                }
-            }
-        });
+        const KnnIndex index(l.cloud.positions, options_.normals.knn);
+        Lists st(l, reach_of(l), index);
+        const std::vector<std::size_t> core = core_rows(l);
+        search(st, core);
         std::vector<std::size_t> fails;
-        for (std::size_t a = 0; a < rows.size(); ++a) {
-            if (failed[a]) fails.push_back(rows[a]);
+        for (std::size_t i : core) {
+            if (!st.certified[i]) fails.push_back(i);
         }
-        if (widen_for(h, u, l, kth, fails)) continue;
+        if (widen_for(h, u, l, st.kth, fails)) continue;
         largest_ = std::max<std::uint64_t>(largest_, l.size());
-        d_.write(l, d);
-        kth_.write(l, kth);
-        if (!outliers_ && need_scale_) {
-            for (std::size_t i = 0; i < l.size(); ++i) {
-                if (keeps(l, i)) d[i] = l.cloud.scales[i];
-            }
-            scale_.write(l, d);
+        kth_.write(l, st.kth);
+        for (std::size_t i = 0; i < l.size(); ++i) {
+            if (keeps(l, i)) st.d[i] = l.cloud.scales[i];
         }
+        scale_.write(l, st.d);
         return;
     }
 }
@@ -687,7 +642,6 @@ void StreamJob::spacing_pass(const Unit& u) {
 /// certified.
 void StreamJob::search(Lists& st, const std::vector<std::size_t>& rows) const {
     const Span<Vec3f> pts = st.l.cloud.positions;
-    const int ks = need_scale_ ? options_.normals.k : 0;
     st.lists.push_back(st.index.self_neighbours_of(rows, k_));
     const KnnResult& got = st.lists.back();
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
@@ -698,13 +652,13 @@ void StreamJob::search(Lists& st, const std::vector<std::size_t>& rows) const {
             st.kth[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k_ - 1])]);
             if (!st.reach.certified(pts[i], st.kth[i])) continue;
             st.certified[i] = 1;
-            st.d[i] = mean_distance(pts, i, nb, k_, ks, ks > 0 ? &st.first[i] : nullptr);
+            st.d[i] = mean_distance(pts, i, nb, k_, ks_, ks_ > 0 ? &st.first[i] : nullptr);
         }
     });
 }
 
 /// The points of the halo among the first `width` entries of the lists of `rows`, not yet
-/// searched (sorted); the halo that `rows` would need when one of their lists is uncertified.
+/// searched (sorted); the rows whose own lists are not certified go to `fails`.
 std::vector<std::size_t> StreamJob::halo_of(const Lists& st, const std::vector<std::size_t>& rows,
                                             int width, std::vector<std::size_t>& fails) const {
     std::vector<std::size_t> out;
@@ -732,7 +686,7 @@ std::vector<std::size_t> StreamJob::halo_of(const Lists& st, const std::vector<s
 /// halo points within two steps are searched too.
 void StreamJob::verdict_pass(const Unit& u) {
     const OutlierOptions& o = options_.outliers;
-    const int ks = need_scale_ ? options_.normals.k : 0;
+    const int ks = ks_;
     for (Halo h;;) {
         const Loaded l = load(u, h);
         const std::size_t m = l.size();
@@ -742,11 +696,7 @@ void StreamJob::verdict_pass(const Unit& u) {
         }
         const KnnIndex index(l.cloud.positions, o.knn);
         Lists st(l, reach_of(l), index);
-        std::vector<std::size_t> core(m);  // in the store's order: near ones searched together
-        for (std::size_t i = 0; i < m; ++i) core[l.order[i]] = i;
-        core.erase(std::remove_if(core.begin(), core.end(),
-                                  [&](std::size_t i) { return !l.core[i]; }),
-                   core.end());
+        const std::vector<std::size_t> core = core_rows(l);
         std::vector<std::size_t> fails;  // points whose lists are to be certified
         search(st, core);
         search(st, halo_of(st, core, k_, fails));  // the d_j of their neighbours
@@ -824,14 +774,14 @@ char StreamJob::rule_of(char verdict, char scattered_nb, float d) const {
 int StreamJob::walk(const Loaded& l, const KnnIndex& index, const Reach& reach, std::size_t i,
                     const std::vector<char>& rule, const Unit& u, std::vector<int>& kept_nb,
                     float& spacing) const {
-    const int ks = options_.normals.k;
+    const int ks = ks_;
     const Span<Vec3f> pts = l.cloud.positions;
     for (int K = k_;; K *= 2) {
         if (std::size_t(K) >= l.size()) return -1;  // more points needed: a wider halo
         const KnnResult list = index.self_neighbours_of({i}, K);
         const int* nb = list.neighbours(0);
         const float kth = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[K - 1])]);
-        if (!reach.certified(pts[i], kth)) return ring_for(u, pts[i], kth);
+        if (!reach.certified(pts[i], kth)) return ring_for(u, ball_of(pts[i], kth));
         kept_nb.clear();
         for (int j = 0; j < K && int(kept_nb.size()) < ks; ++j) {
             if (rule[std::size_t(nb[j])] == 0) kept_nb.push_back(nb[j]);
@@ -1036,8 +986,7 @@ double StreamJob::sample_spacing() {
         };
     };
     if (outliers_ || need_scale_) {  // the density spacing of the first search
-        const double kth = select_rank(kept_ / 2, scan_side(kth_, outliers_));
-        return std::sqrt(kth * M_PI / double(k_));
+        return density_spacing(select_rank(kept_ / 2, scan_side(kth_, outliers_)), k_);
     }
     if (options_.normals.scale == ScaleMode::none) return 0.0;
     // the file's scales (all > 0 here): their median

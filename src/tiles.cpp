@@ -85,13 +85,7 @@ void add_tiles_near(const openvdb::Vec3d& c, const TileGrid& g, std::vector<Tile
 Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g) {
     // A counting sort by tile, stable (increasing index within a tile): two passes over the
     // points and a table of the occupied tiles, no key stored per point.
-    struct Hash {
-        std::size_t operator()(const TileKey& k) const {
-            return std::size_t(k[0]) * 73856093u ^ std::size_t(k[1]) * 19349663u ^
-                   std::size_t(k[2]) * 83492791u;
-        }
-    };
-    std::unordered_map<TileKey, std::size_t, Hash> slot;  // points per tile, then its bucket
+    std::unordered_map<TileKey, std::size_t, TileKeyHash> slot;  // points per tile, then its bucket
     const std::size_t np = cloud.size();
     for (std::size_t i = 0; i < np; ++i) ++slot[tile_of(kernel_centre(cloud, i, voxel), g)];
     Buckets b;

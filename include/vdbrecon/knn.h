@@ -128,4 +128,7 @@ private:
 /// scan's with k = 16 (sqrt(10) = 3.16 would be exact); the mean distance gives 2.84x.
 double median_density_spacing(std::vector<float>& kth_sq, int k);
 
+/// The spacing one squared distance to the k-th neighbour stands for (see above), world units.
+double density_spacing(float kth_sq, int k);
+
 }  // namespace vdbrecon

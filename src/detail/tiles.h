@@ -47,6 +47,14 @@ struct TiledResult {
 /// Tile coordinates (x, y, z).
 using TileKey = std::array<int, 3>;
 
+/// A hash of tile (or cell) coordinates.
+struct TileKeyHash {
+    std::size_t operator()(const TileKey& k) const {
+        return std::size_t(k[0]) * 73856093u ^ std::size_t(k[1]) * 19349663u ^
+               std::size_t(k[2]) * 83492791u;
+    }
+};
+
 /// Tiles of n^3 voxels, tile (0, 0, 0) starting at voxel `origin` (a multiple of 8 at the
 /// cloud's lowest corner less `reach`: a cloud narrower than n fits one tile), and the halo of
 /// samples around each.

@@ -148,6 +148,9 @@ void print_help() {
         << "  --classes C,C,...      LAS input: keep the points of these classes (e.g. 2,6:\n"
         << "                         ground, buildings) [all]\n"
         << "  --viewpoint x,y,z      sensor position; estimated normals face it [none: MST]\n"
+        << "  --up x,y,z             direction estimated normals face (airborne: 0,0,1); like\n"
+           "                         --viewpoint, lets --tile stream a cloud without\n"
+           "                         normals [none: MST]\n"
         << "  --outliers, --no-outliers\n"
         << "                         remove stray points before splatting (statistical and\n"
         << "                         planarity rules, k=" << d.outliers.k << ") ["
@@ -198,11 +201,13 @@ void print_help() {
         << "                         (each with a halo of samples): less memory, the same mesh;\n"
         << "                         auto: the largest that fits --max-memory; no .vdb is\n"
         << "                         written [0: off]\n"
-        << "  --stream MODE          tiles: read a PLY file with normals a chunk at a time and\n"
-        << "                         run the point stages a region at a time (memory bounded\n"
-        << "                         by a region, the same mesh): " << choice_list(stream_mode_choices(), "|")
-        << "; auto: when\n"
-        << "                         the points would take over half of --max-memory ["
+        << "  --stream MODE          tiles: read a PLY file with normals (with --up or\n"
+        << "                         --viewpoint: a PLY, LAS or text file) a chunk at a time\n"
+        << "                         and run the point stages a region at a time (memory\n"
+        << "                         bounded by a region, the same mesh): "
+        << choice_list(stream_mode_choices(), "|") << ";\n"
+        << "                         auto: when the points would take over half of\n"
+        << "                         --max-memory ["
         << choice_name(stream_mode_choices(), d.stream) << "]\n"
         << "  --preview PATH         write a shaded picture of the mesh: .png, or .exr with a\n"
         << "                         depth channel Z [none]\n"
@@ -420,6 +425,10 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         const std::vector<double> v = parse_list(a, args.value(a));
         if (v.size() != 3) throw UsageError("--viewpoint needs three numbers: x,y,z");
         o.normals.viewpoint = Vec3d{v[0], v[1], v[2]};
+    } else if (a == "--up") {
+        const std::vector<double> v = parse_list(a, args.value(a));
+        if (v.size() != 3) throw UsageError("--up needs three numbers: x,y,z");
+        o.normals.up = Vec3d{v[0], v[1], v[2]};
     } else if (a == "--outliers") {
         o.outliers.enabled = true;
     } else if (a == "--no-outliers") {
@@ -544,7 +553,8 @@ void report(const RunResult& r, const PipelineOptions& o,
                 s << "from the file";
             } else if (p.normals.oriented_to_viewpoint) {
                 s << p.normals.estimated << " estimated (k=" << o.normals.k
-                  << "), oriented towards the viewpoint";
+                  << (o.normals.up ? "), oriented along the up direction"
+                                   : "), oriented towards the viewpoint");
             } else {
                 s << p.normals.estimated << " estimated (k=" << o.normals.k
                   << "), oriented by MST in " << p.normals.components << " component(s)";
@@ -560,7 +570,7 @@ void report(const RunResult& r, const PipelineOptions& o,
         }
         s << "\n";
         if (p.stream_units > 0) {
-            s << "vdbrecon: points: streamed, never held whole; outliers and scales in "
+            s << "vdbrecon: points: streamed, never held whole; the point stages in "
               << p.stream_units << " regions, the largest " << p.stream_largest
               << " points with its halo\n";
         }

@@ -4,7 +4,8 @@
 # synthetic terrain of 1M and N million points (bench/terrain.py, same density, exact
 # normals) untiled, with --tile 512 and with --tile auto --max-memory 1G. A tiled run of a PLY
 # file with normals streams it (the point stages a region at a time) when the points would take
-# over half of --max-memory, or with --stream on: "point stages" says which.
+# over half of --max-memory, or with --stream on: "point stages" says which. Then the same
+# terrain as LAS without normals, estimated and turned up (--up 0,0,1), streamed too.
 #   bench/tiles.sh [build-dir] [millions=20]   (needs ../shared/data; run scripts/setup.sh)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -60,3 +61,19 @@ row "terrain-${MILLIONS}M-512" "$TN" "$OUT/terrain-${MILLIONS}M.ply" --voxel 0.6
 row "terrain-${MILLIONS}M-auto" "$TN" "$OUT/terrain-${MILLIONS}M.ply" --voxel 0.62 --tile auto --max-memory 1G
 row "terrain-${MILLIONS}M-off" "$TN" "$OUT/terrain-${MILLIONS}M.ply" --voxel 0.62 --tile auto \
   --max-memory 1G --stream off
+
+# Airborne-style input: the same terrain points (the same seed) as LAS without normals, whose
+# normals are estimated and turned up (--up 0,0,1): each point on its own, so the tiled run
+# streams it too. The reference for the 20M run is the tiled run that reads it whole (the
+# untiled one needs about 5 GB).
+L1=$OUT/terrain-1M-input.las
+LN=$OUT/terrain-${MILLIONS}M-input.las
+[ -f "$L1" ] || /usr/bin/python3 bench/terrain.py "$L1" 1 --size 447 --las
+[ -f "$LN" ] || /usr/bin/python3 bench/terrain.py "$LN" "$MILLIONS" --size "$size" --las
+row las-1M "$L1" - --voxel 0.62 --up 0,0,1
+row las-1M-stream "$L1" "$OUT/las-1M.ply" --voxel 0.62 --up 0,0,1 --tile auto --max-memory 1G \
+  --stream on
+row "las-${MILLIONS}M-off" "$LN" - --voxel 0.62 --up 0,0,1 --tile auto --max-memory 1G \
+  --stream off
+row "las-${MILLIONS}M-auto" "$LN" "$OUT/las-${MILLIONS}M-off.ply" --voxel 0.62 --up 0,0,1 \
+  --tile auto --max-memory 1G

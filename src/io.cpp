@@ -605,7 +605,7 @@ detail::RawPoints read_raw(std::string_view content, const std::string& path, bo
         case Format::las:
             if (want_faces) throw FormatError(detail::where(path, "a LAS file holds no faces"));
             format = "las";
-            return detail::read_las_raw(path, content, classes);
+            return detail::read_las_raw(path, content, classes, consumed);
         case Format::pcd:
             if (want_faces) throw FormatError(detail::where(path, "a PCD file holds no faces"));
             format = "pcd";
@@ -617,12 +617,30 @@ detail::RawPoints read_raw(std::string_view content, const std::string& path, bo
                 throw FormatError(detail::where(path, "a text point file holds no faces"));
             }
             format = "xyz";
-            return detail::read_xyz_raw(path, content);
+            return detail::read_xyz_raw(path, content, consumed);
         case Format::obj:
             format = "obj";
             return detail::read_obj_raw(path, content, want_faces);
     }
     return {};
+}
+
+/// A point file's rows a chunk at a time (a streamed read): PLY, LAS or text.
+void read_rows(const std::string& path, std::string_view bytes, Format f,
+               const std::vector<int>& classes, std::string& format,
+               const detail::Consumed& consumed, const detail::RowSink& sink) {
+    switch (f) {
+        case Format::las:
+            format = "las";
+            detail::read_las_raw(path, bytes, classes, consumed, sink);
+            return;
+        case Format::xyz:
+            format = "xyz";
+            detail::read_xyz_raw(path, bytes, consumed, sink);
+            return;
+        default:
+            detail::read_ply_raw(path, bytes, false, format, consumed, sink);
+    }
 }
 
 }  // namespace
@@ -652,25 +670,37 @@ ReadResult read_points(const std::string& path, const ReadOptions& options) {
     return detail::finalize_points(std::move(raw), path, format, options);
 }
 
+void detail::hand_rows(RawPoints& raw, const RowSink& sink, std::size_t& handed, bool end) {
+    if (!sink || raw.rows() == 0 || (!end && raw.rows() < kStreamRows)) return;
+    const std::size_t rows = raw.rows();
+    sink(raw, handed);
+    handed += rows;
+    raw = RawPoints{};  // (the sink may have taken its columns)
+}
+
 bool detail::stream_points(const std::string& path, const ReadOptions& options,
                            const PointsSink& sink, ReadResult& totals, int passes,
                            StreamFrame* frame, bool need_normals) {
     // First pass: the frame, from the box of all finite rows.
     RowBounds box;
     std::string format;
+    Format f;
     {
         detail::FileBytes file(path);
         const std::string_view bytes = file.bytes();
         if (bytes.empty()) throw FormatError(detail::where(path, "file is empty"));
-        if (detect_format(path, bytes) != Format::ply) return false;
-        if (need_normals && !detail::ply_has_normals(path, bytes)) return false;
-        if (!options.classes.empty()) {
+        f = detect_format(path, bytes);
+        if (f != Format::ply && f != Format::las && f != Format::xyz) return false;
+        if (need_normals && (f != Format::ply || !detail::ply_has_normals(path, bytes))) {
+            return false;
+        }
+        if (!options.classes.empty() && f != Format::las) {
             throw InvalidArgument(
                 detail::where(path, "point classes are chosen only in LAS files"));
         }
-        detail::read_ply_raw(path, bytes, false, format,
-                             [&](const char* upto) { file.let_go(upto); },
-                             [&](detail::RawPoints& raw, std::size_t) {
+        read_rows(path, bytes, f, options.classes, format,
+                  [&](const char* upto) { file.let_go(upto); },
+                  [&](detail::RawPoints& raw, std::size_t) {
             for (std::size_t i = 0; i < raw.rows(); ++i) box.add(raw.row(i));
         });
     }
@@ -686,9 +716,9 @@ bool detail::stream_points(const std::string& path, const ReadOptions& options,
     ReadResult chunk;
     for (int pass = 0; pass < passes; ++pass) {
         detail::FileBytes again(path);  // (the last pass let its pages go)
-        detail::read_ply_raw(path, again.bytes(), false, format,
-                             [&](const char* upto) { again.let_go(upto); },
-                             [&](detail::RawPoints& raw, std::size_t first) {
+        read_rows(path, again.bytes(), f, options.classes, format,
+                  [&](const char* upto) { again.let_go(upto); },
+                  [&](detail::RawPoints& raw, std::size_t first) {
             chunk = ReadResult{};
             finalize_rows(std::move(raw), path, options, origin, first, chunk);
             if (pass == 0) {

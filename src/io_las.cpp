@@ -52,7 +52,8 @@ bool is_laz(const std::string& path, std::string_view content) {
 
 }  // namespace
 
-RawPoints read_las_raw(const std::string& path, std::string_view b, const std::vector<int>& classes) {
+RawPoints read_las_raw(const std::string& path, std::string_view b, const std::vector<int>& classes,
+                       const Consumed& consumed, const RowSink& sink) {
     if (is_laz(path, b)) {
         throw FormatError(where(path, "LAZ (compressed LAS) is not read; decompress it first, e.g. "
                                       "`laszip -i in.laz -o out.las` or `pdal translate in.laz "
@@ -110,22 +111,33 @@ RawPoints read_las_raw(const std::string& path, std::string_view b, const std::v
     // Returns: bits 0-2 and 3-5 of byte 14 in formats 0-5, its two nibbles in 6-10.
     const int return_bits = format >= 6 ? 4 : 3;
     const std::uint8_t return_mask = std::uint8_t((1 << return_bits) - 1);
-    RawPoints raw;
-    raw.xyz.reserve(3 * count);
-    if (rgb) raw.colors.reserve(3 * count);
-    LasAttributes& las = raw.las;
-    las.classification.reserve(count);
-    las.intensity.reserve(count);
-    las.return_number.reserve(count);
-    las.number_of_returns.reserve(count);
+    const auto kept = [&](std::size_t at) {
+        return classes.empty() || keep_class[std::uint8_t(b[at + class_at]) & class_mask];
+    };
     // 16-bit colours, unless every value fits in 8 bits (some writers store 0-255).
     std::uint16_t max_rgb = 0;
+    for (std::uint64_t i = 0; i < count && rgb; ++i) {
+        const std::size_t at = data_offset + std::size_t(i) * record;
+        for (int c = 0; c < 3 && kept(at); ++c) {
+            max_rgb = std::max(max_rgb, get<std::uint16_t>(b, at + rgb + 2 * std::size_t(c)));
+        }
+    }
+    const float full = max_rgb > 255 ? 65535.0f : 255.0f;
+    RawPoints raw;
+    const std::size_t hold = std::size_t(sink ? std::min<std::uint64_t>(count, kStreamRows) : count);
+    raw.xyz.reserve(3 * hold);
+    if (rgb) raw.colors.reserve(3 * hold);
+    LasAttributes& las = raw.las;
+    las.classification.reserve(hold);
+    las.intensity.reserve(hold);
+    las.return_number.reserve(hold);
+    las.number_of_returns.reserve(hold);
+    std::size_t handed = 0;
     for (std::uint64_t i = 0; i < count; ++i) {
         const std::size_t at = data_offset + std::size_t(i) * record;
-        const std::uint8_t cls = std::uint8_t(b[at + class_at]) & class_mask;
-        if (!classes.empty() && !keep_class[cls]) continue;
+        if (!kept(at)) continue;
         const std::uint8_t returns = std::uint8_t(b[at + 14]);
-        las.classification.push_back(cls);
+        las.classification.push_back(std::uint8_t(b[at + class_at]) & class_mask);
         las.intensity.push_back(get<std::uint16_t>(b, at + 12));
         las.return_number.push_back(returns & return_mask);
         las.number_of_returns.push_back(std::uint8_t(returns >> return_bits) & return_mask);
@@ -133,16 +145,15 @@ RawPoints read_las_raw(const std::string& path, std::string_view b, const std::v
             raw.xyz.push_back(double(get<std::int32_t>(b, at + 4 * std::size_t(a))) * scale[a] +
                               offset[a]);
         }
-        if (rgb) {
-            for (int c = 0; c < 3; ++c) {
-                const std::uint16_t v = get<std::uint16_t>(b, at + rgb + 2 * std::size_t(c));
-                max_rgb = std::max(max_rgb, v);
-                raw.colors.push_back(float(v));
-            }
+        for (int c = 0; c < 3 && rgb; ++c) {
+            raw.colors.push_back(float(get<std::uint16_t>(b, at + rgb + 2 * std::size_t(c))) / full);
+        }
+        if (raw.rows() % kStreamRows == 0) {
+            hand_rows(raw, sink, handed, false);
+            if (consumed) consumed(b.data() + at + record);
         }
     }
-    const float full = max_rgb > 255 ? 65535.0f : 255.0f;
-    for (float& c : raw.colors) c /= full;
+    hand_rows(raw, sink, handed, true);
     return raw;
 }
 

@@ -40,8 +40,10 @@ void for_each_line(std::string_view content, F&& f) {
 
 }  // namespace
 
-RawPoints read_xyz_raw(const std::string& path, std::string_view content) {
+RawPoints read_xyz_raw(const std::string& path, std::string_view content,
+                       const Consumed& consumed, const RowSink& sink) {
     RawPoints raw;
+    std::size_t handed = 0;
     std::vector<std::pair<const char*, const char*>> tok;
     std::size_t columns = 0;
     bool first_data_line = true;
@@ -86,7 +88,12 @@ RawPoints read_xyz_raw(const std::string& path, std::string_view content) {
         } else if (columns == 7) {
             for (int a = 4; a < 7; ++a) raw.colors.push_back(float(v[a] / 255.0));
         }
+        if (raw.rows() % kStreamRows == 0) {
+            hand_rows(raw, sink, handed, false);
+            if (consumed) consumed(e);
+        }
     });
+    hand_rows(raw, sink, handed, true);
     return raw;
 }
 

@@ -9,6 +9,7 @@
 #include <memory>
 #include <queue>
 
+#include "detail/normal_rules.h"
 #include "detail/pca.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
@@ -24,6 +25,19 @@ void NormalOptions::validate() const {
     if (viewpoint) {
         for (double c : *viewpoint) {
             if (!std::isfinite(c)) throw InvalidArgument("normals.viewpoint: must be finite");
+        }
+    }
+    if (up) {
+        const Vec3d& u = *up;
+        if (!(std::isfinite(u[0]) && std::isfinite(u[1]) && std::isfinite(u[2]))) {
+            throw InvalidArgument("normals.up: must be finite");
+        }
+        if (u[0] == 0.0 && u[1] == 0.0 && u[2] == 0.0) {
+            throw InvalidArgument("normals.up: must not be the zero vector");
+        }
+        if (viewpoint) {
+            throw InvalidArgument("normals: a viewpoint and an up direction were both given; "
+                                  "give one");
         }
     }
 }
@@ -389,9 +403,11 @@ bool face_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k, const Eig
     return true;
 }
 
+}  // namespace
+
 /// PCA normal of point i and its neighbours; next to a sharp edge, its face's (face_normal).
-bool neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
-                          Vec3f& normal, float& doubt, bool* wider = nullptr) {
+bool detail::neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
+                                  Vec3f& normal, float& doubt, bool* wider) {
     Eigen::Vector3d ev, n;
     if (!detail::neighbourhood_pca(pts, i, nb, k, ev, n)) return false;
     // Degenerate: all points coincide, or they lie on a line (two vanishing eigenvalues).
@@ -409,6 +425,67 @@ bool neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k,
     normal = {float(n[0]), float(n[1]), float(n[2])};
     return std::isfinite(normal[0]) && std::isfinite(normal[1]) && std::isfinite(normal[2]);
 }
+
+/// The wider look (see normal_rules.h); the candidates sorted by distance, then index.
+bool detail::wider_normal(Span<Vec3f> pts, std::size_t i, int k,
+                          const std::function<const int*(std::size_t)>& list, Vec3f& normal) {
+    const int wide = std::min(3 * k, 64);
+    if (wide <= k) return false;
+    std::vector<std::pair<float, int>> ring;
+    const int* own = list(i);
+    for (int j = 0; j < k; ++j) {
+        const int a = own[j];
+        ring.push_back({KnnResult::squared_distance(pts[i], pts[std::size_t(a)]), a});
+        const int* theirs = list(std::size_t(a));
+        for (int l = 0; l < k; ++l) {
+            const int c = theirs[l];
+            if (std::size_t(c) == i) continue;
+            ring.push_back({KnnResult::squared_distance(pts[i], pts[std::size_t(c)]), c});
+        }
+    }
+    std::sort(ring.begin(), ring.end());
+    ring.erase(std::unique(ring.begin(), ring.end()), ring.end());
+    const int m = std::min<int>(wide, int(ring.size()));
+    if (m <= k) return false;
+    std::vector<int> nb(static_cast<std::size_t>(m));
+    for (int j = 0; j < m; ++j) nb[std::size_t(j)] = ring[std::size_t(j)].second;
+    Eigen::Vector3d ev, pca, n;
+    if (!detail::neighbourhood_pca(pts, i, nb.data(), m, ev, pca)) return false;
+    const Neighbourhood h(pts, i, nb.data(), m);
+    if (!crisp_face(h, pca.normalized(), n)) return false;
+    normal = {float(n[0]), float(n[1]), float(n[2])};
+    return true;
+}
+
+void detail::report_degenerate(std::size_t bad, std::size_t n) {
+    if (bad > 0) {
+        log_warning("normals: " + std::to_string(bad) +
+                    " points have degenerate neighbourhoods (coincident or collinear) and "
+                    "get no normal");
+    }
+    if (bad == n) {
+        throw NumericalError("normals: every neighbourhood is degenerate (all points "
+                             "coincident or collinear); no surface can be reconstructed");
+    }
+}
+
+bool detail::orient_locally(const NormalOptions& options, const Vec3d& origin, const Vec3f& p,
+                            Vec3f& normal) {
+    Vec3f toward;
+    if (options.up) {
+        const Vec3d& u = *options.up;
+        toward = {float(u[0]), float(u[1]), float(u[2])};
+    } else {
+        const Vec3d& v = *options.viewpoint;
+        toward = {float(v[0] - origin[0] - p[0]), float(v[1] - origin[1] - p[1]),
+                  float(v[2] - origin[2] - p[2])};
+    }
+    if (!(dot(normal, toward) < 0.0f)) return false;
+    flip(normal);
+    return true;
+}
+
+namespace {
 
 /// Two readings of how the normal n_j at p_j agrees with n_i at p_i, each in -1..1 (negative:
 /// one of them is flipped): Hoppe's n_i . n_j, and the mirror's. On a circle through both
@@ -624,40 +701,16 @@ bool estimates_all(const PointCloud& cloud, const NormalOptions& options) {
     return options.mode == NormalMode::estimate || !cloud.has_normals();
 }
 
-/// The points flagged `wider` (beside_crisp_plane) look again with their 3k nearest among the
-/// neighbours of their neighbours (no second search): where those show the point's own crisp
-/// face (crisp_face), its normal replaces the PCA one.
+/// The points flagged `wider` (beside_crisp_plane) look again (detail::wider_normal): where
+/// their 3k nearest among their neighbours' neighbours show the point's own crisp face, its
+/// normal replaces the PCA one.
 void wider_look(Span<Vec3f> pts, const KnnResult& knn, int k, const std::vector<char>& wider,
                 std::vector<Vec3f>& normals, std::vector<float>& doubt) {
-    const int wide = std::min(3 * k, 64);
-    if (wide <= k) return;
+    const auto list = [&knn](std::size_t j) { return knn.neighbours(j); };
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, pts.size(), 4096),
                       [&](const tbb::blocked_range<std::size_t>& b) {
-        std::vector<std::pair<float, int>> ring;
-        std::vector<int> nb;
         for (std::size_t i = b.begin(); i < b.end(); ++i) {
-            if (!wider[i]) continue;
-            ring.clear();
-            for (int j = 0; j < k; ++j) {
-                const int a = knn.neighbours(i)[j];
-                ring.push_back({KnnResult::squared_distance(pts[i], pts[std::size_t(a)]), a});
-                for (int l = 0; l < k; ++l) {
-                    const int c = knn.neighbours(std::size_t(a))[l];
-                    if (std::size_t(c) == i) continue;
-                    ring.push_back({KnnResult::squared_distance(pts[i], pts[std::size_t(c)]), c});
-                }
-            }
-            std::sort(ring.begin(), ring.end());
-            ring.erase(std::unique(ring.begin(), ring.end()), ring.end());
-            const int m = std::min<int>(wide, int(ring.size()));
-            if (m <= k) continue;
-            nb.resize(std::size_t(m));
-            for (int j = 0; j < m; ++j) nb[std::size_t(j)] = ring[std::size_t(j)].second;
-            Eigen::Vector3d ev, pca, n;
-            if (!detail::neighbourhood_pca(pts, i, nb.data(), m, ev, pca)) continue;
-            const Neighbourhood h(pts, i, nb.data(), m);
-            if (!crisp_face(h, pca.normalized(), n)) continue;
-            normals[i] = {float(n[0]), float(n[1]), float(n[2])};
+            if (!wider[i] || !detail::wider_normal(pts, i, k, list, normals[i])) continue;
             if (!doubt.empty()) doubt[i] = 0.0f;
         }
     });
@@ -671,7 +724,7 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
                      bool estimate_all, NormalResult& result) {
     const std::size_t n = cloud.size();
     std::vector<char> degenerate(n, 0), wider(n, 0);
-    std::vector<float> doubt(options.viewpoint ? 0 : n, 0.0f);
+    std::vector<float> doubt(options.viewpoint || options.up ? 0 : n, 0.0f);
     std::vector<Vec3f>& normals = result.normals.edit();
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
                       [&](const tbb::blocked_range<std::size_t>& r) {
@@ -681,7 +734,7 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
             float v = 0.0f;
             bool w = false;
             if (k >= 2 &&
-                neighbourhood_normal(cloud.positions, i, knn.neighbours(i), k, nrm, v, &w)) {
+                detail::neighbourhood_normal(cloud.positions, i, knn.neighbours(i), k, nrm, v, &w)) {
                 normals[i] = nrm;
                 if (!doubt.empty()) doubt[i] = v;
                 wider[i] = w;
@@ -698,32 +751,17 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
             normals[i] = {0.0f, 0.0f, 0.0f};  // left unsplatted
         }
     }
-    if (bad > 0) {
-        log_warning("normals: " + std::to_string(bad) +
-                    " points have degenerate neighbourhoods (coincident or collinear) and "
-                    "get no normal");
-    }
     result.estimated = needed - bad;
     if (!estimate_all) result.repaired = needed - bad;
-    if (bad == n) {
-        throw NumericalError("normals: every neighbourhood is degenerate (all points "
-                             "coincident or collinear); no surface can be reconstructed");
-    }
+    detail::report_degenerate(bad, n);
 
     // Orientation.
-    if (options.viewpoint) {
+    if (options.viewpoint || options.up) {
         result.oriented_to_viewpoint = true;
-        const Vec3d& v = *options.viewpoint;
         for (std::size_t i = 0; i < n; ++i) {
             if (!needs[i] || degenerate[i]) continue;
-            const Vec3f& p = cloud.positions[i];
-            const Vec3f to_view = {float(v[0] - cloud.origin[0] - p[0]),
-                                   float(v[1] - cloud.origin[1] - p[1]),
-                                   float(v[2] - cloud.origin[2] - p[2])};
-            if (dot(normals[i], to_view) < 0.0f) {
-                flip(normals[i]);
-                ++result.flipped;
-            }
+            result.flipped += detail::orient_locally(options, cloud.origin, cloud.positions[i],
+                                                     normals[i]);
         }
     } else {
         std::vector<char> state(n);

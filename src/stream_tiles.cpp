@@ -10,8 +10,10 @@
 //      to the first ks neighbours and what may take one of those away (without the outlier
 //      rules: d_i over the scale's k, the scale); then the median d, by selection;
 //   2. the rules, and the scale of the kept points: the first ks neighbours' mean distance, or
-//      a walk over a list searched again where one of those may go; then the density spacing
-//      and the voxel;
+//      a walk over a list searched again where one of those may go; then, where normals are
+//      estimated (oriented each on its own: a viewpoint, an up direction), each kept point's
+//      PCA normal from its kn nearest kept points and the wider look over its neighbours'
+//      lists (normals.cpp's per point); then the density spacing and the voxel;
 //   3. the kernel sizes of the kept samples; then the kernel frame and the tile grid;
 //   4. the kept samples into the tile job's buckets.
 //
@@ -19,7 +21,8 @@
 // the k-th is closer than the nearest face of the loaded box beyond which there are points (a
 // point outside is at least that far): its list is certified. Each result reads only certified
 // lists: d_i its own; a verdict its own list and the d_j of its neighbours; the planarity test
-// its own list; a walk its own lists and the spilled rules of the points it passes. A unit that
+// its own list; a walk its own lists and the spilled rules of the points it passes; a normal
+// its own list of kept points, and where it looks wider its neighbours' lists. A unit that
 // needs a list not certified is loaded again with a wider halo. The loaded points keep the
 // cloud's order (sorted by row), so ties between equal distances break by index as in the
 // whole cloud, every sum is taken in the same order, and the results are those of the stages on
@@ -42,7 +45,9 @@
 #include <numeric>
 #include <unordered_map>
 
+#include "detail/cell_store.h"
 #include "detail/io_common.h"
+#include "detail/normal_rules.h"
 #include "detail/outlier_rules.h"
 #include "detail/radix_sort.h"
 #include "detail/select.h"
@@ -56,7 +61,10 @@
 namespace vdbrecon::detail {
 namespace {
 
-using Key = TileKey;  // a cell's coordinates
+using streamed::CellStore;
+using streamed::Key;
+using streamed::Layout;
+using streamed::Loaded;
 
 /// Points a cell holds on average, were the cloud a surface spread evenly over its box.
 constexpr double kCellPoints = 1024.0;
@@ -66,250 +74,6 @@ constexpr double kCellPoints = 1024.0;
 struct NotStreamable {
     std::string why;
 };
-
-/// A record's columns: its row in the cloud (uint32), position and normal, and those of the
-/// optional columns the file has.
-struct Layout {
-    bool colors = false, scales = false, confidences = false;
-    std::size_t bytes() const {
-        return 28 + (colors ? 12 : 0) + (scales ? 4 : 0) + (confidences ? 4 : 0);
-    }
-};
-
-/// Points of the store loaded for a region, in the cloud's order.
-struct Loaded {
-    PointCloud cloud;
-    std::vector<std::uint32_t> row;  ///< each point's row in the whole cloud (increasing)
-    std::vector<char> core;          ///< whether it lies in the region, not the halo
-    /// The cells read, in the store's order: their first record and size, and whether the
-    /// region holds them; and where each loaded point was among their records.
-    std::vector<std::array<std::uint64_t, 3>> ranges;
-    std::vector<std::uint32_t> order;
-    Key lo{}, hi{};                  ///< the box of cells loaded around the region
-    std::vector<std::size_t> cells;  ///< every cell loaded (sorted): that box's, and others
-    std::size_t size() const { return row.size(); }
-};
-
-/// The cloud on disk, grouped by cell.
-class CellStore {
-  public:
-    CellStore(Layout layout, double edge)
-        : layout_(layout), edge_(edge), file_("tiles: the points by cell") {}
-
-    double edge() const { return edge_; }
-    bool has_scales() const { return layout_.scales; }
-    const std::vector<Key>& keys() const { return keys_; }
-    std::uint64_t cell_size(std::size_t j) const { return begin_[j + 1] - begin_[j]; }
-    std::uint64_t points() const { return begin_.empty() ? 0 : begin_.back(); }
-    const Key& lowest() const { return lowest_; }
-    const Key& highest() const { return highest_; }
-
-    Key key_of(const Vec3f& p) const {
-        Key k;
-        for (int a = 0; a < 3; ++a) k[std::size_t(a)] = int(std::floor(double(p[a]) / edge_));
-        return k;
-    }
-
-    void count(const PointCloud& chunk) {
-        for (std::size_t i = 0; i < chunk.size(); ++i) ++counts_[key_of(chunk.positions[i])];
-    }
-
-    /// After count(): the cells' ranges.
-    void place() {
-        for (const auto& e : counts_) keys_.push_back(e.first);
-        std::sort(keys_.begin(), keys_.end());
-        begin_.assign(1, 0);
-        lowest_ = highest_ = keys_.front();
-        for (std::size_t j = 0; j < keys_.size(); ++j) {
-            begin_.push_back(begin_.back() + counts_[keys_[j]]);
-            counts_[keys_[j]] = j;  // from here on: the cell's number
-            for (std::size_t a = 0; a < 3; ++a) {
-                lowest_[a] = std::min(lowest_[a], keys_[j][a]);
-                highest_[a] = std::max(highest_[a], keys_[j][a]);
-            }
-        }
-        fill_.assign(begin_.begin(), begin_.end() - 1);
-    }
-
-    /// After place(): a chunk's points (rows first_row on) into their cells (a counting sort
-    /// of the chunk by cell, then a write per cell it touches).
-    void write(const PointCloud& chunk, std::uint32_t first_row) {
-        const std::size_t n = chunk.size(), rec = layout_.bytes();
-        std::vector<std::uint32_t> cell(n);
-        std::vector<std::size_t> at(keys_.size() + 1, 0);  // counts, then offsets
-        for (std::size_t i = 0; i < n; ++i) {
-            cell[i] = std::uint32_t(counts_.find(key_of(chunk.positions[i]))->second);
-            ++at[cell[i] + 1];
-        }
-        std::partial_sum(at.begin(), at.end(), at.begin());
-        const std::vector<std::size_t> start = at;
-        std::string bytes(n * rec, '\0');
-        for (std::size_t i = 0; i < n; ++i) {
-            pack(chunk, i, first_row + std::uint32_t(i), bytes.data() + at[cell[i]]++ * rec);
-        }
-        for (std::size_t j = 0; j < keys_.size(); ++j) {
-            const std::size_t count = start[j + 1] - start[j];
-            if (count == 0) continue;
-            file_.write_at(fill_[j] * rec, bytes.data() + start[j] * rec, count * rec);
-            fill_[j] += count;
-        }
-    }
-
-    /// The cells in the box [lo, hi] (fn(j) for occupied cell j, in key order).
-    template <typename Fn>
-    void cells_in(const Key& lo, const Key& hi, Fn&& fn) const {
-        for (int x = lo[0]; x <= hi[0]; ++x) {
-            for (int y = lo[1]; y <= hi[1]; ++y) {
-                auto it = std::lower_bound(keys_.begin(), keys_.end(), Key{x, y, lo[2]});
-                for (; it != keys_.end() && (*it)[0] == x && (*it)[1] == y && (*it)[2] <= hi[2];
-                     ++it) {
-                    fn(std::size_t(it - keys_.begin()));
-                }
-            }
-        }
-    }
-
-    /// The points of the cells in boxes[0] (the loaded box) and the other boxes; those of the
-    /// cells `core` (sorted) are the core.
-    Loaded load(const std::vector<std::array<Key, 2>>& boxes,
-                const std::vector<std::size_t>& core_cells) const {
-        Loaded l;
-        l.lo = boxes[0][0];
-        l.hi = boxes[0][1];
-        for (const auto& b : boxes) cells_in(b[0], b[1], [&](std::size_t j) { l.cells.push_back(j); });
-        std::sort(l.cells.begin(), l.cells.end());
-        l.cells.erase(std::unique(l.cells.begin(), l.cells.end()), l.cells.end());
-        std::uint64_t total = 0;
-        for (std::size_t j : l.cells) {
-            const bool core = std::binary_search(core_cells.begin(), core_cells.end(), j);
-            l.ranges.push_back({begin_[j], cell_size(j), core ? 1u : 0u});
-            total += cell_size(j);
-        }
-        const std::size_t rec = layout_.bytes();
-        std::string bytes(std::size_t(total) * rec, '\0');
-        std::vector<char> core(total);
-        std::size_t o = 0;
-        for (const auto& r : l.ranges) {
-            file_.read_at(r[0] * rec, bytes.data() + o * rec, std::size_t(r[1]) * rec);
-            std::fill_n(core.begin() + std::ptrdiff_t(o), r[1], char(r[2]));
-            o += std::size_t(r[1]);
-        }
-        // In the cloud's order: (row, record) pairs sorted by row.
-        std::vector<std::array<std::uint32_t, 2>> by_row(total);
-        for (std::size_t i = 0; i < total; ++i) {
-            std::memcpy(&by_row[i][0], bytes.data() + i * rec, 4);
-            by_row[i][1] = std::uint32_t(i);
-        }
-        int bits = 1;
-        while (bits < 32 && (std::uint64_t(1) << bits) < points()) ++bits;
-        radix_sort(by_row, bits, [](const std::array<std::uint32_t, 2>& e) { return e[0]; });
-        l.order.resize(total);
-        for (std::size_t i = 0; i < total; ++i) l.order[i] = by_row[i][1];
-        unpack(bytes, l);
-        l.core.resize(total);
-        for (std::size_t i = 0; i < total; ++i) l.core[i] = core[l.order[i]];
-        return l;
-    }
-
-    /// A scratch file of one value per point, in the store's order.
-    template <typename T>
-    class Side {
-      public:
-        explicit Side(const char* what) : file_(what) {}
-        /// The loaded points' values, in their order.
-        std::vector<T> read(const Loaded& l) const {
-            std::vector<T> flat(l.size());
-            std::size_t o = 0;
-            for (const auto& r : l.ranges) {
-                file_.read_at(r[0] * sizeof(T), flat.data() + o, std::size_t(r[1]) * sizeof(T));
-                o += std::size_t(r[1]);
-            }
-            std::vector<T> out(l.size());
-            for (std::size_t i = 0; i < l.size(); ++i) out[i] = flat[l.order[i]];
-            return out;
-        }
-        /// The core points' values (v has one per loaded point; the halo's are not written).
-        void write(const Loaded& l, const std::vector<T>& v) {
-            std::vector<T> flat(l.size());
-            for (std::size_t i = 0; i < l.size(); ++i) flat[l.order[i]] = v[i];
-            std::size_t o = 0;
-            for (const auto& r : l.ranges) {
-                if (r[2]) {
-                    file_.write_at(r[0] * sizeof(T), flat.data() + o,
-                                   std::size_t(r[1]) * sizeof(T));
-                }
-                o += std::size_t(r[1]);
-            }
-        }
-        /// Values [first, first + n) of the store's order.
-        void scan_range(std::uint64_t first, T* to, std::size_t n) const {
-            file_.read_at(first * sizeof(T), to, n * sizeof(T));
-        }
-        /// fn(values, first, count) over the first n values, a chunk at a time.
-        template <typename Fn>
-        void scan(std::uint64_t n, Fn&& fn) const {
-            constexpr std::uint64_t kChunk = std::uint64_t(1) << 20;
-            std::vector<T> buffer;
-            for (std::uint64_t first = 0; first < n; first += kChunk) {
-                buffer.resize(std::size_t(std::min(kChunk, n - first)));
-                file_.read_at(first * sizeof(T), buffer.data(), buffer.size() * sizeof(T));
-                fn(buffer.data(), first, buffer.size());  // (values, first index, count)
-            }
-        }
-
-      private:
-        Spool file_;
-    };
-
-  private:
-    void pack(const PointCloud& c, std::size_t i, std::uint32_t row, char* p) const {
-        const auto put = [&p](const void* v, std::size_t n) {
-            std::memcpy(p, v, n);
-            p += n;
-        };
-        put(&row, 4);
-        put(&c.positions[i], 12);
-        put(&c.normals[i], 12);
-        if (layout_.colors) put(&c.colors[i], 12);
-        if (layout_.scales) put(&c.scales[i], 4);
-        if (layout_.confidences) put(&c.confidences[i], 4);
-    }
-
-    void unpack(const std::string& bytes, Loaded& l) const {
-        const std::size_t n = l.order.size(), rec = layout_.bytes();
-        std::vector<Vec3f> pos(n), nrm(n), col(layout_.colors ? n : 0);
-        std::vector<float> sc(layout_.scales ? n : 0), conf(layout_.confidences ? n : 0);
-        l.row.resize(n);
-        for (std::size_t i = 0; i < n; ++i) {
-            const char* p = bytes.data() + std::size_t(l.order[i]) * rec;
-            const auto get = [&p](void* v, std::size_t len) {
-                std::memcpy(v, p, len);
-                p += len;
-            };
-            get(&l.row[i], 4);
-            get(&pos[i], 12);
-            get(&nrm[i], 12);
-            if (layout_.colors) get(&col[i], 12);
-            if (layout_.scales) get(&sc[i], 4);
-            if (layout_.confidences) get(&conf[i], 4);
-        }
-        l.cloud.positions = std::move(pos);
-        l.cloud.normals = std::move(nrm);
-        l.cloud.colors = std::move(col);
-        l.cloud.scales = std::move(sc);
-        l.cloud.confidences = std::move(conf);
-    }
-
-    Layout layout_;
-    double edge_;
-    std::unordered_map<Key, std::uint64_t, TileKeyHash> counts_;
-    std::vector<Key> keys_;
-    std::vector<std::uint64_t> begin_, fill_;
-    Key lowest_{}, highest_{};
-    mutable Spool file_;
-};
-
-
 
 /// A unit: the cells whose points it decides.
 struct Unit {
@@ -365,6 +129,7 @@ class StreamJob {
         : input_(input), dir_(dir), options_(options) {
         outliers_ = options.outliers.enabled;
         k_ = outliers_ ? options.outliers.k : options.normals.k;
+        local_ = options.normals.viewpoint || options.normals.up;
     }
 
     void run(TileJob& job);
@@ -393,6 +158,14 @@ class StreamJob {
     void walk_again(const Unit& u, const std::vector<std::uint32_t>& rows,
                     std::vector<float>& spacing) const;
     void rules_pass(const Unit& u);
+    static void pca_normals(const Lists& st, const std::vector<std::size_t>& need,
+                            std::vector<Vec3f>& normal, std::vector<char>& ok,
+                            std::vector<char>& wider);
+    bool kept_normals(const Loaded& l, const std::vector<std::size_t>& need,
+                      std::vector<Vec3f>& normal, std::vector<char>& ok, std::vector<float>& kth,
+                      std::vector<std::size_t>& fails) const;
+    void normals_pass(const Unit& u);
+    void finish_normals(PipelineResult& r) const;
     bool keeps(const Loaded& l, std::size_t i) const {
         return options_.normals.scale == ScaleMode::automatic && l.cloud.has_scales() &&
                l.cloud.scales[i] > 0.0f;
@@ -401,6 +174,7 @@ class StreamJob {
     KernelFrame frame(const SplatOptions& splat);
     void buckets(const TileGrid& g, double voxel, TilePlan& plan);
     double sample_spacing();
+    double file_scale_median() const;
 
     const std::string& input_;
     const std::string& dir_;
@@ -410,31 +184,38 @@ class StreamJob {
     std::uint64_t n_ = 0;
     std::vector<Unit> units_;
     bool outliers_ = false, need_scale_ = false;
+    bool local_ = false;         ///< normals oriented each on its own (a viewpoint, up)
+    bool estimate_ = false;      ///< normals to estimate (all, or the file's zero ones)
+    bool estimate_all_ = false;  ///< every point's (--normals estimate, or none in the file)
     int k_ = 0;   ///< neighbours of pass 1: the outlier rules', else the kNN scale's
     int ks_ = 0;  ///< with the outlier rules, the kNN scale's (0: no scale to find)
+    int kn_ = 0;  ///< neighbours of the normals' PCA (on the kept points)
     CellStore::Side<float> d_{"tiles: d of the points"}, kth_{"tiles: k-th distances"};
     CellStore::Side<float> scale_{"tiles: scales"};
     CellStore::Side<char> removed_{"tiles: outlier flags"};
     CellStore::Side<char> verdict_{"tiles: verdicts"}, scattered_{"tiles: planarity tests"};
     CellStore::Side<char> touched_{"tiles: neighbours failing"};
     CellStore::Side<float> first_{"tiles: first scales"}, most_{"tiles: neighbours' d"};
-    double median_d_ = 0.0;
+    CellStore::Side<Vec3f> normal_{"tiles: normals"};
+    std::uint64_t estimated_ = 0, flipped_ = 0, degenerate_ = 0;
+    double median_d_ = 0.0, median_scale_ = 0.0;
     std::uint64_t statistical_ = 0, planarity_ = 0, kept_ = 0;
     std::uint64_t largest_ = 0;  ///< points of the largest unit loaded, with its halo
     Vec3f lowest_{HUGE_VALF, HUGE_VALF, HUGE_VALF}, highest_{-HUGE_VALF, -HUGE_VALF, -HUGE_VALF};
 };
 
-/// What a pass knows of one loading of a unit: per point whose list was searched, the list and
-/// whether it is certified, d_i, the k-th distance and the mean distance to its first ks_
-/// neighbours.
+/// What a pass knows of one loading of a unit (or of its kept points): per point whose list of
+/// k was searched, the list and whether it is certified, d_i, the k-th distance and the mean
+/// distance to its first ks neighbours (ks = 0: none).
 struct StreamJob::Lists {
-    Lists(const Loaded& loaded, const Reach& r, const KnnIndex& i)
-        : l(loaded), reach(r), index(i), list_of(loaded.size(), nullptr),
+    Lists(const Loaded& loaded, const Reach& r, const KnnIndex& i, int k_, int ks_)
+        : l(loaded), reach(r), index(i), k(k_), ks(ks_), list_of(loaded.size(), nullptr),
           certified(loaded.size(), 0), d(loaded.size(), 0.0f),
           kth(loaded.size(), 0.0f), first(loaded.size(), 0.0f) {}
     const Loaded& l;
     Reach reach;
     const KnnIndex& index;
+    int k, ks;
     std::vector<const int*> list_of;  ///< nullptr: not searched
     std::vector<char> certified;
     std::vector<float> d, kth, first;
@@ -448,21 +229,29 @@ void StreamJob::read() {
     const auto sink = [&](ReadResult& chunk, std::size_t, int pass) {
         const PointCloud& c = chunk.cloud;
         if (pass == 0) {
-            if (c.size() > 0 && !c.has_normals()) {
-                throw NotStreamable{"its points have no normals (to estimate)"};
+            if (c.size() > 0 && !c.has_normals() && !local_) {
+                throw NotStreamable{"its points have no normals (to estimate; --up or "
+                                    "--viewpoint would orient them locally)"};
             }
-            if (chunk.invalid_normals > 0) throw NotStreamable{"a normal is zero (to estimate)"};
+            if (chunk.invalid_normals > 0 && !local_) {
+                throw NotStreamable{"a normal is zero (to estimate; --up or --viewpoint would "
+                                    "orient it locally)"};
+            }
+            if (c.size() > 0 && options_.normals.mode == NormalMode::keep && !c.has_normals()) {
+                throw NotStreamable{"--normals keep, and no normals"};  // (the error in memory)
+            }
             if (frame.rows >= std::size_t(UINT32_MAX)) {
                 throw InvalidArgument("tiles: more than 2^32 points");
             }
             if (frame.rows < std::size_t(k_) + 1) throw NotStreamable{"too few points"};
-            if (!store_) {
+            if (!store_ && c.size() > 0) {
                 const double edge =
                     frame.diagonal * std::sqrt(std::min(1.0, kCellPoints / double(frame.rows)));
                 store_ = std::make_unique<CellStore>(
-                    Layout{c.has_colors(), c.has_scales(), c.has_confidences()},
+                    Layout{c.has_normals(), c.has_colors(), c.has_scales(), c.has_confidences()},
                     edge > 0.0 ? edge : 1.0);
             }
+            if (c.size() == 0) return;
             for (std::size_t i = 0; i < c.size(); ++i) {
                 for (int a = 0; a < 3; ++a) {
                     lowest_[a] = std::min(lowest_[a], c.positions[i][a]);
@@ -477,11 +266,15 @@ void StreamJob::read() {
         store_->write(c, row);
         row += std::uint32_t(c.size());
     };
-    if (!stream_points(input_, options_.read, sink, totals_, 2, &frame, true)) {
-        throw NotStreamable{"not a PLY file whose points have normals (to estimate them, their "
-                            "orientation spans the whole cloud)"};
+    if (!stream_points(input_, options_.read, sink, totals_, 2, &frame, !local_)) {
+        throw NotStreamable{local_ ? "not a PLY, LAS or text point file"
+                                   : "not a PLY file whose points have normals (to estimate "
+                                     "them, their orientation spans the whole cloud; --up or "
+                                     "--viewpoint would orient them locally)"};
     }
     n_ = store_->points();
+    estimate_all_ = options_.normals.mode == NormalMode::estimate || !store_->has_normals();
+    estimate_ = estimate_all_ || totals_.invalid_normals > 0;
     const bool scales = totals_.rows > 0 && store_->has_scales();
     need_scale_ = options_.normals.scale == ScaleMode::knn ||
                   (options_.normals.scale == ScaleMode::automatic && (!scales || any_zero_scale));
@@ -619,7 +412,7 @@ void StreamJob::spacing_pass(const Unit& u) {
             continue;
         }
         const KnnIndex index(l.cloud.positions, options_.normals.knn);
-        Lists st(l, reach_of(l), index);
+        Lists st(l, reach_of(l), index, k_, ks_);
         const std::vector<std::size_t> core = core_rows(l);
         search(st, core);
         std::vector<std::size_t> fails;
@@ -641,18 +434,20 @@ void StreamJob::spacing_pass(const Unit& u) {
 /// mean distance to its first ks (the kNN scale when those are kept), when its list is
 /// certified.
 void StreamJob::search(Lists& st, const std::vector<std::size_t>& rows) const {
+    if (rows.empty()) return;
     const Span<Vec3f> pts = st.l.cloud.positions;
-    st.lists.push_back(st.index.self_neighbours_of(rows, k_));
+    const int k = st.k, ks = st.ks;
+    st.lists.push_back(st.index.self_neighbours_of(rows, k));
     const KnnResult& got = st.lists.back();
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
             const std::size_t i = rows[a];
             const int* nb = st.list_of[i] = got.neighbours(a);
-            st.kth[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k_ - 1])]);
+            st.kth[i] = KnnResult::squared_distance(pts[i], pts[std::size_t(nb[k - 1])]);
             if (!st.reach.certified(pts[i], st.kth[i])) continue;
             st.certified[i] = 1;
-            st.d[i] = mean_distance(pts, i, nb, k_, ks_, ks_ > 0 ? &st.first[i] : nullptr);
+            st.d[i] = mean_distance(pts, i, nb, k, ks, ks > 0 ? &st.first[i] : nullptr);
         }
     });
 }
@@ -695,7 +490,7 @@ void StreamJob::verdict_pass(const Unit& u) {
             continue;
         }
         const KnnIndex index(l.cloud.positions, o.knn);
-        Lists st(l, reach_of(l), index);
+        Lists st(l, reach_of(l), index, k_, ks_);
         const std::vector<std::size_t> core = core_rows(l);
         std::vector<std::size_t> fails;  // points whose lists are to be certified
         search(st, core);
@@ -871,11 +666,154 @@ void StreamJob::rules_pass(const Unit& u) {
     if (need_scale_) scale_.write(l, scale);
 }
 
+/// The kept points of a loading (`removed`: its points' outlier flags; empty: none), in its
+/// order, with its box and cells (for Reach); `at`: each one's index in the loading.
+Loaded kept_of(const Loaded& l, const std::vector<char>& removed, std::vector<std::size_t>& at) {
+    Loaded kept;
+    at.clear();
+    std::vector<Vec3f> pos;
+    for (std::size_t i = 0; i < l.size(); ++i) {
+        if (!removed.empty() && removed[i]) continue;
+        at.push_back(i);
+        pos.push_back(l.cloud.positions[i]);
+        kept.row.push_back(l.row[i]);
+        kept.core.push_back(l.core[i]);
+    }
+    kept.cloud.positions = std::move(pos);
+    kept.cloud.origin = l.cloud.origin;
+    kept.lo = l.lo;
+    kept.hi = l.hi;
+    kept.cells = l.cells;
+    return kept;
+}
+
+/// The PCA normals of the kept points `need` of a loading (st: their lists, certified or not),
+/// as normals.cpp's per point: false where degenerate; `wider` where a wider look is due.
+void StreamJob::pca_normals(const Lists& st, const std::vector<std::size_t>& need,
+                            std::vector<Vec3f>& normal, std::vector<char>& ok,
+                            std::vector<char>& wider) {
+    const Span<Vec3f> pts = st.l.cloud.positions;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, need.size(), 256),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
+            const std::size_t i = need[a];
+            if (!st.certified[i]) continue;
+            float doubt = 0.0f;
+            bool w = false;
+            ok[i] = st.k >= 2 &&
+                    neighbourhood_normal(pts, i, st.list_of[i], st.k, normal[i], doubt, &w);
+            wider[i] = ok[i] && w;
+        }
+    });
+}
+
+/// The normals estimated among the core points of a loading of a unit's kept points (`file`:
+/// the file's normals of those points, or none), oriented; false, with the points whose lists
+/// are not certified in `fails`, when the halo is too narrow.
+bool StreamJob::kept_normals(const Loaded& l, const std::vector<std::size_t>& need,
+                             std::vector<Vec3f>& normal, std::vector<char>& ok,
+                             std::vector<float>& kth, std::vector<std::size_t>& fails) const {
+    const KnnIndex index(l.cloud.positions, options_.normals.knn);
+    Lists st(l, reach_of(l), index, kn_, 0);
+    search(st, need);
+    const std::size_t m = l.size();
+    std::vector<char> wider(m, 0);
+    pca_normals(st, need, normal, ok, wider);
+    // The wider look reads the lists of the neighbours.
+    std::vector<std::size_t> next;
+    for (std::size_t i : need) {
+        if (!st.certified[i]) fails.push_back(i);
+        for (int j = 0; j < st.k && wider[i]; ++j) {
+            const std::size_t q = std::size_t(st.list_of[i][j]);
+            if (!st.list_of[q]) next.push_back(q);
+        }
+    }
+    std::sort(next.begin(), next.end());
+    next.erase(std::unique(next.begin(), next.end()), next.end());
+    search(st, next);
+    for (std::size_t q : next) {
+        if (!st.certified[q]) fails.push_back(q);
+    }
+    kth = st.kth;
+    if (!fails.empty()) return false;
+    const auto list = [&st](std::size_t j) { return st.list_of[j]; };
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, need.size(), 256),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
+            const std::size_t i = need[a];
+            if (wider[i]) wider_normal(l.cloud.positions, i, st.k, list, normal[i]);
+        }
+    });
+    return true;
+}
+
+/// The normals the in-memory stage estimates (all, or the file's zero ones), a unit at a time
+/// (normals.cpp's per point, detail/normal_rules.h) on the kept points: each one's PCA normal
+/// from its kn_ nearest kept points, the wider look over its neighbours' lists where due, the
+/// local orientation. Every list read is certified; the halo widens until it is.
+void StreamJob::normals_pass(const Unit& u) {
+    for (Halo h;;) {
+        const Loaded all = load(u, h);
+        std::vector<std::size_t> at;
+        const Loaded l = kept_of(all, outliers_ ? removed_.read(all) : std::vector<char>(), at);
+        const std::size_t m = l.size();
+        if (m <= std::size_t(kn_)) {
+            h.ring *= 2;
+            continue;
+        }
+        // The core points whose normals are estimated, in the store's order (near ones
+        // together).
+        const Span<Vec3f> file = all.cloud.normals;
+        const auto zero = [](const Vec3f& v) { return v[0] == 0.0f && v[1] == 0.0f && v[2] == 0.0f; };
+        std::vector<std::size_t> kept_index(all.size(), SIZE_MAX), need;
+        for (std::size_t j = 0; j < m; ++j) kept_index[at[j]] = j;
+        for (std::size_t i : core_rows(all)) {
+            const std::size_t j = kept_index[i];
+            if (j != SIZE_MAX && (estimate_all_ || zero(file[i]))) need.push_back(j);
+        }
+        std::vector<Vec3f> normal(m, Vec3f{0, 0, 0});
+        std::vector<char> ok(m, 0);
+        std::vector<float> kth;
+        std::vector<std::size_t> fails;
+        if (!kept_normals(l, need, normal, ok, kth, fails)) {
+            widen_for(h, u, l, kth, fails);
+            continue;
+        }
+        largest_ = std::max<std::uint64_t>(largest_, all.size());
+        std::vector<Vec3f> out(all.size(), Vec3f{0, 0, 0});
+        if (!file.empty()) std::copy(file.begin(), file.end(), out.begin());
+        for (std::size_t i : need) {
+            if (!ok[i]) {
+                ++degenerate_;
+                out[at[i]] = {0.0f, 0.0f, 0.0f};  // left unsplatted
+                continue;
+            }
+            ++estimated_;
+            flipped_ += orient_locally(options_.normals, l.cloud.origin, l.cloud.positions[i],
+                                       normal[i]);
+            out[at[i]] = normal[i];
+        }
+        normal_.write(all, out);
+        return;
+    }
+}
+
+/// The normal stage's counts and warnings, after normals_pass.
+void StreamJob::finish_normals(PipelineResult& r) const {
+    if (!estimate_) return;
+    r.normals.estimated = estimated_;
+    r.normals.repaired = estimate_all_ ? 0 : estimated_;
+    r.normals.flipped = flipped_;
+    r.normals.oriented_to_viewpoint = true;
+    report_degenerate(degenerate_, kept_);
+}
+
 /// The unit's kept points as the tiles' samples (the columns the in-memory stages leave in the
 /// cloud), and their rows in the whole cloud.
 PointCloud StreamJob::samples(const Unit& u, std::vector<std::uint32_t>& rows) const {
     Loaded l = load(u, 0);
     const std::vector<char> removed = outliers_ ? removed_.read(l) : std::vector<char>(l.size(), 0);
+    if (estimate_) l.cloud.normals = normal_.read(l);
     if (options_.normals.scale == ScaleMode::none) {
         l.cloud.scales.clear();
     } else if (need_scale_) {
@@ -985,11 +923,18 @@ double StreamJob::sample_spacing() {
             });
         };
     };
+    if (options_.normals.scale != ScaleMode::none) {
+        median_scale_ = need_scale_ ? select_rank(kept_ / 2, scan_side(scale_, outliers_))
+                                    : file_scale_median();
+    }
     if (outliers_ || need_scale_) {  // the density spacing of the first search
         return density_spacing(select_rank(kept_ / 2, scan_side(kth_, outliers_)), k_);
     }
-    if (options_.normals.scale == ScaleMode::none) return 0.0;
-    // the file's scales (all > 0 here): their median
+    return median_scale_;  // the file's scales (all > 0 here), or 0 (--scale none)
+}
+
+/// The median of the file's scales over the kept points.
+double StreamJob::file_scale_median() const {
     std::vector<std::uint32_t> rows;
     Spool scales("tiles: scales");
     for (const Unit& u : units_) scales.add_vector(samples(u, rows).scales.to_vector());
@@ -1021,9 +966,16 @@ void StreamJob::run(TileJob& job) {
         if (kept_ == 0) throw InvalidArgument("reconstruct: every point was an outlier");
     }
     PipelineResult& r = job.result;
+    if (estimate_) {
+        if (kept_ < 3) throw NotStreamable{"too few points kept to estimate normals"};
+        kn_ = std::min<int>(options_.normals.k, int(kept_) - 1);
+        for (const Unit& u : units_) normals_pass(u);
+        finish_normals(r);
+    }
     r.outliers.statistical = statistical_;
     r.outliers.planarity = planarity_;
     const double spacing = sample_spacing();
+    r.normals.median_scale = median_scale_;
     (outliers_ ? r.outliers.density_spacing
                : need_scale_ ? r.normals.density_spacing : r.normals.median_scale) = spacing;
     SplatOptions splat = options_.splat;
@@ -1067,8 +1019,10 @@ std::string stream_refusal(const PipelineOptions& options) {
     if (options.tile == 0) return "no tiles";
     if (options.stream == StreamMode::never) return "--stream off";
     if (options.texture.enabled) return "a texture reads every point's colour";
-    if (options.normals.mode == NormalMode::estimate) {
-        return "normals to estimate (their orientation spans the cloud)";
+    if (options.normals.mode == NormalMode::estimate && !options.normals.viewpoint &&
+        !options.normals.up) {
+        return "normals to estimate (their orientation spans the cloud; --up or --viewpoint "
+               "would orient them locally)";
     }
     if (options.outliers.knn.backend != KnnBackend::grid ||
         options.normals.knn.backend != KnnBackend::grid) {
@@ -1080,13 +1034,33 @@ std::string stream_refusal(const PipelineOptions& options) {
     return "";
 }
 
+namespace {
+
+/// About the bytes the in-memory point stages would take for this file: twice the size of a
+/// binary PLY file with normals (48 bytes a point: 20M terrain points, 965 MB); six times that
+/// of a file whose normals are estimated (their lists are kept too, about 100 bytes a point:
+/// 1M terrain points, 116 MB; a row is 12-34 bytes in PLY, LAS or text).
+double in_memory_estimate(const std::string& input) {
+    struct stat st {};
+    if (::stat(input.c_str(), &st) != 0) return 0.0;
+    bool normals = false;
+    try {
+        const FileBytes file(input);
+        const std::string_view bytes = file.bytes();
+        normals = bytes.compare(0, 3, "ply") == 0 && ply_has_normals(input, bytes);
+    } catch (const std::exception&) {
+        // the read names the problem
+    }
+    return (normals ? 2.0 : 6.0) * double(st.st_size);
+}
+
+}  // namespace
+
 bool prepare_streamed(const std::string& input, const std::string& dir,
                       const PipelineOptions& options, TileJob& job) {
     std::string why = stream_refusal(options);
     if (why.empty() && options.stream == StreamMode::automatic) {
-        // The in-memory point stages take about twice a binary PLY file's size.
-        struct stat st {};
-        const double need = ::stat(input.c_str(), &st) == 0 ? 2.0 * double(st.st_size) : 0.0;
+        const double need = in_memory_estimate(input);
         const double budget = double(memory_budget(options.splat));
         if (need <= 0.5 * budget) {
             why = "the points fit in memory (about " + std::to_string(int(need / 1e6)) +

@@ -3,7 +3,11 @@
 // generated CAD parts (creases), smooth shapes with colours, a holed sphere closed by --close,
 // and the Stanford bunny scans.
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <numeric>
+#include <optional>
 #include <random>
 
 #include "shapes.h"
@@ -474,6 +478,9 @@ void check_streamed_samples(const std::string& input, const std::string& job, Pi
     const PipelineResult r = reconstruct(whole, o);  // leaves the samples in `whole`
     CHECK(prepared.result.outliers.statistical == r.outliers.statistical);
     CHECK(prepared.result.outliers.planarity == r.outliers.planarity);
+    CHECK(prepared.result.normals.estimated == r.normals.estimated);
+    CHECK(prepared.result.normals.repaired == r.normals.repaired);
+    CHECK(prepared.result.normals.flipped == r.normals.flipped);
     CHECK(same_bits(streamed.positions, whole.positions));
     CHECK(same_bits(streamed.normals, whole.normals));
     CHECK(same_bits(streamed.scales, whole.scales));
@@ -492,6 +499,145 @@ TEST_CASE("streamed tiles: the job's samples are the in-memory point stages', bi
         o.splat.voxel_size = 0.03;
         o.tile = 48;
         check_streamed_samples(dir.file("in.ply"), dir.file(outliers ? "job1" : "job0"), o);
+    }
+}
+
+TEST_CASE("streamed tiles: normals estimated and oriented each on its own (--up, --viewpoint) "
+          "are the in-memory stage's, bit for bit", "[tiles][stream]") {
+    // The streamable cloud without normals, plus a rotated cube sampled at random: its crisp
+    // edges take the wider look, which reads the lists of the neighbours too.
+    PointCloud c = streamable_cloud(13, false);
+    const PointCloud cube = sample_uniform(make_shape("cube").mesh, 12000, 17);
+    for (std::size_t i = 0; i < cube.size(); ++i) {
+        const Vec3f& q = cube.positions[i];
+        c.positions.push_back({q[0] + 0.2f, q[1] - 0.3f, q[2] + 2.0f});
+        c.normals.push_back(cube.normals[i]);
+    }
+    TempDir dir;
+    struct Case {
+        const char* name;
+        bool normals, outliers;
+        NormalMode mode;
+        std::optional<Vec3d> up, viewpoint;
+    };
+    for (const Case& k :
+         {Case{"no normals, up", false, true, NormalMode::automatic, Vec3d{0, 0, 1}, {}},
+          Case{"no normals, viewpoint, no outliers", false, false, NormalMode::automatic, {},
+               Vec3d{0.3, 0.2, 4.0}},
+          Case{"a ninth zero, viewpoint", true, true, NormalMode::automatic, {},
+               Vec3d{-0.5, 1.0, 0.5}},
+          Case{"estimate over the file's, up", true, true, NormalMode::estimate,
+               Vec3d{0, 1, 0}, {}}}) {
+        INFO(k.name);
+        PointCloud in = c;
+        if (!k.normals) in.normals.clear();
+        for (std::size_t i = 0; i < in.normals.size(); i += 9) in.normals.edit()[i] = {0, 0, 0};
+        const std::string file = dir.file(std::string(k.name) + ".ply");
+        write_points(file, in);
+        PipelineOptions o;
+        o.outliers.enabled = k.outliers;
+        o.normals.mode = k.mode;
+        o.normals.up = k.up;
+        o.normals.viewpoint = k.viewpoint;
+        o.splat.voxel_size = 0.03;
+        o.tile = 48;
+        const std::string job = dir.file(std::string(k.name) + ".job");
+        check_streamed_samples(file, job, o);
+        // The run: the bytes of the tiled run that reads the points whole.
+        o.write_vdb = false;
+        o.stream = StreamMode::always;
+        const RunResult streamed = run(file, dir.file("streamed.ply"), o);
+        CHECK(streamed.result.stream_units >= 8);
+        CHECK(streamed.result.normals.estimated >= 5000);
+        o.stream = StreamMode::never;
+        run(file, dir.file("whole.ply"), o);
+        CHECK(read_bytes(dir.file("streamed.ply")) == read_bytes(dir.file("whole.ply")));
+    }
+}
+
+namespace {
+
+/// A LAS 1.2 file of point format 2 (20 bytes as format 0, then 16-bit RGB) holding `p` at
+/// millimetre resolution with offset (1000, 2000, 0), and their classes and colours.
+void write_las(const std::string& path, const std::vector<std::array<double, 3>>& p,
+               const std::vector<std::uint8_t>& cls,
+               const std::vector<std::array<std::uint16_t, 3>>& rgb) {
+    std::string h(227, '\0');
+    const auto put = [&h](std::size_t at, const auto& v) { std::memcpy(&h[at], &v, sizeof(v)); };
+    h.replace(0, 4, "LASF");
+    h[24] = 1;
+    h[25] = 2;
+    put(94, std::uint16_t(227));
+    put(96, std::uint32_t(227));
+    h[104] = 2;
+    put(105, std::uint16_t(26));
+    put(107, std::uint32_t(p.size()));
+    const double offset[3] = {1000.0, 2000.0, 0.0};
+    for (std::size_t a = 0; a < 3; ++a) {
+        put(131 + 8 * a, 0.001);
+        put(155 + 8 * a, offset[a]);
+    }
+    std::string body(26 * p.size(), '\0');
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        char* r = &body[26 * i];
+        for (std::size_t a = 0; a < 3; ++a) {
+            const std::int32_t v = std::int32_t(std::lround((p[i][a] - offset[a]) * 1000.0));
+            std::memcpy(r + 4 * a, &v, 4);
+        }
+        r[14] = 0x09;  // return 1 of 1
+        r[15] = char(cls[i]);
+        std::memcpy(r + 20, rgb[i].data(), 6);
+    }
+    write_bytes(path, h + body);
+}
+
+}  // namespace
+
+TEST_CASE("streamed tiles: LAS and text files stream too, a chunk of rows at a time",
+          "[tiles][stream]") {
+    // An airborne-like tile: 1.2M random points of a rolling surface (over a chunk of 2^20
+    // rows), two classes, 8-bit colours but for one 16-bit colour in the last chunk (the scale
+    // of every colour depends on it).
+    std::mt19937 rng(21);
+    std::uniform_real_distribution<double> u(0.0, 20.0);
+    const std::size_t n = 1200000;
+    std::vector<std::array<double, 3>> p(n);
+    std::vector<std::uint8_t> cls(n);
+    std::vector<std::array<std::uint16_t, 3>> rgb(n);
+    for (std::size_t i = 0; i < n; ++i) {
+        const double x = 1000.0 + u(rng), y = 2000.0 + u(rng);
+        p[i] = {x, y, 0.3 * std::sin(x) * std::cos(0.7 * y)};
+        cls[i] = i % 3 == 0 ? 1 : 2;
+        rgb[i] = {std::uint16_t(i % 256), std::uint16_t(int(x * 10.0) % 256), 77};
+    }
+    rgb[n - 5] = {4000, 5000, 6000};
+    TempDir dir;
+    write_las(dir.file("in.las"), p, cls, rgb);
+    std::string text;
+    for (std::size_t i = 0; i < n; ++i) {
+        char line[96];
+        std::snprintf(line, sizeof line, "%.3f %.3f %.3f\n", p[i][0], p[i][1], p[i][2]);
+        text += line;
+    }
+    write_bytes(dir.file("in.xyz"), text);
+    PipelineOptions o;
+    o.write_vdb = false;
+    o.outliers.enabled = false;
+    o.normals.up = Vec3d{0, 0, 1};
+    o.splat.voxel_size = 0.1;
+    o.tile = 64;
+    for (const std::string in : {"in.las", "in.xyz", "in.las classes"}) {
+        INFO(in);
+        o.read.classes.clear();
+        if (in == "in.las classes") o.read.classes = {2};
+        const std::string file = dir.file(in.substr(0, 6));
+        o.stream = StreamMode::always;
+        const RunResult streamed = run(file, dir.file("streamed.ply"), o);
+        CHECK(streamed.result.stream_units >= 8);
+        CHECK(streamed.result.normals.estimated == (o.read.classes.empty() ? n : n - n / 3));
+        o.stream = StreamMode::never;
+        run(file, dir.file("whole.ply"), o);
+        CHECK(read_bytes(dir.file("streamed.ply")) == read_bytes(dir.file("whole.ply")));
     }
 }
 
@@ -522,4 +668,27 @@ TEST_CASE("streamed tiles: lists reaching past a region's halo are searched agai
     o.splat.voxel_size = 0.25;
     o.tile = 64;
     check_streamed_samples(dir.file("in.ply"), dir.file("job"), o);
+    // Normals estimated: a saddle (so that a normal depends on which neighbours it has) with a
+    // wider hole and 15 sparser points in it, without normals. The lists of their 10 nearest
+    // kept points reach several cells.
+    PointCloud d;
+    const auto saddle = [](float x, float y) { return Vec3f{x, y, 0.03f * (x * x - y * y)}; };
+    while (d.size() < 200000) {
+        const float x = u(rng), y = u(rng);
+        if (x * x + y * y >= 49.0f) d.positions.push_back(saddle(x, y));
+    }
+    std::uniform_real_distribution<float> w(-7.0f, 7.0f);
+    for (int i = 0; i < 15;) {
+        const float x = w(rng), y = w(rng);
+        if (x * x + y * y >= 49.0f) continue;
+        d.positions.push_back(saddle(x, y));
+        ++i;
+    }
+    write_points(dir.file("bare.ply"), d);
+    o.normals.up = Vec3d{0, 0, 1};
+    for (const bool outliers : {true, false}) {
+        INFO("normals estimated, outliers " << outliers);
+        o.outliers.enabled = outliers;
+        check_streamed_samples(dir.file("bare.ply"), dir.file(outliers ? "job1" : "job0"), o);
+    }
 }

@@ -2,9 +2,9 @@
 //
 // Normal: the eigenvector of the smallest eigenvalue of the covariance of the k nearest
 // neighbours (PCA). Orientation, in order of preference: towards a known viewpoint (sensor
-// position); otherwise minimum-spanning-tree propagation over the kNN graph with edge cost
-// 1 - |n_i . n_j|, seeded in each connected component at its highest point, whose normal is
-// turned to point up (+z) -- H. Hoppe et al., "Surface reconstruction from unorganized points",
+// position) or along a known direction (`up`); otherwise minimum-spanning-tree propagation
+// over the kNN graph with edge cost 1 - |n_i . n_j|, seeded in each connected component at its
+// highest point, whose normal is turned to point up (+z) -- H. Hoppe et al., "Surface reconstruction from unorganized points",
 // SIGGRAPH 1992.
 // Scale: the mean distance to the k nearest neighbours (the sample footprint FSSR expects,
 // S. Fuhrmann and M. Goesele, "Floating scale surface reconstruction", SIGGRAPH 2014).
@@ -38,6 +38,11 @@ struct NormalOptions {
     int k = 10;
     /// Sensor position in world coordinates; when set, normals are turned towards it.
     std::optional<Vec3d> viewpoint;
+    /// A direction estimated normals are turned towards (a viewpoint at infinity: 0,0,1 for
+    /// airborne data); not with a viewpoint. Either orients each point on its own, so that a
+    /// streamed tiled run (PipelineOptions::stream) can estimate normals a region at a time;
+    /// without them the orientation propagates over the whole cloud.
+    std::optional<Vec3d> up;
     /// Where the per-point scale comes from.
     ScaleMode scale = ScaleMode::automatic;
     /// The neighbour search (when the outlier stage hands over no lists).
@@ -56,7 +61,7 @@ struct NormalResult {
     std::size_t repaired = 0;    ///< kept normals that were zero/NaN and were re-estimated
     std::size_t flipped = 0;     ///< estimated normals flipped by the orientation step
     std::size_t components = 0;  ///< kNN-graph components oriented separately (MST mode)
-    bool oriented_to_viewpoint = false;
+    bool oriented_to_viewpoint = false;  ///< towards the viewpoint or along `up`
     double median_scale = 0.0;   ///< median of `scales` (0 when none), world units
     /// The median sample spacing from the density of each point's k nearest (see
     /// median_density_spacing in knn.h) when this stage searched neighbours itself, else 0;

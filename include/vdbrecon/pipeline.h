@@ -32,7 +32,9 @@ const char* version();
 /// Whether a tiled run from a file streams its input: reads it a chunk at a time and runs the
 /// stages on the points a region at a time, so that its memory is bounded by a region and a
 /// tile, not by the input. The same mesh either way; streaming takes about twice as long in
-/// the point stages. Only a PLY file whose points all have normals streams.
+/// the point stages. A PLY file whose points all have normals streams; so does a PLY, LAS or
+/// text file whose normals are estimated when normals.viewpoint or normals.up orients each on
+/// its own (without them the orientation spans the cloud, which is then read whole).
 enum class StreamMode {
     automatic,  ///< when the points in memory would take more than half of splat.max_memory
     always,     ///< whenever the input allows it

@@ -18,6 +18,11 @@ void bind_normals(py::module_& m) {
         .field("viewpoint", &NormalOptions::viewpoint,
                "Sensor position (x, y, z), world units; estimated normals are turned towards it. "
                "None: minimum-spanning-tree orientation (CLI --viewpoint).")
+        .field("up", &NormalOptions::up,
+               "A direction (x, y, z) estimated normals are turned towards, e.g. (0, 0, 1) for "
+               "airborne data; not with a viewpoint. Like the viewpoint it orients each point "
+               "on its own, so a tiled run can stream a cloud without normals. None: "
+               "minimum-spanning-tree orientation (CLI --up).")
         .choice(
             "scale", &NormalOptions::scale,
             scale_mode_choices(),

@@ -54,6 +54,21 @@ def test_streamed_jobs_give_the_same_bytes(client, cli, tmp_path):
     assert cli_tiled(cli, SRC, tmp_path / "on.ply", "--tile", "32", "--stream", "on") == expected
 
 
+def test_a_lidar_tile_without_normals_streams_with_up(client, cli, shared_data, tmp_path):
+    # Normals estimated and turned up, each point on its own: the client streams the LAS file
+    # too, and the bytes are those of the run that reads it whole.
+    las = shared_data / "pdal_autzen" / "autzen_trim.las"
+    args = ("--voxel", "4.4", "--tile", "32", "--up", "0,0,1")
+    expected = cli_tiled(cli, las, tmp_path / "cli.ply", *args, "--stream", "off")
+    r = vdbrecon.run(las, tmp_path / "run.ply", tile=32, voxel=4.4, up=(0, 0, 1), stream="on")
+    assert (tmp_path / "run.ply").read_bytes() == expected
+    assert r.result.stream_units >= 8 and r.result.normals.estimated > 100000
+    assert r.result.normals.oriented_to_viewpoint
+    vdbrecon.distributed.run(las, tmp_path / "dask.ply", client=client, tile=32, voxel=4.4,
+                             up=(0, 0, 1), stream="on")
+    assert (tmp_path / "dask.ply").read_bytes() == expected
+
+
 def test_a_worker_killed_mid_run_changes_nothing(client, cli, tmp_path):
     expected = cli_tiled(cli, SRC, tmp_path / "cli.ply", "--tile", "48", "--close", "2")
     killed = []

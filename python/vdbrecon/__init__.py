@@ -186,7 +186,7 @@ def _set_field(struct, field, value, func, name):
         if field in type(struct)._choices:  # the binding's message lists the choices
             raise TypeError(f"{func}(): option '{name}': {e}") from None
         default = getattr(type(struct)(), field)
-        kind = "a sequence of 3 numbers or None" if field == "viewpoint" else \
+        kind = "a sequence of 3 numbers or None" if field in ("viewpoint", "up") else \
             type(default).__name__
         raise TypeError(f"{func}(): option '{name}' expects {kind} (default {default!r}), got "
                         f"{type(value).__name__} {value!r}") from None

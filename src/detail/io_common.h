@@ -81,13 +81,14 @@ void report_read(const std::string& path, const ReadResult& result);
 /// (those dropped for non-finite coordinates left out), as read_points would have them.
 using PointsSink = std::function<void(ReadResult& chunk, std::size_t first, int pass)>;
 
-/// A PLY file's points a chunk at a time (kStreamRows rows), in the local frame of the whole
-/// file, so that the chunks' clouds joined are read_points' cloud; `passes` times over, after a
-/// first pass for the frame. No more than a chunk of rows in memory. `totals` gets the format,
+/// A PLY, LAS or text file's points a chunk at a time (kStreamRows rows), in the local frame of
+/// the whole file, so that the chunks' clouds joined are read_points' cloud; `passes` times
+/// over, after a first pass for the frame. No more than a chunk of rows in memory. `totals` gets the format,
 /// the frame (its cloud's origin, and no point) and the counts. Returns false, having read
 /// nothing, for a file of another format. Throws as read_points (its warnings and errors about
 /// the whole file come after the chunks of the first pass). `frame` gets what the frame's pass
-/// found. With `need_normals`, a file whose points have no normals is of another format.
+/// found. With `need_normals`, a file whose points have no normals (not a PLY file with normals)
+/// is of another format.
 struct StreamFrame {
     std::size_t rows = 0;   ///< rows with finite coordinates (the points of the cloud)
     double diagonal = 0.0;  ///< of their bounding box, world units
@@ -225,16 +226,23 @@ RawPoints read_ply_raw(const std::string& path, std::string_view content, bool w
                        std::string& format, const Consumed& consumed = {},
                        const RowSink& sink = {});
 constexpr std::size_t kStreamRows = std::size_t(1) << 20;
+/// A streamed read's hand-over in the LAS and text readers: with a sink, the rows held go to it
+/// once there are kStreamRows of them (at the `end`, any there are) and are let go; `handed`
+/// counts the rows handed.
+void hand_rows(RawPoints& raw, const RowSink& sink, std::size_t& handed, bool end);
 /// Whether a PLY file's vertex element has normals (nx ny nz or an alias). Throws FormatError
 /// for a bad header.
 bool ply_has_normals(const std::string& path, std::string_view content);
-/// Reads XYZ / PTS text.
-RawPoints read_xyz_raw(const std::string& path, std::string_view content);
+/// Reads XYZ / PTS text; `consumed` and `sink` as read_ply_raw's.
+RawPoints read_xyz_raw(const std::string& path, std::string_view content,
+                       const Consumed& consumed = {}, const RowSink& sink = {});
 /// Reads OBJ (v, vn, f).
 RawPoints read_obj_raw(const std::string& path, std::string_view content, bool want_faces);
-/// ASPRS LAS 1.0-1.4 (io_las.cpp): the points of `classes` (all when empty), RGB as colours.
+/// ASPRS LAS 1.0-1.4 (io_las.cpp): the points of `classes` (all when empty), RGB as colours;
+/// `consumed` and `sink` as read_ply_raw's.
 RawPoints read_las_raw(const std::string& path, std::string_view content,
-                       const std::vector<int>& classes);
+                       const std::vector<int>& classes, const Consumed& consumed = {},
+                       const RowSink& sink = {});
 
 /// PLY writer for clouds and meshes. Empty attributes are left out; `faces` may be null;
 /// `regions` (one per face) are the faces' `region` property.

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 
+#include "detail/temp_files.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon::detail {
@@ -94,11 +95,13 @@ ScratchDir::ScratchDir(const std::string& what) {
                       std::strerror(errno) + " (set TMPDIR to a writable directory)");
     }
     path_ = name;
+    register_temp_dir(path_);  // removed by remove_temp_files_now() on SIGINT / SIGTERM too
 }
 
 ScratchDir::~ScratchDir() {
     std::error_code ignored;
     std::filesystem::remove_all(path_, ignored);
+    unregister_temp_file(path_);
 }
 
 }  // namespace vdbrecon::detail

@@ -773,28 +773,55 @@ TEST_CASE("bad input: output in a missing or read-only directory", "[cli][bad_in
     }
 }
 
+namespace {
+
+/// Runs `command` in the background, waits (up to 60 s: a sanitizer build is ~10x slower) until
+/// `ls LISTED | grep -q PATTERN` finds what it writes, then sends it SIG (INT, TERM); requires
+/// that it was seen and that the run died of the signal.
+void interrupt(const std::string& command, const std::string& listed, const std::string& pattern,
+               const char* sig) {
+    TempDir capture;
+    const std::string script =
+        command + " & pid=$!; seen=no; for i in $(seq 6000); do if ls -a " + listed +
+        " 2>/dev/null | grep -q " + pattern + "; then seen=yes; break; fi; sleep 0.01; done; " +
+        "kill -" + sig + " $pid; wait $pid; echo \"$? $seen\"\n";
+    write_bytes(capture.file("interrupt.sh"), script);
+    const std::string result = capture.file("result");
+    REQUIRE(std::system(("sh '" + capture.file("interrupt.sh") + "' >'" + result +
+                         "' 2>/dev/null").c_str()) == 0);
+    const std::string got = read_bytes(result);
+    INFO("signal " << sig << ": exit status and whether " << pattern << " was seen: " << got);
+    // Killed by the signal: the shell reports 128 + its number (SIGINT 2, SIGTERM 15).
+    REQUIRE(got == std::to_string(128 + (std::string(sig) == "INT" ? 2 : 15)) + " yes\n");
+}
+
+}  // namespace
+
 TEST_CASE("bad input: an interrupted run removes its temporary files", "[cli][bad_input]") {
     // Issue 6 point 3. The run is interrupted once its first output (the .vdb, written while the
-    // mesh is extracted) is on disk under a temporary name (waiting up to 60 s: a sanitizer
-    // build is ~10x slower); the earlier outputs must survive.
+    // mesh is extracted) is on disk under a temporary name; the earlier outputs must survive.
     Workspace w;
     const std::string in = w.input("big.ply", sample_sphere(200000, 1.0));
     const auto before = snapshot(w.dir.path());
     for (const char* sig : {"INT", "TERM"}) {
-        TempDir capture;
-        const std::string script =
-            std::string(VDBRECON_CLI) + " '" + in + "' -o '" + w.out + "' -q --voxel 0.004 & " +
-            "pid=$!; seen=no; for i in $(seq 6000); do " +
-            "if ls -a '" + w.dir.path() + "' | grep -q staged; then seen=yes; break; fi; " +
-            "sleep 0.01; done; kill -" + sig + " $pid; wait $pid; echo \"$? $seen\"\n";
-        write_bytes(capture.file("interrupt.sh"), script);
-        const std::string result = capture.file("result");
-        REQUIRE(std::system(("sh '" + capture.file("interrupt.sh") + "' >'" + result +
-                             "' 2>/dev/null").c_str()) == 0);
-        const std::string got = read_bytes(result);
-        INFO("signal " << sig << ": exit status and whether a temporary file was seen: " << got);
-        // Killed by the signal: the shell reports 128 + its number (SIGINT 2, SIGTERM 15).
-        REQUIRE(got == std::to_string(128 + (std::string(sig) == "INT" ? 2 : 15)) + " yes\n");
+        interrupt(std::string(VDBRECON_CLI) + " '" + in + "' -o '" + w.out + "' -q --voxel 0.004",
+                  "'" + w.dir.path() + "'", "staged", sig);
+        REQUIRE(snapshot(w.dir.path()) == before);
+    }
+}
+
+TEST_CASE("bad input: an interrupted tiled run removes its scratch directory", "[cli][bad_input]") {
+    // The tile job of a streamed tiled run waits in $TMPDIR/vdbrecon-tiles-*: interrupted once
+    // its buckets are there, the run leaves none of it (and the outputs as they were).
+    Workspace w;
+    const std::string in = w.input("big.ply", sample_sphere(200000, 1.0));
+    const auto before = snapshot(w.dir.path());
+    for (const char* sig : {"INT", "TERM"}) {
+        TempDir tmp;
+        interrupt("TMPDIR='" + tmp.path() + "' " + VDBRECON_CLI + " '" + in + "' -o '" + w.out +
+                      "' -q --voxel 0.004 --tile 32 --stream on",
+                  "'" + tmp.path() + "'/vdbrecon-tiles-*", "bucket", sig);
+        REQUIRE(snapshot(tmp.path()).empty());
         REQUIRE(snapshot(w.dir.path()) == before);
     }
 }

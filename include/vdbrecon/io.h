@@ -96,8 +96,9 @@ void write_mesh(const std::string& path, const Mesh& mesh, const WriteOptions& o
 void write_points(const std::string& path, const PointCloud& cloud,
                   const WriteOptions& options = {});
 
-/// Unlinks every temporary file a writer currently has open. Async-signal-safe, so a SIGINT /
-/// SIGTERM handler may call it before the process dies (no partial outputs survive).
+/// Unlinks every temporary file a writer currently has open, and removes a tiled run's scratch
+/// directory. Async-signal-safe, so a SIGINT / SIGTERM handler may call it before the process
+/// dies (no partial outputs or scratch files survive).
 void remove_temp_files_now();
 
 /// Lower-case extension of a path without the dot ("" when there is none).

@@ -6,9 +6,11 @@
 // in the cloud's order. Then passes over regions ("units": the cubes of an octree over the
 // cells), each loaded with a halo of cells around it:
 //   1. what the outlier rules and the kNN scale take from each point's list but the median d:
-//      d_i, the k-th distance, the statistical verdict, the planarity test, the mean distance
-//      to the first ks neighbours and what may take one of those away (without the outlier
-//      rules: d_i over the scale's k, the scale); then the median d, by selection;
+//      d_i, the k-th distance, the statistical verdict, the planarity test (where it may be
+//      asked: d_i above planarity_spacing x 0.9 x a median d sampled over the cells; pass 1
+//      runs again for every point should the median be lower), the mean distance to the first
+//      ks neighbours and what may take one of those away (without the outlier rules: d_i over
+//      the scale's k, the scale); then the median d, by selection;
 //   2. the rules, and the scale of the kept points: the first ks neighbours' mean distance, or
 //      a walk over a list searched again where one of those may go; then, where normals are
 //      estimated (oriented each on its own: a viewpoint, an up direction), each kept point's
@@ -151,6 +153,8 @@ class StreamJob {
     bool widen_for(Halo& h, const Unit& u, const Loaded& l, const std::vector<float>& kth,
                    const std::vector<std::size_t>& fails) const;
     void verdict_pass(const Unit& u);
+    double sampled_median_d() const;
+    void verdicts();
     char rule_of(char verdict, char scattered_nb, float d) const;
     int walk(const Loaded& l, const KnnIndex& index, const Reach& reach, std::size_t i,
              const std::vector<char>& rule, const Unit& u, std::vector<int>& kept_nb,
@@ -199,6 +203,7 @@ class StreamJob {
     CellStore::Side<Vec3f> normal_{"tiles: normals"};
     std::uint64_t estimated_ = 0, flipped_ = 0, degenerate_ = 0;
     double median_d_ = 0.0, median_scale_ = 0.0;
+    double scattered_from_ = 0.0;  ///< pass 1 runs the planarity test on d_i above this
     std::uint64_t statistical_ = 0, planarity_ = 0, kept_ = 0;
     std::uint64_t largest_ = 0;  ///< points of the largest unit loaded, with its halo
     Vec3f lowest_{HUGE_VALF, HUGE_VALF, HUGE_VALF}, highest_{-HUGE_VALF, -HUGE_VALF, -HUGE_VALF};
@@ -524,7 +529,9 @@ void StreamJob::verdict_pass(const Unit& u) {
                 }
                 if (!known) continue;
                 verdict[i] = statistical_verdict(st.d[i], sum, k_, o);
+                // The planarity test only where it may be asked (d_i above scattered_from_).
                 scattered_nb[i] = verdict[i] == kPasses && o.planarity_ratio > 0.0 &&
+                                  double(st.d[i]) > scattered_from_ &&
                                   scattered(l.cloud.positions, i, nb, k_, o);
             }
         });
@@ -946,19 +953,60 @@ double StreamJob::file_scale_median() const {
     });
 }
 
+/// The median d (the outlier rules' mean distance to the k nearest) over a sample of cells
+/// spread over the store, each loaded with a ring of cells (lists not certified: an estimate).
+double StreamJob::sampled_median_d() const {
+    const std::size_t cells = store_->keys().size();
+    const std::size_t step = std::max<std::size_t>(1, cells / 32);
+    std::vector<float> ds;
+    for (std::size_t j = 0; j < cells; j += step) {
+        Unit u;
+        u.cells = {j};
+        u.lo = u.hi = store_->keys()[j];
+        const Loaded l = load(u, 1);
+        if (l.size() <= std::size_t(k_)) continue;
+        const KnnIndex index(l.cloud.positions, options_.outliers.knn);
+        const std::vector<std::size_t> core = core_rows(l);
+        const KnnResult got = index.self_neighbours_of(core, k_);
+        for (std::size_t a = 0; a < core.size(); ++a) {
+            ds.push_back(mean_distance(l.cloud.positions, core[a], got.neighbours(a), k_));
+        }
+    }
+    if (ds.empty()) return 0.0;
+    std::nth_element(ds.begin(), ds.begin() + std::ptrdiff_t(ds.size() / 2), ds.end());
+    return double(ds[ds.size() / 2]);
+}
+
+/// Pass 1 with the outlier rules, and the median d. The planarity test (a PCA) is asked of the
+/// points above planarity_spacing x the median only, which pass 1 does not know yet: it runs
+/// above that many times 0.9 x a sampled median, and pass 1 runs again, for every point, should
+/// the median turn out lower (the results are the same either way).
+void StreamJob::verdicts() {
+    const OutlierOptions& o = options_.outliers;
+    const double floor = 0.9 * sampled_median_d();
+    scattered_from_ = o.planarity_spacing * floor;
+    for (const Unit& u : units_) verdict_pass(u);
+    median_d_ = select_rank(n_ / 2, [&](const auto& fn) {
+        d_.scan(n_, [&](const float* v, std::uint64_t, std::size_t c) { fn(v, c); });
+    });
+    if (median_d_ < floor && scattered_from_ > 0.0) {
+        log_info("tiles: the median spacing is below the sampled one; the planarity test runs "
+                 "again for every point");
+        scattered_from_ = 0.0;
+        for (const Unit& u : units_) verdict_pass(u);
+    }
+}
+
 void StreamJob::run(TileJob& job) {
     read();
     make_units();
     if (outliers_) {
-        for (const Unit& u : units_) verdict_pass(u);
+        verdicts();
     } else if (need_scale_) {
         for (const Unit& u : units_) spacing_pass(u);
     }
     kept_ = n_;
     if (outliers_) {
-        median_d_ = select_rank(n_ / 2, [&](const auto& fn) {
-            d_.scan(n_, [&](const float* v, std::uint64_t, std::size_t c) { fn(v, c); });
-        });
         kept_ = 0;
         lowest_ = {HUGE_VALF, HUGE_VALF, HUGE_VALF};
         highest_ = {-HUGE_VALF, -HUGE_VALF, -HUGE_VALF};

@@ -14,6 +14,7 @@
 #include "support.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
+#include "vdbrecon/log.h"
 #include "vdbrecon/pipeline.h"
 #include "vdbrecon/tiles.h"
 
@@ -500,6 +501,41 @@ TEST_CASE("streamed tiles: the job's samples are the in-memory point stages', bi
         o.tile = 48;
         check_streamed_samples(dir.file("in.ply"), dir.file(outliers ? "job1" : "job0"), o);
     }
+}
+
+TEST_CASE("streamed tiles: the planarity test runs again when the sampled spacing was too wide",
+          "[tiles][stream]") {
+    // Pass 1 runs the planarity test above planarity_spacing x 0.9 x a median d sampled over
+    // the cells, the median not known yet. Here the sample misses the dense patch that holds
+    // most points (the true median): 100,000 points over 100 x 100, 120,000 over 0.3 x 0.3,
+    // and ten scattered blobs above the patch, which only the planarity rule removes. Pass 1
+    // runs again for every point, and the samples are the in-memory stages'.
+    std::mt19937 rng(4);
+    std::uniform_real_distribution<float> wide(-50.0f, 50.0f), patch(0.0f, 0.3f), in(0.05f, 0.25f);
+    std::normal_distribution<float> g(0.0f, 0.002f);
+    PointCloud c;
+    const auto add = [&c](float x, float y, float z) {
+        c.positions.push_back({x, y, z});
+        c.normals.push_back({0.0f, 0.0f, 1.0f});
+    };
+    for (int i = 0; i < 100000; ++i) add(wide(rng), wide(rng), 0.0f);
+    for (int i = 0; i < 120000; ++i) add(patch(rng), patch(rng), 0.0f);
+    for (int b = 0; b < 10; ++b) {
+        const float x = in(rng), y = in(rng);
+        for (int i = 0; i < 40; ++i) add(x + g(rng), y + g(rng), 0.01f + g(rng));
+    }
+    TempDir dir;
+    write_points(dir.file("in.ply"), c);
+    bool again = false;
+    const LogHandler old = set_log_handler([&again](LogLevel, const std::string& m) {
+        again = again || m.find("runs again") != std::string::npos;
+    });
+    PipelineOptions o;
+    o.splat.voxel_size = 0.5;
+    o.tile = 32;
+    check_streamed_samples(dir.file("in.ply"), dir.file("job"), o);
+    set_log_handler(old);
+    CHECK(again);
 }
 
 TEST_CASE("streamed tiles: normals estimated and oriented each on its own (--up, --viewpoint) "

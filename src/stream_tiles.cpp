@@ -1085,12 +1085,13 @@ std::string stream_refusal(const PipelineOptions& options) {
 namespace {
 
 /// About the bytes the in-memory point stages would take for this file: twice the size of a
-/// binary PLY file with normals (48 bytes a point: 20M terrain points, 965 MB); six times that
-/// of a file whose normals are estimated (their lists are kept too, about 100 bytes a point:
-/// 1M terrain points, 116 MB; a row is 12-34 bytes in PLY, LAS or text).
-double in_memory_estimate(const std::string& input) {
+/// binary PLY file with normals kept (48 bytes a point: 20M terrain points, 965 MB); six times
+/// that of a file whose normals are estimated (their lists are kept too, about 100 bytes a
+/// point: 1M terrain points, 116 MB; a row is 12-34 bytes in PLY, LAS or text).
+double in_memory_estimate(const std::string& input, const NormalOptions& options) {
     struct stat st {};
     if (::stat(input.c_str(), &st) != 0) return 0.0;
+    if (options.mode == NormalMode::estimate) return 6.0 * double(st.st_size);
     bool normals = false;
     try {
         const FileBytes file(input);
@@ -1108,7 +1109,7 @@ bool prepare_streamed(const std::string& input, const std::string& dir,
                       const PipelineOptions& options, TileJob& job) {
     std::string why = stream_refusal(options);
     if (why.empty() && options.stream == StreamMode::automatic) {
-        const double need = in_memory_estimate(input);
+        const double need = in_memory_estimate(input, options.normals);
         const double budget = double(memory_budget(options.splat));
         if (need <= 0.5 * budget) {
             why = "the points fit in memory (about " + std::to_string(int(need / 1e6)) +

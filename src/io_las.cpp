@@ -118,8 +118,9 @@ RawPoints read_las_raw(const std::string& path, std::string_view b, const std::v
     std::uint16_t max_rgb = 0;
     for (std::uint64_t i = 0; i < count && rgb; ++i) {
         const std::size_t at = data_offset + std::size_t(i) * record;
-        for (int c = 0; c < 3 && kept(at); ++c) {
-            max_rgb = std::max(max_rgb, get<std::uint16_t>(b, at + rgb + 2 * std::size_t(c)));
+        if (!kept(at)) continue;
+        for (std::size_t c = 0; c < 3; ++c) {
+            max_rgb = std::max(max_rgb, get<std::uint16_t>(b, at + rgb + 2 * c));
         }
     }
     const float full = max_rgb > 255 ? 65535.0f : 255.0f;

@@ -44,7 +44,7 @@ void NormalOptions::validate() const {
 
 namespace {
 
-bool is_zero(const Vec3f& n) { return n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f; }
+using detail::is_zero;
 
 float dot(const Vec3f& a, const Vec3f& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
@@ -724,7 +724,7 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
                      bool estimate_all, NormalResult& result) {
     const std::size_t n = cloud.size();
     std::vector<char> degenerate(n, 0), wider(n, 0);
-    std::vector<float> doubt(options.viewpoint || options.up ? 0 : n, 0.0f);
+    std::vector<float> doubt(options.orients_locally() ? 0 : n, 0.0f);
     std::vector<Vec3f>& normals = result.normals.edit();
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
                       [&](const tbb::blocked_range<std::size_t>& r) {
@@ -756,7 +756,7 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
     detail::report_degenerate(bad, n);
 
     // Orientation.
-    if (options.viewpoint || options.up) {
+    if (options.orients_locally()) {
         result.oriented_to_viewpoint = true;
         for (std::size_t i = 0; i < n; ++i) {
             if (!needs[i] || degenerate[i]) continue;

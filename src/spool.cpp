@@ -13,9 +13,17 @@
 
 namespace vdbrecon::detail {
 
-Spool::Spool(std::string what) : what_(std::move(what)) {
+namespace {
+
+/// Where temporary files go: $TMPDIR, else /tmp.
+std::string temp_dir() {
     const char* env = std::getenv("TMPDIR");
-    dir_ = env && *env ? env : "/tmp";
+    return env && *env ? env : "/tmp";
+}
+
+}  // namespace
+
+Spool::Spool(std::string what) : what_(std::move(what)), dir_(temp_dir()) {
     std::string name = dir_ + "/vdbrecon-spool-XXXXXX";
     const int fd = ::mkstemp(name.data());
     if (fd < 0) {
@@ -87,8 +95,7 @@ std::string_view Spool::get(std::size_t i, std::string& buffer) const {
 }
 
 ScratchDir::ScratchDir(const std::string& what) {
-    const char* env = std::getenv("TMPDIR");
-    const std::string dir = env && *env ? env : "/tmp";
+    const std::string dir = temp_dir();
     std::string name = dir + "/vdbrecon-tiles-XXXXXX";
     if (!::mkdtemp(name.data())) {
         throw IoError(what + ": cannot make a temporary directory in " + dir + ": " +

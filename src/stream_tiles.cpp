@@ -131,7 +131,7 @@ class StreamJob {
         : input_(input), dir_(dir), options_(options) {
         outliers_ = options.outliers.enabled;
         k_ = outliers_ ? options.outliers.k : options.normals.k;
-        local_ = options.normals.viewpoint || options.normals.up;
+        local_ = options.normals.orients_locally();
     }
 
     void run(TileJob& job);
@@ -714,9 +714,10 @@ void StreamJob::pca_normals(const Lists& st, const std::vector<std::size_t>& nee
     });
 }
 
-/// The normals estimated among the core points of a loading of a unit's kept points (`file`:
-/// the file's normals of those points, or none), oriented; false, with the points whose lists
-/// are not certified in `fails`, when the halo is too narrow.
+/// The normals of the kept points `need` of a loading of a unit's kept points `l` (PCA and the
+/// wider look; not oriented), and whether each is not degenerate (`ok`); false, with the points
+/// whose lists are not certified in `fails` (and every k-th distance in `kth`), when the halo
+/// is too narrow.
 bool StreamJob::kept_normals(const Loaded& l, const std::vector<std::size_t>& need,
                              std::vector<Vec3f>& normal, std::vector<char>& ok,
                              std::vector<float>& kth, std::vector<std::size_t>& fails) const {
@@ -771,12 +772,11 @@ void StreamJob::normals_pass(const Unit& u) {
         // The core points whose normals are estimated, in the store's order (near ones
         // together).
         const Span<Vec3f> file = all.cloud.normals;
-        const auto zero = [](const Vec3f& v) { return v[0] == 0.0f && v[1] == 0.0f && v[2] == 0.0f; };
         std::vector<std::size_t> kept_index(all.size(), SIZE_MAX), need;
         for (std::size_t j = 0; j < m; ++j) kept_index[at[j]] = j;
         for (std::size_t i : core_rows(all)) {
             const std::size_t j = kept_index[i];
-            if (j != SIZE_MAX && (estimate_all_ || zero(file[i]))) need.push_back(j);
+            if (j != SIZE_MAX && (estimate_all_ || is_zero(file[i]))) need.push_back(j);
         }
         std::vector<Vec3f> normal(m, Vec3f{0, 0, 0});
         std::vector<char> ok(m, 0);
@@ -1067,8 +1067,7 @@ std::string stream_refusal(const PipelineOptions& options) {
     if (options.tile == 0) return "no tiles";
     if (options.stream == StreamMode::never) return "--stream off";
     if (options.texture.enabled) return "a texture reads every point's colour";
-    if (options.normals.mode == NormalMode::estimate && !options.normals.viewpoint &&
-        !options.normals.up) {
+    if (options.normals.mode == NormalMode::estimate && !options.normals.orients_locally()) {
         return "normals to estimate (their orientation spans the cloud; --up or --viewpoint "
                "would orient them locally)";
     }

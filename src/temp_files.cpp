@@ -1,7 +1,6 @@
 #include "detail/temp_files.h"
 #include "vdbrecon/io.h"
 
-#include <dirent.h>
 #include <fcntl.h>
 #include <sys/syscall.h>
 #include <unistd.h>

@@ -4,8 +4,8 @@
 // neighbours (PCA). Orientation, in order of preference: towards a known viewpoint (sensor
 // position) or along a known direction (`up`); otherwise minimum-spanning-tree propagation
 // over the kNN graph with edge cost 1 - |n_i . n_j|, seeded in each connected component at its
-// highest point, whose normal is turned to point up (+z) -- H. Hoppe et al., "Surface reconstruction from unorganized points",
-// SIGGRAPH 1992.
+// highest point, whose normal is turned to point up (+z) -- H. Hoppe et al., "Surface
+// reconstruction from unorganized points", SIGGRAPH 1992.
 // Scale: the mean distance to the k nearest neighbours (the sample footprint FSSR expects,
 // S. Fuhrmann and M. Goesele, "Floating scale surface reconstruction", SIGGRAPH 2014).
 #pragma once
@@ -50,6 +50,9 @@ struct NormalOptions {
 
     /// Throws InvalidArgument naming the field when out of range.
     void validate() const;
+    /// Whether estimated normals are oriented each on its own (a viewpoint or `up`), not by
+    /// propagation over the whole cloud.
+    bool orients_locally() const { return viewpoint.has_value() || up.has_value(); }
 };
 
 struct NormalResult {

@@ -11,6 +11,9 @@
 
 namespace vdbrecon::detail {
 
+/// Whether a normal is (0, 0, 0): none (to estimate, or left unsplatted).
+inline bool is_zero(const Vec3f& n) { return n[0] == 0.0f && n[1] == 0.0f && n[2] == 0.0f; }
+
 /// The PCA normal of point i from its k nearest `nb` (unoriented); next to a sharp edge, its
 /// face's. False for a degenerate neighbourhood (coincident or collinear points). `doubt`: how
 /// far an orientation by propagation may trust it; `wider`: whether a wider look is due

@@ -225,13 +225,52 @@ struct PlaneCandidate {
     double m0, m1, off, agree;
 };
 
-/// Rules 1 to 3 of repair_hermite: the plane the crossing takes, or null. `reliable` holds every
+/// A reliable crossing's plane along an edge: its values at the edge's ends, in voxels.
+struct PlaneLine {
+    double at0, at1;
+    double at(double t) const { return at0 + t * (at1 - at0); }
+};
+
+constexpr double kMatch = 0.02;  ///< voxels: a plane explains an end's value (repair_hermite)
+
+/// Rule 2 of repair_hermite: the candidate that the field's pieces along the edge pass through.
+/// `end0` and `end1` hold the planes explaining each end's value; the crossing plane c is taken
+/// when some a of end0 and b of end1 meet its line in order, 0 <= s_a <= t_c <= s_b <= 1 (the
+/// field follows a from the start, then c through its root, then b). Ties: the plane closest to
+/// our point.
+const PlaneCandidate* three_pieces(const std::vector<PlaneCandidate>& cand, double f0, double f1,
+                                   const std::vector<PlaneLine>& end0,
+                                   const std::vector<PlaneLine>& end1) {
+    const auto meet = [](const PlaneLine& a, const PlaneLine& c) {
+        const double slope = (a.at1 - a.at0) - (c.at1 - c.at0);
+        return slope != 0.0 ? (c.at0 - a.at0) / slope : -1.0;
+    };
+    const PlaneCandidate* pick = nullptr;
+    for (const PlaneCandidate& c : cand) {
+        const PlaneLine line{f0 - c.m0, f1 - c.m1};
+        bool before = false, after = false;
+        for (const PlaneLine& a : end0) {
+            const double s = meet(a, line);
+            before |= s >= 0.0 && s <= c.t;
+        }
+        for (const PlaneLine& b : end1) {
+            const double s = meet(b, line);
+            after |= s >= c.t && s <= 1.0;
+        }
+        if (before && after && (!pick || c.off < pick->off)) pick = &c;
+    }
+    return pick;
+}
+
+/// Rules 1 to 4 of repair_hermite: the plane the crossing takes, or null. `reliable` holds every
 /// reliable crossing within reach, `cand` those whose plane the edge crosses, both in the order
-/// of a walk over the voxels around the edge's start, then over axes.
+/// of a walk over the voxels around the edge's start, then over axes; `end0` and `end1` the
+/// reliable planes that explain each end's value (f0, f1).
 const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
                                  const std::vector<std::size_t>& reliable,
-                                 const FillLater<HermiteSample>& data) {
-    constexpr double kMatch = 0.02;    // voxels
+                                 const FillLater<HermiteSample>& data, double f0, double f1,
+                                 const std::vector<PlaneLine>& end0,
+                                 const std::vector<PlaneLine>& end1) {
     constexpr double kOnPlane = 0.06;  // voxels
     constexpr double kFace = 0.005;    // voxels
     constexpr double kRoughAgreement = 0.7;
@@ -248,7 +287,8 @@ const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
         }
     }
     if (pick) return pick;
-    // Rule 2: the closest plane through our point (ties: normal agreement).
+    if ((pick = three_pieces(cand, f0, f1, end0, end1))) return pick;
+    // Rule 3: the closest plane through our point (ties: normal agreement).
     best = kOnPlane;
     for (const PlaneCandidate& c : cand) {
         if (c.off < best - 1e-3 || (pick && c.off <= best + 1e-3 && c.agree > pick->agree)) {
@@ -257,7 +297,7 @@ const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
         }
     }
     if (pick) return pick;
-    // Rule 3: the first root of a confirmed face below the field.
+    // Rule 4: the first root of a confirmed face below the field.
     const auto is_face = [&](std::size_t j) {
         const openvdb::Vec3d nj(data[j].normal), pj(data[j].point);
         openvdb::Vec3d first(0.0);
@@ -362,9 +402,14 @@ struct ReliableCrossings {
 ///      plane's linear region (over the face outside a convex feature, or where the face is the
 ///      nearest one inside). Along the edge the field is a few linear pieces and at most one of
 ///      them has its root on the edge; the match extrapolated least from its end wins;
-///   2. passes within kOnPlane of our crossing point (the position was right, only the normal
+///   2. carries the field between two planes that explain the ends' values but do not cross
+///      the edge: the field follows a from one end, then our plane c through its root, then b
+///      to the other end, the lines meeting in that order along the edge (three_pieces). This
+///      is a corner where a concave and a convex edge meet (an L-bracket's inner corner, a
+///      pocket's rim): each end lies in a third face's linear region;
+///   3. passes within kOnPlane of our crossing point (the position was right, only the normal
 ///      was smeared);
-///   3. bounds the field: a face of a convex feature has f >= P_j everywhere near it, so the
+///   4. bounds the field: a face of a convex feature has f >= P_j everywhere near it, so the
 ///      crossing comes no later than any such plane's root and lies on the plane whose root
 ///      comes first. (The mirror rule for concave features, f <= P_j and the last root, misfired
 ///      on the walls of drilled holes in our tests and is left out.) Tangent planes of a
@@ -413,6 +458,7 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
             std::vector<ReliableCrossings::Near> near;
             std::vector<std::size_t> reliable;
             std::vector<PlaneCandidate> cand;
+            std::vector<PlaneLine> end0, end1;
             std::vector<Repair>& found = repairs.local();
             for (std::size_t L = r.begin(); L < r.end(); ++L) {
                 const std::size_t begin = crossings.leaf_begin[L],
@@ -435,6 +481,8 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                     const double rise = crossings.start_inside[i] ? 1.0 : -1.0;
                     reliable.clear();
                     cand.clear();
+                    end0.clear();
+                    end1.clear();
                     double f0 = 0.0, f1 = 0.0;  // the ends' values in voxels, read when needed
                     const auto window = ReliableCrossings::x_window(near, leaves[L]->origin(), s);
                     for (const ReliableCrossings::Near* it = window.first; it != window.second;
@@ -446,24 +494,26 @@ void repair_hermite(const Crossings& crossings, const openvdb::FloatTree& tree,
                             continue;
                         }
                         const std::size_t j = e.j;
-                        reliable.push_back(j);
-                        const openvdb::Vec3d nj(data[j].normal);
-                        if (!(rise * nj[axis] > 0.05)) continue;
-                        const openvdb::Vec3d pj(data[j].point);
-                        const double t = -nj.dot(v0 - pj) / nj[axis];
-                        if (!(t >= 0.0 && t <= 1.0)) continue;
-                        if (cand.empty()) {  // s is in the leaf, s1 too unless past its face
+                        if (reliable.empty()) {  // s is in the leaf, s1 too unless past its face
                             f0 = (double(leaves[L]->getValue(s)) - iso) / voxel;
                             f1 = (double((s1[axis] & 7) ? leaves[L]->getValue(s1)
                                                         : acc.getValue(s1)) -
                                   iso) /
                                  voxel;
                         }
-                        cand.push_back({j, t, rise > 0.0 ? t : 1.0 - t, f0 - nj.dot(v0 - pj),
-                                        f1 - nj.dot(v1 - pj), std::fabs(nj.dot(p - pj)),
-                                        nj.dot(n)});
+                        reliable.push_back(j);
+                        const openvdb::Vec3d nj(data[j].normal), pj(data[j].point);
+                        const PlaneLine line{nj.dot(v0 - pj), nj.dot(v1 - pj)};
+                        if (std::fabs(f0 - line.at0) <= kMatch) end0.push_back(line);
+                        if (std::fabs(f1 - line.at1) <= kMatch) end1.push_back(line);
+                        if (!(rise * nj[axis] > 0.05)) continue;
+                        const double t = -line.at0 / nj[axis];
+                        if (!(t >= 0.0 && t <= 1.0)) continue;
+                        cand.push_back({j, t, rise > 0.0 ? t : 1.0 - t, f0 - line.at0,
+                                        f1 - line.at1, std::fabs(nj.dot(p - pj)), nj.dot(n)});
                     }
-                    if (const PlaneCandidate* pick = pick_plane(cand, reliable, data)) {
+                    if (const PlaneCandidate* pick =
+                            pick_plane(cand, reliable, data, f0, f1, end0, end1)) {
                         found.push_back({std::uint32_t(i), std::uint32_t(pick->j), pick->t});
                     }
                 }

@@ -656,6 +656,10 @@ int loop_chains(const SurfaceCell& cell, int l, Field& acc, float iso, int start
 /// the nearest cell whose crossings see all three faces (half a voxel cut 1 corner in 12 random
 /// boxes by 0.3 voxel).
 constexpr double kCellMargin = 1.0;
+/// ... and a corner that every reliable plane of its patch passes through (see solve_qef): the
+/// fan's blade-tip corners lie up to ~1.3 voxel outside the nearest cell whose crossings see all
+/// three faces (1.0 cut one by 0.28 voxel at 1.5x the sample spacing).
+constexpr double kCornerMargin = 1.5;
 
 /// The least weight a crossing's plane has in the quadric. A low weight says its normal is
 /// doubtful, but a doubtful plane still locates the vertex better than the mass point in a
@@ -688,124 +692,186 @@ bool flat_solution(const Eigen::Matrix3d& ata, const Eigen::Vector3d& atb,
     return true;
 }
 
+/// A patch's Hermite data, read once (the solves below each go over it): crossing points,
+/// unit normals and weights, and their mass point.
+struct PatchPlanes {
+    Eigen::Vector3d P[12], N[12];
+    double W[12];
+    int n = 0;
+    Eigen::Vector3d mass;
+};
+
+/// The quadric in y = x - mass, E(y) = y^T ata y - 2 atb^T y + const: each plane weighted by its
+/// Hermite weight (at least kMinPlaneWeight) times robust[i], plus bias |y|^2.
+struct Quadric {
+    Eigen::Matrix3d ata;
+    Eigen::Vector3d atb;
+
+    Quadric(const PatchPlanes& pl, const double* robust, double bias)
+        : ata(bias * Eigen::Matrix3d::Identity()), atb(Eigen::Vector3d::Zero()) {
+        for (int i = 0; i < pl.n; ++i) {
+            const Eigen::Vector3d& nn = pl.N[i];
+            const double b = nn.dot(pl.P[i] - pl.mass);
+            const double w = std::max(double(kMinPlaneWeight), pl.W[i]) * robust[i];
+            ata += w * nn * nn.transpose();
+            atb += w * b * nn;
+        }
+    }
+
+    /// The minimiser with singular values below `truncation` times the largest dropped.
+    Eigen::Vector3d truncated(double truncation) const {
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+        es.computeDirect(ata);
+        const Eigen::Vector3d lambda = es.eigenvalues();  // ascending, = singular values squared
+        const double cutoff = truncation * truncation * lambda[2];
+        Eigen::Vector3d y = Eigen::Vector3d::Zero();
+        for (int k = 0; k < 3; ++k) {
+            if (lambda[k] > cutoff && lambda[k] > 0.0) {
+                const Eigen::Vector3d v = es.eigenvectors().col(k);
+                y += (v.dot(atb) / lambda[k]) * v;
+            }
+        }
+        return y;
+    }
+};
+
+/// The vertex of a patch whose planes meet at a feature. One crossing whose normal was smeared
+/// across the kink tilts the solution off both faces; iteratively reweighted least squares with
+/// a Cauchy weight on each plane's residual (in voxels) lets the consistent planes win. Returns
+/// the vertex and, in `last`, the last round's quadric.
+Eigen::Vector3d reweighted_solve(const PatchPlanes& pl, double truncation, double bias,
+                                 std::unique_ptr<Quadric>& last) {
+    double robust[12];
+    std::fill(robust, robust + pl.n, 1.0);
+    Eigen::Vector3d y;
+    for (int round = 0; round < 4; ++round) {
+        last = std::make_unique<Quadric>(pl, robust, bias);
+        y = last->truncated(truncation);
+        for (int i = 0; i < pl.n; ++i) {
+            const double r = pl.N[i].dot(y + pl.mass - pl.P[i]) / 0.02;
+            robust[i] = 1.0 / (1.0 + r * r);
+        }
+    }
+    return y + pl.mass;
+}
+
+/// Whether the planes of the patch's reliable crossings (at least three) all pass within
+/// kExactCorner voxels of x: a corner of exact faces.
+constexpr double kExactCorner = 0.05;
+bool exact_corner(const PatchPlanes& pl, const Eigen::Vector3d& x) {
+    int reliable = 0;
+    for (int i = 0; i < pl.n; ++i) {
+        if (pl.W[i] < double(kReliable)) continue;
+        if (!(std::fabs(pl.N[i].dot(x - pl.P[i])) <= kExactCorner)) return false;
+        ++reliable;
+    }
+    return reliable >= 3;
+}
+
+/// A curved but smooth patch (normals spread by more than ~0.8 and less than ~25 degrees) has
+/// no feature to keep, and the intersection of its tangent planes lies off the curved surface
+/// (outside a convex one by about t^2 / 2R for crossings at tangential distance t). The vertex
+/// goes on the line through the mass point m along the mean normal, at the mean of each
+/// crossing's second-order estimate of the surface there: its tangent plane's height a_i,
+/// corrected by the bend its normal shows, -(p_i - m).(n_i - mean_n) / 2 -- exact to second
+/// order for any radius of curvature, and it needs only the Hermite data (the trilinear field,
+/// which would serve too, is rounded next to sharp edges and pulled vertices off flat faces
+/// there). False when no crossing's normal is within 60 degrees of the mean.
+bool smooth_estimate(const PatchPlanes& pl, const Eigen::Vector3d& mean_n, Eigen::Vector3d& x) {
+    double sum = 0.0, wsum = 0.0;
+    for (int i = 0; i < pl.n; ++i) {
+        const Eigen::Vector3d &p = pl.P[i], &nn = pl.N[i];
+        const double cosine = nn.dot(mean_n);
+        if (!(cosine > 0.5)) continue;
+        const Eigen::Vector3d d = p - pl.mass;
+        sum += pl.W[i] * (nn.dot(d) / cosine - 0.5 * d.dot(nn - mean_n));
+        wsum += pl.W[i];
+    }
+    if (!(wsum > 0.0)) return false;
+    x = pl.mass + (sum / wsum) * mean_n;
+    return true;
+}
+
 /// The vertex of one patch (the crossings `edges[0..n)` of `cell`), and the patch's mean normal.
 openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int n,
                          const QefData& q, openvdb::Vec3f& normal, bool& smooth) {
     smooth = false;
-    // The patch's Hermite data, read once (the passes below each go over it).
-    Eigen::Vector3d P[12], N[12];
-    double W[12];
+    PatchPlanes pl;
+    pl.n = n;
+    pl.mass = Eigen::Vector3d::Zero();
     for (int i = 0; i < n; ++i) {
-        const std::size_t id = std::size_t(cell.edge_id[edges[i]]);
-        const HermiteSample& h = q.data[id];
-        const openvdb::Vec3f &p = h.point, &nv = h.normal;
-        P[i] = Eigen::Vector3d(p[0], p[1], p[2]);
-        N[i] = Eigen::Vector3d(nv[0], nv[1], nv[2]);
-        W[i] = h.weight;
+        const HermiteSample& h = q.data[std::size_t(cell.edge_id[edges[i]])];
+        pl.P[i] = Eigen::Vector3d(h.point[0], h.point[1], h.point[2]);
+        pl.N[i] = Eigen::Vector3d(h.normal[0], h.normal[1], h.normal[2]);
+        pl.W[i] = h.weight;
+        pl.mass += pl.P[i];
     }
-    Eigen::Vector3d mass = Eigen::Vector3d::Zero();
-    for (int i = 0; i < n; ++i) mass += P[i];
-    mass /= double(n);
+    pl.mass /= double(n);
     // Spread of the normals: decides between the feature path (planes meet at an edge or corner)
     // and the smooth path (project onto the level set, below).
     double min_cos = 1.0;
     Eigen::Vector3d mean_n = Eigen::Vector3d::Zero();
-    for (int i = 0; i < n; ++i) mean_n += N[i];
+    for (int i = 0; i < n; ++i) mean_n += pl.N[i];
     mean_n.normalize();
     normal = openvdb::Vec3f(float(mean_n[0]), float(mean_n[1]), float(mean_n[2]));
-    for (int i = 0; i < n; ++i) min_cos = std::min(min_cos, mean_n.dot(N[i]));
-    Eigen::Vector3d lo, hi;
-    for (int a = 0; a < 3; ++a) {
-        lo[a] = double(cell.origin[a]) - kCellMargin;
-        hi[a] = double(cell.origin[a]) + 1.0 + kCellMargin;
-    }
-    // The quadric in y = x - mass, E(y) = y^T Q y - 2 c^T y + const, with each plane weighted by
-    // robust[i] too.
-    double robust[12];
-    std::fill(robust, robust + n, 1.0);
-    Eigen::Matrix3d ata;
-    Eigen::Vector3d atb, x;
-    const auto quadric = [&] {
-        ata = q.bias * Eigen::Matrix3d::Identity();
-        atb = Eigen::Vector3d::Zero();
-        for (int i = 0; i < n; ++i) {
-            const Eigen::Vector3d& nn = N[i];
-            const double b = nn.dot(P[i] - mass);
-            const double w = std::max(double(kMinPlaneWeight), W[i]) * robust[i];
-            ata += w * nn * nn.transpose();
-            atb += w * b * nn;
+    for (int i = 0; i < n; ++i) min_cos = std::min(min_cos, mean_n.dot(pl.N[i]));
+    double margin = kCellMargin;
+    const auto inside = [&](const Eigen::Vector3d& x) {
+        for (int a = 0; a < 3; ++a) {
+            if (!(x[a] >= cell.origin[a] - margin && x[a] <= cell.origin[a] + 1.0 + margin)) {
+                return false;
+            }
         }
+        return true;
     };
-    // A curved but smooth patch (normals spread by more than ~0.8 and less than ~25 degrees) has
-    // no feature to keep, and the intersection of its tangent planes lies off the curved surface
-    // (outside a convex one by about t^2 / 2R for crossings at tangential distance t). The vertex
-    // goes on the line through the mass point m along the mean normal, at the mean of each
-    // crossing's second-order estimate of the surface there: its tangent plane's height a_i,
-    // corrected by the bend its normal shows, -(p_i - m).(n_i - mean_n) / 2 -- exact to second
-    // order for any radius of curvature, and it needs only the Hermite data (the trilinear field,
-    // which would serve too, is rounded next to sharp edges and pulled vertices off flat faces
-    // there). No quadric is solved then; it is built only if the vertex leaves the cell.
-    bool placed = false;
-    if (min_cos > 0.9 && min_cos < 0.9999) {
-        double sum = 0.0, wsum = 0.0;
-        for (int i = 0; i < n; ++i) {
-            const Eigen::Vector3d &p = P[i], &nn = N[i];
-            const double cosine = nn.dot(mean_n);
-            if (!(cosine > 0.5)) continue;
-            const double a = nn.dot(p - mass) / cosine - 0.5 * (p - mass).dot(nn - mean_n);
-            sum += W[i] * a;
-            wsum += W[i];
+    const double ones[12] = {1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1};
+    std::unique_ptr<Quadric> quad;
+    Eigen::Vector3d x;
+    if (min_cos > 0.9 && min_cos < 0.9999 && smooth_estimate(pl, mean_n, x)) {
+        // No quadric is solved then; it is built only if the vertex leaves the cell.
+        if (inside(x)) {
+            smooth = true;
+            return openvdb::Vec3d(x[0], x[1], x[2]);
         }
-        if (wsum > 0.0) {
-            x = mass + (sum / wsum) * mean_n;
-            placed = true;
-            if ((x.array() >= lo.array()).all() && (x.array() <= hi.array()).all()) {
-                smooth = true;
-                return openvdb::Vec3d(x[0], x[1], x[2]);
-            }
-            quadric();
+        quad = std::make_unique<Quadric>(pl, ones, q.bias);
+    } else if (min_cos < 0.9) {
+        // The feature path. The bias pulls the solution towards the mass point by bias / lambda
+        // along a weakly constrained direction (between the faces of the fan's 40-degree blade
+        // tips, lambda ~ 0.3), and the reweighting then reads that pull as the residual of the
+        // plane that constrains the direction and drives it out: the tip's corner vertex slid
+        // 0.64 voxel onto the edge of the other two faces. So the planes are first solved
+        // without the bias; where every reliable plane passes through that solution it is the
+        // vertex, a corner of exact faces, which may lie up to kCornerMargin outside the cell
+        // (an acute tip, thinner than the grid, changes the sign of no cell around it). Else (a
+        // scan's noisy planes) the bias keeps the vertex near its crossings.
+        x = reweighted_solve(pl, q.truncation, 0.0, quad);
+        if (exact_corner(pl, x)) {
+            margin = kCornerMargin;
+        } else {
+            x = reweighted_solve(pl, q.truncation, q.bias, quad);
         }
-    }
-    // At a feature, one crossing whose normal was smeared across the kink tilts the solution off
-    // both faces. Iteratively reweighted least squares with a Cauchy weight on each plane's
-    // residual (in voxels) lets the consistent planes win; smooth patches solve once.
-    const int rounds = placed ? 0 : min_cos < 0.9 ? 4 : 1;
-    for (int round = 0; round < rounds; ++round) {
-        quadric();
-        if (rounds == 1 && flat_solution(ata, atb, mean_n, q.truncation, x)) {
-            x += mass;
+    } else {
+        quad = std::make_unique<Quadric>(pl, ones, q.bias);
+        if (flat_solution(quad->ata, quad->atb, mean_n, q.truncation, x)) {
             smooth = min_cos < 0.999999;  // a curved patch, however gently; not a plane's
-            break;
+        } else {
+            x = quad->truncated(q.truncation);
         }
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-        es.computeDirect(ata);
-        const Eigen::Vector3d lambda = es.eigenvalues();  // ascending, = singular values squared
-        const double cutoff = q.truncation * q.truncation * lambda[2];
-        x = Eigen::Vector3d::Zero();
-        for (int k = 0; k < 3; ++k) {
-            if (lambda[k] > cutoff && lambda[k] > 0.0) {
-                const Eigen::Vector3d v = es.eigenvectors().col(k);
-                x += (v.dot(atb) / lambda[k]) * v;
-            }
-        }
-        if (round + 1 == rounds) {
-            x += mass;
-            break;
-        }
-        for (int i = 0; i < n; ++i) {
-            const double r = N[i].dot(x + mass - P[i]) / 0.02;
-            robust[i] = 1.0 / (1.0 + r * r);
-        }
+        x += pl.mass;
     }
-    if ((x.array() >= lo.array()).all() && (x.array() <= hi.array()).all()) {
-        return openvdb::Vec3d(x[0], x[1], x[2]);
-    }
+    if (inside(x)) return openvdb::Vec3d(x[0], x[1], x[2]);
     smooth = false;  // the box-constrained minimum below is no surface estimate to refine
     // Outside the (grown) cell: minimise the quadric over it instead. It is convex, so coordinate
     // descent from the clamped point converges to the box-constrained minimum (a clamp alone
     // would slide the vertex off the surface). E(y) = y^T Q y - 2 c^T y, y = x - mass.
-    Eigen::Vector3d y = (x.cwiseMax(lo).cwiseMin(hi)) - mass;
-    const Eigen::Vector3d ylo = lo - mass, yhi = hi - mass;
+    Eigen::Vector3d y, ylo, yhi;
+    for (int a = 0; a < 3; ++a) {
+        ylo[a] = double(cell.origin[a]) - margin - pl.mass[a];
+        yhi[a] = double(cell.origin[a]) + 1.0 + margin - pl.mass[a];
+        y[a] = std::clamp(x[a] - pl.mass[a], ylo[a], yhi[a]);
+    }
+    const Eigen::Matrix3d& ata = quad->ata;
+    const Eigen::Vector3d& atb = quad->atb;
     for (int sweep = 0; sweep < 32; ++sweep) {
         for (int a = 0; a < 3; ++a) {
             if (!(ata(a, a) > 0.0)) continue;
@@ -813,7 +879,7 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
             y[a] = std::clamp((atb[a] - rest) / ata(a, a), ylo[a], yhi[a]);
         }
     }
-    x = y + mass;
+    x = y + pl.mass;
     return openvdb::Vec3d(x[0], x[1], x[2]);
 }
 

@@ -25,6 +25,13 @@
 //     the same way (a step's treads) as a union. With three faces, all pairs alike give max or
 //     min of all, otherwise the odd pair is combined first: max(F_k, min(F_a, F_b)) when (a, b)
 //     is the only concave pair, min(F_k, max(F_a, F_b)) when it is the only convex one.
+//     The centroids can mislead: a face whose plane reaches past the concave edge where it ends
+//     (its other face out of reach) looks convex to its neighbour, and a face that runs on past
+//     another's edge straddles that plane. So every way the faces can meet (max, min, the three-
+//     face forms, one face alone) is also scored on the samples: each lies on the surface, so
+//     the right way is ~0 at every sample of the faces, with each face's field continued
+//     linearly from the voxel. A way that fits them at least 4/3 as well as the centroids' wins
+//     (a dent of 0.9-1.4 voxel and small holes next to concave edges at 1x the spacing).
 // For planar faces with exact normals this is the exact signed distance next to edges and
 // corners and across thin walls (whose two sides are a convex pair): the zero level is sharp
 // and its sign right out to the band's border. Elsewhere -- one face, more than three -- the
@@ -320,28 +327,40 @@ bool convex(const FaceSums& a, const FaceSums& b, double voxel) {
     return a.field_at(b, voxel) + b.field_at(a, voxel) < 0.0;
 }
 
-/// The piecewise value at a voxel from 2 or 3 faces (see the file comment, step 3).
-double combine(const FaceSums* g, int n, double voxel) {
-    const double f0 = g[0].field(), f1 = g[1].field();
-    if (n == 2) return convex(g[0], g[1], voxel) ? std::max(f0, f1) : std::min(f0, f1);
-    const double f[3] = {f0, f1, g[2].field()};
+constexpr int kWays[4] = {0, 0, 4, 11};  ///< how many ways n faces can meet (see meet())
+
+/// The ways 2 or 3 faces' fields f[] can meet (see the file comment, step 3): 0 max of all
+/// (convex), 1 min of all (concave); with three faces, 2 + k: max(f_k, min(the other two)),
+/// 5 + k: min(f_k, max(the other two)); and the last n ways: one face alone (the others'
+/// samples barely reach, and their planes are continued past where their faces end).
+double meet(int how, const double* f, int n) {
+    if (how >= kWays[n] - n) return f[how - (kWays[n] - n)];  // one face alone
+    if (n == 2) return how == 0 ? std::max(f[0], f[1]) : std::min(f[0], f[1]);
+    if (how == 0) return std::max({f[0], f[1], f[2]});
+    if (how == 1) return std::min({f[0], f[1], f[2]});
+    const int k = (how - 2) % 3;
+    const double a = f[(k + 1) % 3], b = f[(k + 2) % 3];
+    return how < 5 ? std::max(f[k], std::min(a, b)) : std::min(f[k], std::max(a, b));
+}
+
+/// How 2 or 3 faces meet by their centroids: each pair convex or concave (see convex()); with
+/// three faces, all pairs alike give max or min of all, otherwise the odd pair is combined
+/// first.
+int centroid_meet(const FaceSums* g, int n, double voxel) {
+    if (n == 2) return convex(g[0], g[1], voxel) ? 0 : 1;
     const bool c01 = convex(g[0], g[1], voxel), c02 = convex(g[0], g[2], voxel),
                c12 = convex(g[1], g[2], voxel);
     const int convex_pairs = int(c01) + int(c02) + int(c12);
-    if (convex_pairs == 3) return std::max({f[0], f[1], f[2]});
-    if (convex_pairs == 0) return std::min({f[0], f[1], f[2]});
+    if (convex_pairs == 3) return 0;
+    if (convex_pairs == 0) return 1;
     const bool odd_is_convex = convex_pairs == 1;
-    int a = 0, b = 1, k = 2;  // the odd pair (a, b) and the third face k
+    int k = 2;  // the face outside the odd pair
     if (c02 == odd_is_convex) {
-        b = 2;
         k = 1;
     } else if (c12 == odd_is_convex) {
-        a = 1;
-        b = 2;
         k = 0;
     }
-    return odd_is_convex ? std::min(f[k], std::max(f[a], f[b]))
-                         : std::max(f[k], std::min(f[a], f[b]));
+    return odd_is_convex ? 5 + k : 2 + k;
 }
 
 /// Whether the summaries of the cells within `margin` cells of a leaf show two faces of at
@@ -413,6 +432,83 @@ class LeafSums {
     }
 
     void add(const LocalSamples& s, const openvdb::Coord& origin, double voxel) {
+        reach(s, origin, [&](std::size_t i, int v, double u, const openvdb::Vec3d& d) {
+            all_[std::size_t(v)] += u;
+            const int f = s.face[i];
+            if (f < 0) {
+                stray_[std::size_t(v)] += u;
+                return;
+            }
+            const Kernel& k = s.kernel[i];
+            const openvdb::Vec3d n(k.nx, k.ny, k.nz);
+            FaceSums& F = face_[std::size_t(v * faces_ + f)];
+            F.u += u;
+            F.uphi += u * n.dot(d) * voxel;
+            F.un += u * n;
+            F.up -= u * d;
+            ++F.count;
+        });
+    }
+
+    /// After add(): how well each way the voxel's faces can meet fits their samples. Every
+    /// sample lies on the surface, so the right way is ~0 at each one: score = the sum over the
+    /// samples of the voxel's faces of u |meet(the faces' fields at the sample)|, with each
+    /// face's field continued linearly from the voxel.
+    void score(const LocalSamples& s, const openvdb::Coord& origin, double voxel) {
+        present_.assign(512, {-1, -1, -1});
+        score_.assign(512 * 16, 0.0);
+        for (int v = 0; v < 512; ++v) {
+            int count = 0;
+            for (int f = 0; f < faces_ && count <= 3; ++f) {
+                if (face_[std::size_t(v * faces_ + f)].count < 2) continue;
+                if (count < 3) present_[std::size_t(v)][std::size_t(count)] = f;
+                ++count;
+            }
+            if (count > 3 || count < 2) present_[std::size_t(v)][0] = -1;
+        }
+        reach(s, origin, [&](std::size_t i, int v, double u, const openvdb::Vec3d& d) {
+            const std::array<int, 3>& p = present_[std::size_t(v)];
+            const int f = s.face[i];
+            if (p[0] < 0 || f < 0 || (f != p[0] && f != p[1] && f != p[2])) return;
+            const int n = p[2] < 0 ? 2 : 3;
+            double at[3];
+            for (int j = 0; j < n; ++j) {
+                const FaceSums& F = face_[std::size_t(v * faces_ + p[std::size_t(j)])];
+                at[j] = F.field() - F.un.dot(d) / F.u * voxel;  // at the sample, x - d
+            }
+            for (int way = 0; way < kWays[n]; ++way) {
+                score_[std::size_t(v * 16 + way)] += u * std::fabs(meet(way, at, n));
+            }
+        });
+    }
+
+    /// The piecewise value of voxel v (leaf offset), or false when fewer than two or more than
+    /// three faces reach it, or stray samples weigh there (the splat's blend is safer then).
+    /// The faces meet as their centroids say (centroid_meet) unless another way fits their
+    /// samples at least twice as well (score()).
+    bool value(int v, double voxel, double& out) const {
+        const std::array<int, 3>& p = present_[std::size_t(v)];
+        if (p[0] < 0 || stray_[std::size_t(v)] > kMaxStray * all_[std::size_t(v)]) return false;
+        const int n = p[2] < 0 ? 2 : 3;
+        FaceSums present[3];
+        double f[3];
+        for (int j = 0; j < n; ++j) {
+            present[j] = face_[std::size_t(v * faces_ + p[std::size_t(j)])];
+            f[j] = present[j].field();
+        }
+        int way = centroid_meet(present, n, voxel);
+        const double* sc = &score_[std::size_t(v * 16)];
+        const int best = int(std::min_element(sc, sc + kWays[n]) - sc);
+        if (sc[best] < 0.75 * sc[way]) way = best;
+        out = meet(way, f, n);
+        return true;
+    }
+
+  private:
+    /// Calls fn(sample, voxel offset, u, voxel - sample centre) for every voxel of the leaf
+    /// within each local sample's support, in the samples' order.
+    template <typename Fn>
+    static void reach(const LocalSamples& s, const openvdb::Coord& origin, Fn&& fn) {
         double g[3][8], e[3][8], e2[3][8];
         for (std::size_t i = 0; i < s.size(); ++i) {
             const Kernel& k = s.kernel[i];
@@ -427,54 +523,26 @@ class LeafSums {
                     g[a][t] = std::exp(-e2[a][t] * k.inv_s2);
                 }
             }
-            const int f = s.face[i];
-            const openvdb::Vec3d n(k.nx, k.ny, k.nz);
             for (int x = lo[0]; x <= hi[0]; ++x) {
                 for (int y = lo[1]; y <= hi[1]; ++y) {
                     const double dxy2 = e2[0][x] + e2[1][y];
                     if (dxy2 > r2) continue;
                     for (int z = lo[2]; z <= hi[2]; ++z) {
                         if (dxy2 + e2[2][z] > r2) continue;
-                        const int v = (x << 6) | (y << 3) | z;
                         const double u = double(k.amp) * g[0][x] * g[1][y] * g[2][z];
-                        all_[std::size_t(v)] += u;
-                        if (f < 0) {
-                            stray_[std::size_t(v)] += u;
-                            continue;
-                        }
-                        const openvdb::Vec3d d(e[0][x], e[1][y], e[2][z]);
-                        FaceSums& F = face_[std::size_t(v * faces_ + f)];
-                        F.u += u;
-                        F.uphi += u * n.dot(d) * voxel;
-                        F.un += u * n;
-                        F.up -= u * d;
-                        ++F.count;
+                        fn(i, (x << 6) | (y << 3) | z, u,
+                           openvdb::Vec3d(e[0][x], e[1][y], e[2][z]));
                     }
                 }
             }
         }
     }
 
-    /// The piecewise value of voxel v (leaf offset), or false when fewer than two or more than
-    /// three faces reach it, or stray samples weigh there (the splat's blend is safer then).
-    bool value(int v, double voxel, double& out) const {
-        FaceSums present[3];
-        int count = 0;
-        for (int f = 0; f < faces_; ++f) {
-            const FaceSums& F = face_[std::size_t(v * faces_ + f)];
-            if (F.count < 2) continue;
-            if (count == 3) return false;
-            present[count++] = F;
-        }
-        if (count < 2 || stray_[std::size_t(v)] > kMaxStray * all_[std::size_t(v)]) return false;
-        out = combine(present, count, voxel);
-        return true;
-    }
-
-  private:
     int faces_ = 0;
     std::vector<FaceSums> face_;
     std::vector<double> all_, stray_;
+    std::vector<std::array<int, 3>> present_;  ///< per voxel its 2-3 faces, or -1 first
+    std::vector<double> score_;                ///< per voxel and way (score())
 };
 
 }  // namespace
@@ -525,6 +593,7 @@ CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels, std
             if (faces < 2) continue;
             sums.reset(faces);
             sums.add(s, leaf.origin(), voxel);
+            sums.score(s, leaf.origin(), voxel);
             for (auto it = leaf.beginValueOn(); it; ++it) {
                 ++candidates[L];
                 double value = 0.0;

@@ -755,8 +755,9 @@ Eigen::Vector3d reweighted_solve(const PatchPlanes& pl, double truncation, doubl
     return y + pl.mass;
 }
 
-/// Whether the planes of the patch's reliable crossings (at least three) all pass within
-/// kExactCorner voxels of x: a corner of exact faces.
+/// Whether the planes of the patch's reliable crossings (at least three crossings) all pass
+/// within kExactCorner voxels of x: exact faces meeting at x (a corner, or a point of an edge
+/// when the crossings hold two planes).
 constexpr double kExactCorner = 0.05;
 bool exact_corner(const PatchPlanes& pl, const Eigen::Vector3d& x) {
     int reliable = 0;

@@ -755,18 +755,20 @@ Eigen::Vector3d reweighted_solve(const PatchPlanes& pl, double truncation, doubl
     return y + pl.mass;
 }
 
-/// Whether the planes of the patch's reliable crossings (at least three crossings) all pass
-/// within kExactCorner voxels of x: exact faces meeting at x (a corner, or a point of an edge
-/// when the crossings hold two planes).
+/// Whether the planes of the patch's crossings that are not unreliable (weight >= kUnreliable,
+/// at least three crossings) all pass within kExactCorner voxels of x: exact faces meeting at x
+/// (a corner, or a point of an edge when the crossings hold two planes). A crossing next to a
+/// corner often has a middling weight (0.535 on the fan's cap next to a blade tip, whose corner
+/// was 0.17 voxel off when only weights >= kReliable counted).
 constexpr double kExactCorner = 0.05;
 bool exact_corner(const PatchPlanes& pl, const Eigen::Vector3d& x) {
-    int reliable = 0;
+    int counted = 0;
     for (int i = 0; i < pl.n; ++i) {
-        if (pl.W[i] < double(kReliable)) continue;
+        if (pl.W[i] < double(kUnreliable)) continue;
         if (!(std::fabs(pl.N[i].dot(x - pl.P[i])) <= kExactCorner)) return false;
-        ++reliable;
+        ++counted;
     }
-    return reliable >= 3;
+    return counted >= 3;
 }
 
 /// A curved but smooth patch (normals spread by more than ~0.8 and less than ~25 degrees) has
@@ -841,8 +843,8 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
         // tips, lambda ~ 0.3), and the reweighting then reads that pull as the residual of the
         // plane that constrains the direction and drives it out: the tip's corner vertex slid
         // 0.64 voxel onto the edge of the other two faces. So the planes are first solved
-        // without the bias; where every reliable plane passes through that solution it is the
-        // vertex, a corner of exact faces, which may lie up to kCornerMargin outside the cell
+        // without the bias; where the planes pass through that solution (exact_corner) it is
+        // the vertex, a corner of exact faces, which may lie up to kCornerMargin outside the cell
         // (an acute tip, thinner than the grid, changes the sign of no cell around it). Else (a
         // scan's noisy planes) the bias keeps the vertex near its crossings.
         x = reweighted_solve(pl, q.truncation, 0.0, quad);

@@ -328,6 +328,7 @@ bool convex(const FaceSums& a, const FaceSums& b, double voxel) {
 }
 
 constexpr int kWays[4] = {0, 0, 4, 11};  ///< how many ways n faces can meet (see meet())
+constexpr int kMaxWays = kWays[3];
 
 /// The ways 2 or 3 faces' fields f[] can meet (see the file comment, step 3): 0 max of all
 /// (convex), 1 min of all (concave); with three faces, 2 + k: max(f_k, min(the other two)),
@@ -454,10 +455,13 @@ class LeafSums {
     /// sample lies on the surface, so the right way is ~0 at each one: score = the sum over the
     /// samples of the voxel's faces of u |meet(the faces' fields at the sample)|, with each
     /// face's field continued linearly from the voxel.
-    void score(const LocalSamples& s, const openvdb::Coord& origin, double voxel) {
+    /// Only the leaf's active voxels (`active`) are scored: value() is asked of no other.
+    void score(const LocalSamples& s, const openvdb::Coord& origin, double voxel,
+               const openvdb::util::NodeMask<3>& active) {
         present_.assign(512, {-1, -1, -1});
-        score_.assign(512 * 16, 0.0);
+        score_.assign(512 * kMaxWays, 0.0);
         for (int v = 0; v < 512; ++v) {
+            if (!active.isOn(openvdb::Index(v))) continue;
             int count = 0;
             for (int f = 0; f < faces_ && count <= 3; ++f) {
                 if (face_[std::size_t(v * faces_ + f)].count < 2) continue;
@@ -477,7 +481,7 @@ class LeafSums {
                 at[j] = F.field() - F.un.dot(d) / F.u * voxel;  // at the sample, x - d
             }
             for (int way = 0; way < kWays[n]; ++way) {
-                score_[std::size_t(v * 16 + way)] += u * std::fabs(meet(way, at, n));
+                score_[std::size_t(v * kMaxWays + way)] += u * std::fabs(meet(way, at, n));
             }
         });
     }
@@ -485,7 +489,7 @@ class LeafSums {
     /// The piecewise value of voxel v (leaf offset), or false when fewer than two or more than
     /// three faces reach it, or stray samples weigh there (the splat's blend is safer then).
     /// The faces meet as their centroids say (centroid_meet) unless another way fits their
-    /// samples at least twice as well (score()).
+    /// samples at least 4/3 as well (its score below 3/4 of theirs; score()).
     bool value(int v, double voxel, double& out) const {
         const std::array<int, 3>& p = present_[std::size_t(v)];
         if (p[0] < 0 || stray_[std::size_t(v)] > kMaxStray * all_[std::size_t(v)]) return false;
@@ -497,7 +501,7 @@ class LeafSums {
             f[j] = present[j].field();
         }
         int way = centroid_meet(present, n, voxel);
-        const double* sc = &score_[std::size_t(v * 16)];
+        const double* sc = &score_[std::size_t(v * kMaxWays)];
         const int best = int(std::min_element(sc, sc + kWays[n]) - sc);
         if (sc[best] < 0.75 * sc[way]) way = best;
         out = meet(way, f, n);
@@ -593,7 +597,7 @@ CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels, std
             if (faces < 2) continue;
             sums.reset(faces);
             sums.add(s, leaf.origin(), voxel);
-            sums.score(s, leaf.origin(), voxel);
+            sums.score(s, leaf.origin(), voxel, leaf.getValueMask());
             for (auto it = leaf.beginValueOn(); it; ++it) {
                 ++candidates[L];
                 double value = 0.0;

@@ -228,7 +228,6 @@ struct PlaneCandidate {
 /// A reliable crossing's plane along an edge: its values at the edge's ends, in voxels.
 struct PlaneLine {
     double at0, at1;
-    double at(double t) const { return at0 + t * (at1 - at0); }
 };
 
 constexpr double kMatch = 0.02;  ///< voxels: a plane explains an end's value (repair_hermite)
@@ -656,7 +655,7 @@ int loop_chains(const SurfaceCell& cell, int l, Field& acc, float iso, int start
 /// the nearest cell whose crossings see all three faces (half a voxel cut 1 corner in 12 random
 /// boxes by 0.3 voxel).
 constexpr double kCellMargin = 1.0;
-/// ... and a corner that every reliable plane of its patch passes through (see solve_qef): the
+/// ... and a corner that the planes of its patch pass through (exact_corner, solve_qef): the
 /// fan's blade-tip corners lie up to ~1.3 voxel outside the nearest cell whose crossings see all
 /// three faces (1.0 cut one by 0.28 voxel at 1.5x the sample spacing).
 constexpr double kCornerMargin = 1.5;
@@ -704,9 +703,10 @@ struct PatchPlanes {
 /// The quadric in y = x - mass, E(y) = y^T ata y - 2 atb^T y + const: each plane weighted by its
 /// Hermite weight (at least kMinPlaneWeight) times robust[i], plus bias |y|^2.
 struct Quadric {
-    Eigen::Matrix3d ata;
-    Eigen::Vector3d atb;
+    Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d atb = Eigen::Vector3d::Zero();
 
+    Quadric() = default;
     Quadric(const PatchPlanes& pl, const double* robust, double bias)
         : ata(bias * Eigen::Matrix3d::Identity()), atb(Eigen::Vector3d::Zero()) {
         for (int i = 0; i < pl.n; ++i) {
@@ -740,13 +740,13 @@ struct Quadric {
 /// a Cauchy weight on each plane's residual (in voxels) lets the consistent planes win. Returns
 /// the vertex and, in `last`, the last round's quadric.
 Eigen::Vector3d reweighted_solve(const PatchPlanes& pl, double truncation, double bias,
-                                 std::unique_ptr<Quadric>& last) {
+                                 Quadric& last) {
     double robust[12];
     std::fill(robust, robust + pl.n, 1.0);
     Eigen::Vector3d y;
     for (int round = 0; round < 4; ++round) {
-        last = std::make_unique<Quadric>(pl, robust, bias);
-        y = last->truncated(truncation);
+        last = Quadric(pl, robust, bias);
+        y = last.truncated(truncation);
         for (int i = 0; i < pl.n; ++i) {
             const double r = pl.N[i].dot(y + pl.mass - pl.P[i]) / 0.02;
             robust[i] = 1.0 / (1.0 + r * r);
@@ -755,12 +755,13 @@ Eigen::Vector3d reweighted_solve(const PatchPlanes& pl, double truncation, doubl
     return y + pl.mass;
 }
 
+constexpr double kExactCorner = 0.05;  ///< voxels (see exact_corner)
+
 /// Whether the planes of the patch's crossings that are not unreliable (weight >= kUnreliable,
 /// at least three crossings) all pass within kExactCorner voxels of x: exact faces meeting at x
 /// (a corner, or a point of an edge when the crossings hold two planes). A crossing next to a
 /// corner often has a middling weight (0.535 on the fan's cap next to a blade tip, whose corner
 /// was 0.17 voxel off when only weights >= kReliable counted).
-constexpr double kExactCorner = 0.05;
 bool exact_corner(const PatchPlanes& pl, const Eigen::Vector3d& x) {
     int counted = 0;
     for (int i = 0; i < pl.n; ++i) {
@@ -828,7 +829,7 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
         return true;
     };
     const double ones[12] = {1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1};
-    std::unique_ptr<Quadric> quad;
+    Quadric quad;  // of the solution, for the box-constrained minimum below
     Eigen::Vector3d x;
     if (min_cos > 0.9 && min_cos < 0.9999 && smooth_estimate(pl, mean_n, x)) {
         // No quadric is solved then; it is built only if the vertex leaves the cell.
@@ -836,7 +837,7 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
             smooth = true;
             return openvdb::Vec3d(x[0], x[1], x[2]);
         }
-        quad = std::make_unique<Quadric>(pl, ones, q.bias);
+        quad = Quadric(pl, ones, q.bias);
     } else if (min_cos < 0.9) {
         // The feature path. The bias pulls the solution towards the mass point by bias / lambda
         // along a weakly constrained direction (between the faces of the fan's 40-degree blade
@@ -854,11 +855,11 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
             x = reweighted_solve(pl, q.truncation, q.bias, quad);
         }
     } else {
-        quad = std::make_unique<Quadric>(pl, ones, q.bias);
-        if (flat_solution(quad->ata, quad->atb, mean_n, q.truncation, x)) {
+        quad = Quadric(pl, ones, q.bias);
+        if (flat_solution(quad.ata, quad.atb, mean_n, q.truncation, x)) {
             smooth = min_cos < 0.999999;  // a curved patch, however gently; not a plane's
         } else {
-            x = quad->truncated(q.truncation);
+            x = quad.truncated(q.truncation);
         }
         x += pl.mass;
     }
@@ -873,8 +874,8 @@ openvdb::Vec3d solve_qef(const SurfaceCell& cell, const std::uint8_t* edges, int
         yhi[a] = double(cell.origin[a]) + 1.0 + margin - pl.mass[a];
         y[a] = std::clamp(x[a] - pl.mass[a], ylo[a], yhi[a]);
     }
-    const Eigen::Matrix3d& ata = quad->ata;
-    const Eigen::Vector3d& atb = quad->atb;
+    const Eigen::Matrix3d& ata = quad.ata;
+    const Eigen::Vector3d& atb = quad.atb;
     for (int sweep = 0; sweep < 32; ++sweep) {
         for (int a = 0; a < 3; ++a) {
             if (!(ata(a, a) > 0.0)) continue;

@@ -462,13 +462,16 @@ class LeafSums {
     /// sample lies on the surface, so the right way is ~0 at each one: score = the sum over the
     /// samples of the voxel's faces of u |meet(the faces' fields at the sample)|, with each
     /// face's field continued linearly from the voxel.
-    /// Only the leaf's active voxels (`active`) are scored: value() is asked of no other.
+    /// Only the leaf's active voxels (`active`) are scored: value() is asked of no other. A
+    /// voxel where stray samples carry more than kMaxStray of the weight gets no faces: the
+    /// splat's blend is safer there.
     void score(const LocalSamples& s, const openvdb::Coord& origin, double voxel,
                const openvdb::util::NodeMask<3>& active) {
         present_.assign(512, {-1, -1, -1});
         score_.assign(512 * kMaxWays, 0.0);
         for (int v = 0; v < 512; ++v) {
             if (!active.isOn(openvdb::Index(v))) continue;
+            if (stray_[std::size_t(v)] > kMaxStray * all_[std::size_t(v)]) continue;
             int count = 0;
             for (int f = 0; f < faces_ && count <= 3; ++f) {
                 if (face_[std::size_t(v * faces_ + f)].count < 2) continue;
@@ -494,12 +497,12 @@ class LeafSums {
     }
 
     /// The piecewise value of voxel v (leaf offset), or false when fewer than two or more than
-    /// three faces reach it, or stray samples weigh there (the splat's blend is safer then).
+    /// three faces reach it, or stray samples carry more than kMaxStray of its weight (score()).
     /// The faces meet as their centroids say (centroid_meet) unless another way fits their
     /// samples at least 4/3 as well (its score below 3/4 of theirs; score()).
     bool value(int v, double voxel, double& out) const {
         const std::array<int, 3>& p = present_[std::size_t(v)];
-        if (p[0] < 0 || stray_[std::size_t(v)] > kMaxStray * all_[std::size_t(v)]) return false;
+        if (p[0] < 0) return false;
         const int n = p[2] < 0 ? 2 : 3;
         FaceSums present[3];
         double f[3];

@@ -698,7 +698,8 @@ void add_edges(std::vector<std::int32_t>& adj, std::vector<std::size_t>& start,
 /// propagating the sign from the seed along tree edges. Points in state kFree are re-oriented;
 /// kFixed points (already oriented) seed their neighbourhoods; kExcluded points (no normal) take
 /// no part. A component grown from a free seed (the highest point, turned away from the
-/// centroid) is turned round as a whole when its outward flux says so. Returns the number of components seeded at a free point.
+/// centroid) is turned round as a whole when its outward flux says so. Returns the number of
+/// components seeded at a free point.
 std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
                        const std::vector<float>& doubt, const KnnResult& knn,
                        const std::vector<char>& state, std::size_t& flipped) {

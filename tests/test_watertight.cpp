@@ -73,7 +73,7 @@ TEST_CASE("a face next to a concave edge keeps its plane at 1x the spacing", "[w
 }
 
 TEST_CASE("CAD parts with estimated normals come out closed", "[watertight][normals]") {
-    // The fan's 40-degree blade tips opened along their length (121-213 boundary edges on this
+    // The fan's 40-degree blade tips opened along their length (122-201 boundary edges on this
     // sample): normals turned against their face next to the tips (see normals.cpp, bridges),
     // and the blend the crease model kept where a few blended normals weighed a tenth of a
     // voxel's weight past the tip (creases.cpp, kMaxStray). (Not closed yet, issue 22: a few

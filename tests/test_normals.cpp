@@ -414,10 +414,11 @@ TEST_CASE("estimated normals next to sharp edges take the point's own face", "[n
     // than 10 degrees off, measured); the face normal of two-plane neighbourhoods left 1.7 %
     // and 2.0 %; crisp faces (MSAC within a tenth of the tolerance, corners of three planes,
     // points with fewer than half their neighbours on their face, a wider look where few of
-    // them are) 0.31 % and 0.39 %, mostly
-    // points right at an edge that take the other face's normal (90 degrees off, which is no
-    // error of their tangent plane). Orientation is counted where the normal is within 45
-    // degrees of the true one's line.
+    // them are) 0.31 % and 0.39 %; with the other faces of a corner told apart as crisp planes
+    // and the wider look for any point beside a plane that half its neighbours lie on,
+    // 0.074 % and 0.16 %, mostly points right at an edge that take the other face's normal
+    // (90 degrees off, which is no error of their tangent plane). Orientation is counted where
+    // the normal is within 45 degrees of the true one's line.
     for (const std::string name : {"cube", "lbracket"}) {
         const Shape shape = make_shape(name);
         PointCloud c = sample_uniform(shape.mesh, 50000, 8);
@@ -431,7 +432,7 @@ TEST_CASE("estimated normals next to sharp edges take the point's own face", "[n
             flipped += d < -std::cos(45.0 * M_PI / 180.0);
         }
         INFO(name << ": " << off << " normals more than 10 degrees off, " << flipped << " flipped");
-        CHECK(double(off) / double(truth.size()) < 0.006);
+        CHECK(double(off) / double(truth.size()) < 0.0025);
         CHECK(flipped < 10);
     }
 }

@@ -102,6 +102,11 @@ struct Patch {
     }
     bool on(const Eigen::Vector3d& u, double offset, int j) const { return on(u, offset, j, tol); }
 
+    /// A crisp plane (a face of a sampled CAD part): its points lie within crisp_band() of it,
+    /// and their least-squares fit within crisp_rms().
+    double crisp_band() const { return 0.1 * tol; }
+    double crisp_rms() const { return 0.05 * tol; }
+
     /// The plane through three of the neighbours `among` (of the `nearest`, at most 16) that
     /// most of them lie on, within `band` (a deterministic RANSAC); returns how many, 0 with no
     /// plane.
@@ -140,17 +145,19 @@ struct Patch {
 /// within a third of a voxel of a corner kept blended normals.)
 bool other_planes(const Patch& p, const Eigen::Vector3d& n, bool* rest,
                   std::vector<FitPlane>& planes) {
-    const double parallel = std::cos(20.0 * M_PI / 180.0), crisp = 0.05 * p.tol;
+    const double parallel = std::cos(20.0 * M_PI / 180.0);
     for (int round = 0; round < 2; ++round) {
         const int left = int(std::count(rest, rest + p.m, true));
         if (left < 3) return true;
         FitPlane f;
-        if (!fit_plane(p.q, p.m, rest, false, f) || f.rms > crisp) {
+        if (!fit_plane(p.q, p.m, rest, false, f) || f.rms > p.crisp_rms()) {
             // The rest is not one plane: the plane through three of it with most inliers.
-            if (p.triple_plane(rest, 2.0 * crisp, f) < 3) return false;
+            if (p.triple_plane(rest, p.crisp_band(), f) < 3) return false;
             bool take[64] = {};
-            for (int j = 0; j < p.m; ++j) take[j] = rest[j] && p.on(f.u, f.offset, j, 2.0 * crisp);
-            if (!fit_plane(p.q, p.m, take, false, f) || f.rms > crisp) return false;
+            for (int j = 0; j < p.m; ++j) {
+                take[j] = rest[j] && p.on(f.u, f.offset, j, p.crisp_band());
+            }
+            if (!fit_plane(p.q, p.m, take, false, f) || f.rms > p.crisp_rms()) return false;
         }
         if (std::fabs(f.u.dot(n)) > parallel) return false;
         for (int j = 0; j < p.m; ++j) rest[j] = rest[j] && !p.on(f.u, f.offset, j);
@@ -170,7 +177,7 @@ bool other_planes(const Patch& p, const Eigen::Vector3d& n, bool* rest,
 /// on the fan part at 1x with mc.)
 int own_side(const Patch& p, const bool* own, const std::vector<FitPlane>& planes) {
     for (std::size_t f = 0; f < planes.size(); ++f) {
-        if (std::fabs(planes[f].offset) <= 0.1 * p.tol) return int(f);
+        if (std::fabs(planes[f].offset) <= p.crisp_band()) return int(f);
     }
     int off = 0;
     for (int j = 0; j < p.m; ++j) {
@@ -305,7 +312,7 @@ Meeting meeting(const Patch& p, const bool* own, const Eigen::Vector3d& u, const
 /// (at a thin wedge's tip, the wedge's axis).
 bool crisp_face(const Neighbourhood& h, const Eigen::Vector3d& pca, Eigen::Vector3d& n) {
     const Patch& p = h.patch;
-    const double band = 0.1 * p.tol;
+    const double band = p.crisp_band();
     const Eigen::Vector3d u =
         h.best_plane([&](const Eigen::Vector3d& v) { return h.msac(v, band); });
     if (h.msac(u, band) < h.msac(pca, band)) return false;
@@ -315,19 +322,19 @@ bool crisp_face(const Neighbourhood& h, const Eigen::Vector3d& pca, Eigen::Vecto
     bool own[64] = {}, rest[64] = {};
     int best = 0;
     for (int j = 0; j < p.m; ++j) {
-        own[j] = std::fabs(u.dot(p.q[j])) <= band;
+        own[j] = p.on(u, 0.0, j, band);
         rest[j] = !own[j];
         best += own[j];
     }
     FitPlane fit;
-    if (best < 3 || !fit_plane(p.q, p.m, own, true, fit) || fit.rms > 0.05 * p.tol) return false;
+    if (best < 3 || !fit_plane(p.q, p.m, own, true, fit) || fit.rms > p.crisp_rms()) return false;
     std::vector<FitPlane> planes;
     if (!other_planes(p, u, rest, planes)) return false;
     if (best < 4 && planes.size() < 2) return false;  // three points make any plane
-    std::vector<Meeting> meets;
+    std::vector<Meeting> meets;  // the planes are crisp (other_planes)
     for (const FitPlane& f : planes) {
         meets.push_back(meeting(p, own, u, f));
-        if (f.rms > 0.05 * p.tol || !meets.back().faces) return false;
+        if (!meets.back().faces) return false;
     }
     if (2 * best < p.m) {
         if (planes.empty()) return false;
@@ -365,10 +372,10 @@ bool beside_crisp_plane(const Neighbourhood& h) {
     FitPlane f;
     // Half of them or more on the plane: three of those are among the m - m/2 + 3 nearest.
     const int half = (p.m + 1) / 2;
-    if (p.triple_plane(all, 0.1 * p.tol, f, p.m - half + 3) < half) return false;
-    for (int j = 0; j < p.m; ++j) take[j] = p.on(f.u, f.offset, j, 0.1 * p.tol);
-    return fit_plane(p.q, p.m, take, false, f) && f.rms <= 0.05 * p.tol &&
-           std::fabs(f.offset) > 0.1 * p.tol;
+    if (p.triple_plane(all, p.crisp_band(), f, p.m - half + 3) < half) return false;
+    for (int j = 0; j < p.m; ++j) take[j] = p.on(f.u, f.offset, j, p.crisp_band());
+    return fit_plane(p.q, p.m, take, false, f) && f.rms <= p.crisp_rms() &&
+           std::fabs(f.offset) > p.crisp_band();
 }
 
 /// Next to a sharp edge or corner the k neighbours of a point span two or three faces and their

@@ -10,6 +10,7 @@
 #include <utility>
 #include <vector>
 
+#include "detail/union_find.h"
 #include "vdbrecon/types.h"
 
 namespace vdbrecon::detail {
@@ -80,35 +81,6 @@ VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count);
 /// The same for the vertices lo .. hi - 1 only: those around v are around[first[v - lo] ..
 /// first[v - lo + 1]).
 VertexFaces vertex_faces(Span<Triangle> faces, std::size_t lo, std::size_t hi);
-
-/// Union-find over 0..n-1 whose roots are the smallest index of their set, so that the labels
-/// do not depend on the order of the unions.
-class MinUnionFind {
-  public:
-    explicit MinUnionFind(std::size_t n) : parent_(n) {
-        for (std::size_t i = 0; i < n; ++i) parent_[i] = std::int32_t(i);
-    }
-    std::int32_t find(std::int32_t x) {
-        while (parent_[std::size_t(x)] != x) {
-            parent_[std::size_t(x)] = parent_[std::size_t(parent_[std::size_t(x)])];  // halving
-            x = parent_[std::size_t(x)];
-        }
-        return x;
-    }
-    void unite(std::int32_t a, std::int32_t b) {
-        a = find(a);
-        b = find(b);
-        if (a != b) parent_[std::size_t(std::max(a, b))] = std::min(a, b);
-    }
-    /// Every element's root; the structure is spent.
-    std::vector<std::int32_t> labels() && {
-        for (std::size_t i = 0; i < parent_.size(); ++i) parent_[i] = find(std::int32_t(i));
-        return std::move(parent_);
-    }
-
-  private:
-    std::vector<std::int32_t> parent_;
-};
 
 /// Edge-connected components of the faces (two faces that share an edge belong together): per
 /// face, its component's label, the smallest face index in it. Linear time (a few passes over

@@ -213,6 +213,18 @@ struct Neighbourhood {
         // "On a plane": within a tenth of the neighbours' mean distance.
         patch = Patch{q, m, 0.1 * reach / double(m)};
     }
+    /// Two or more neighbours within twice the tolerance of the point: they pin down little
+    /// of a plane through it (tilted by 3 degrees or more, it still holds them within the
+    /// crisp band), so the plane rests on the others, and the k nearest are too few to tell
+    /// the point's own face at an edge or a corner. (A clump of
+    /// three samples within 0.1 voxel on one face of the L-bracket's corner, 60k samples, seed
+    /// 6: the plane through them and two points of the other faces outscored the face, which
+    /// had one more point among the ten; the PCA blend left stayed, and the mesh opened.)
+    bool crowded() const {
+        int close = 0;
+        for (int j = 0; j < patch.m; ++j) close += q[j].squaredNorm() < 4.0 * patch.tol * patch.tol;
+        return close >= 2;
+    }
     int inliers(const Eigen::Vector3d& u) const {
         int count = 0;
         for (int j = 0; j < patch.m; ++j) count += patch.on(u, 0.0, j);
@@ -312,7 +324,8 @@ Meeting meeting(const Patch& p, const bool* own, const Eigen::Vector3d& u, const
 /// (an edge or a corner; meeting). With fewer than half the neighbours on its own face the
 /// point must lie clear of the others (own_side), or on one of them, whose normal it then takes
 /// (at a thin wedge's tip, the wedge's axis).
-bool crisp_face(const Neighbourhood& h, const Eigen::Vector3d& pca, Eigen::Vector3d& n) {
+bool crisp_face(const Neighbourhood& h, const Eigen::Vector3d& pca, Eigen::Vector3d& n,
+                bool* puzzled = nullptr) {
     const Patch& p = h.patch;
     const double band = p.crisp_band();
     const Eigen::Vector3d u =
@@ -330,6 +343,9 @@ bool crisp_face(const Neighbourhood& h, const Eigen::Vector3d& pca, Eigen::Vecto
     }
     FitPlane fit;
     if (best < 3 || !fit_plane(p.q, p.m, own, true, fit) || fit.rms > p.crisp_rms()) return false;
+    // From here on: a crisp plane through the point that the rest of the neighbours does not
+    // explain (face_normal may look wider).
+    if (puzzled) *puzzled = true;
     std::vector<FitPlane> planes;
     if (!other_planes(p, u, rest, planes)) return false;
     if (best < 4 && planes.size() < 2) return false;  // three points make any plane
@@ -396,12 +412,14 @@ bool beside_crisp_plane(const Neighbourhood& h) {
 bool face_normal(Span<Vec3f> pts, std::size_t i, const int* nb, int k, const Eigen::Vector3d& pca,
                  double variation, Eigen::Vector3d& n, bool& crisp, bool* wider) {
     const Neighbourhood h(pts, i, nb, k);
-    if (crisp_face(h, pca, n)) {
+    bool puzzled = false;
+    if (crisp_face(h, pca, n, &puzzled)) {
         crisp = true;
         return true;
     }
+    if (wider) *wider = puzzled && h.crowded();
     if (variation <= 0.02) return false;
-    if (wider) *wider = beside_crisp_plane(h);
+    if (wider && !*wider) *wider = beside_crisp_plane(h);
     const Patch& p = h.patch;
     n = h.best_plane([&](const Eigen::Vector3d& v) { return double(h.inliers(v)); });
     const int best = h.inliers(n);

@@ -81,14 +81,16 @@ TEST_CASE("CAD parts with estimated normals come out closed", "[watertight][norm
     // 4-32 boundary edges (the fan's 60k sample at 1x: 19/32 with mc/dc; the cube's: 8/13),
     // where the normals of the points within a third of a voxel blended two faces (normals.cpp,
     // other_planes and beside_crisp_plane), and one such sample among a face's few at a blade
-    // tip's end left the crease model one face there (creases.cpp, consistent()).
+    // tip's end left the crease model one face there (creases.cpp, consistent()). The
+    // L-bracket's seed 6 (8/9 at 1x): a clump of three samples at a corner whose ten nearest
+    // held one more point of their face (normals.cpp, Neighbourhood::crowded).
     struct Case {
         const char* name;
         std::size_t points;
         std::uint64_t seed;
     };
     for (const Case c : {Case{"fan", 200000, 2}, Case{"fan", kPoints, 5}, Case{"cube", kPoints, 4},
-                         Case{"lbracket", kPoints, 1}, Case{"boss", kPoints, 1},
+                         Case{"lbracket", kPoints, 6}, Case{"boss", kPoints, 1},
                          Case{"pocket", kPoints, 1}, Case{"cross", kPoints, 1},
                          Case{"drilled", kPoints, 1}}) {
         const Shape shape = make_shape(c.name);

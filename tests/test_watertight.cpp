@@ -84,12 +84,16 @@ TEST_CASE("CAD parts with estimated normals come out closed", "[watertight][norm
     // tip's end left the crease model one face there (creases.cpp, consistent()). The
     // L-bracket's seed 6 (8/9 at 1x): a clump of three samples at a corner whose ten nearest
     // held one more point of their face (normals.cpp, Neighbourhood::crowded).
+    // The fan's seed 6 at 1x (4/4/5): the one sample of a blade's end face near its tip kept
+    // a blend (normals.cpp, adopt_neighbour_faces).
     struct Case {
         const char* name;
         std::size_t points;
         std::uint64_t seed;
+        bool one_factor = false;  // 1x only
     };
-    for (const Case c : {Case{"fan", 200000, 2}, Case{"fan", kPoints, 5}, Case{"cube", kPoints, 4},
+    for (const Case c : {Case{"fan", 200000, 2}, Case{"fan", 200000, 6, true},
+                         Case{"fan", kPoints, 5}, Case{"cube", kPoints, 4},
                          Case{"lbracket", kPoints, 6}, Case{"boss", kPoints, 1},
                          Case{"pocket", kPoints, 1}, Case{"cross", kPoints, 1},
                          Case{"drilled", kPoints, 1}}) {
@@ -98,6 +102,7 @@ TEST_CASE("CAD parts with estimated normals come out closed", "[watertight][norm
         sample.normals.clear();  // kNN PCA with crisp faces, Hoppe orientation
         const double h = spacing_of(shape.area, c.points);
         for (double factor : {1.0, 1.5}) {
+            if (c.one_factor && factor != 1.0) continue;
             for (const std::string mesher : {"vdb", "mc", "dc"}) {
                 if (c.points != 200000 && mesher == "vdb") continue;
                 const TopologyStats t = mesh_topology(reconstruct_at(sample, factor * h, mesher).mesh);

@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -139,6 +140,11 @@ int main(int argc, char** argv) {
             std::fprintf(stderr, "unknown argument %s\n", a.c_str());
             return 2;
         }
+    }
+    std::error_code error;
+    if (!save.empty() && !std::filesystem::is_directory(save, error)) {
+        std::fprintf(stderr, "--save %s: no such directory\n", save.c_str());
+        return 2;
     }
     std::printf("| shape | voxel/spacing | mesher | boundary edges | non-manifold edges | pieces | "
                 "Hausdorff (vox) | Chamfer (vox) | worst corner (vox) | worst edge point (vox) | "

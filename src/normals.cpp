@@ -1022,12 +1022,11 @@ std::vector<signed char> orient_patches(const Patches& patches, const OrientTree
     std::vector<signed char> sign(count, 0);
     struct Step {
         float strength;
-        std::int32_t to;
-        std::size_t link;  // the entry of the link in patches.adj, from the patch reached
+        std::int32_t to, from;  // the patch reached, and the patch it is reached from
         bool operator<(const Step& o) const {
             if (strength != o.strength) return strength < o.strength;
             if (to != o.to) return to > o.to;
-            return link > o.link;
+            return from > o.from;
         }
     };
     std::priority_queue<Step> heap;
@@ -1035,16 +1034,10 @@ std::vector<signed char> orient_patches(const Patches& patches, const OrientTree
         for (std::size_t e = patches.start[std::size_t(p)]; e < patches.start[std::size_t(p) + 1];
              ++e) {
             if (sign[std::size_t(patches.adj[e])] == 0) {
-                heap.push({patches.strength[e], patches.adj[e], e});
+                heap.push({patches.strength[e], patches.adj[e], p});
             }
         }
     };
-    std::vector<std::int32_t> owner(patches.adj.size());  // the patch each link entry is of
-    for (std::size_t p = 0; p < count; ++p) {
-        for (std::size_t e = patches.start[p]; e < patches.start[p + 1]; ++e) {
-            owner[e] = std::int32_t(p);
-        }
-    }
     // The sign the link entry e (of patch p, to a patch with a sign) asks of p.
     auto asked = [&](std::size_t e) {
         const signed char other = sign[std::size_t(patches.adj[e])];
@@ -1062,7 +1055,7 @@ std::vector<signed char> orient_patches(const Patches& patches, const OrientTree
             for (std::size_t e = patches.start[p]; e < patches.start[p + 1]; ++e) {
                 if (sign[std::size_t(patches.adj[e])] == 0) continue;
                 sum += double(patches.strength[e]) * asked(e);
-                if (patches.adj[e] == owner[s.link]) reached = asked(e);
+                if (patches.adj[e] == s.from) reached = asked(e);
             }
             const int own = sum != 0.0 ? (sum < 0.0 ? -1 : 1) : reached;
             sign[p] = static_cast<signed char>(own);

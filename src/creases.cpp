@@ -113,9 +113,7 @@ class NormalGroups {
         };
         for (int a = 0; a < n; ++a) {
             for (int b = a + 1; b < n; ++b) {
-                const openvdb::Vec3d ma = sum_[std::size_t(a)].unitSafe(),
-                                     mb = sum_[std::size_t(b)].unitSafe();
-                if (ma.dot(mb) <= cos_crease) continue;
+                if (!close(a, b, cos_crease)) continue;
                 const int ra = root(a), rb = root(b);
                 parent[std::size_t(std::max(ra, rb))] = std::min(ra, rb);
             }
@@ -130,6 +128,11 @@ class NormalGroups {
         return face;
     }
     openvdb::Vec3d mean(int g) const { return sum_[std::size_t(g)].unitSafe(); }
+    /// Whether groups a and b are one face by their normals: mean normals closer than the
+    /// crease angle (cosine `cos_crease`).
+    bool close(int a, int b, double cos_crease) const {
+        return mean(a).dot(mean(b)) > cos_crease;
+    }
 
   private:
     double cos_group_;
@@ -322,10 +325,13 @@ int connected_faces(LocalSamples& s, const std::vector<int>& group, const Normal
                   z = int((k.cz - lo[2]) / cell);
         return (x * n[1] + y) * n[2] + z;
     };
-    // The groups present in each cell, and the number of the cell's first (cell, group) node.
+    // Each sample's cell; the groups present in each cell, and the number of the cell's first
+    // (cell, group) node.
+    std::vector<int> cell_of(s.size());
     std::vector<std::uint16_t> present(std::size_t(n[0] * n[1] * n[2]), 0);
     for (std::size_t i = 0; i < s.size(); ++i) {
-        present[std::size_t(index(s.kernel[i]))] |= std::uint16_t(1u << group[i]);
+        cell_of[i] = index(s.kernel[i]);
+        present[std::size_t(cell_of[i])] |= std::uint16_t(1u << group[i]);
     }
     std::vector<std::int32_t> first(present.size());
     std::int32_t nodes = 0;
@@ -337,10 +343,10 @@ int connected_faces(LocalSamples& s, const std::vector<int>& group, const Normal
         return first[std::size_t(c)] +
                __builtin_popcount(present[std::size_t(c)] & ((1u << g) - 1u));
     };
-    std::array<std::uint16_t, kMaxGroups> close{};  // the groups within the crease angle of g
+    std::array<std::uint16_t, kMaxGroups> joinable{};  // the groups one face with g by normal
     for (int a = 0; a < groups.size(); ++a) {
         for (int b = 0; b < groups.size(); ++b) {
-            if (groups.mean(a).dot(groups.mean(b)) > cos_crease) close[std::size_t(a)] |= 1u << b;
+            if (groups.close(a, b, cos_crease)) joinable[std::size_t(a)] |= 1u << b;
         }
     }
     MinUnionFind pieces(static_cast<std::size_t>(nodes));
@@ -358,7 +364,8 @@ int connected_faces(LocalSamples& s, const std::vector<int>& group, const Normal
                     const unsigned there = present[std::size_t(c2)];
                     for (unsigned m = here; m != 0; m &= m - 1) {
                         const int g = __builtin_ctz(m);
-                        for (unsigned m2 = there & close[std::size_t(g)]; m2 != 0; m2 &= m2 - 1) {
+                        const unsigned to = there & joinable[std::size_t(g)];
+                        for (unsigned m2 = to; m2 != 0; m2 &= m2 - 1) {
                             pieces.unite(node(c, g), node(c2, __builtin_ctz(m2)));
                         }
                     }
@@ -371,7 +378,7 @@ int connected_faces(LocalSamples& s, const std::vector<int>& group, const Normal
     int count = 0;
     s.face.resize(s.size());
     for (std::size_t i = 0; i < s.size(); ++i) {
-        const std::int32_t r = root[std::size_t(node(index(s.kernel[i]), group[i]))];
+        const std::int32_t r = root[std::size_t(node(cell_of[i], group[i]))];
         if (number[std::size_t(r)] < 0) number[std::size_t(r)] = count++;
         s.face[i] = number[std::size_t(r)];
     }

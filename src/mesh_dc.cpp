@@ -274,30 +274,7 @@ const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
     constexpr double kOnPlane = 0.06;  // voxels
     constexpr double kFace = 0.005;    // voxels
     constexpr double kRoughAgreement = 0.7;
-    // Rule 1: an end's value explained, least extrapolation (ties: normal agreement).
-    const PlaneCandidate* pick = nullptr;
-    double best = 2.0;
-    for (const PlaneCandidate& c : cand) {
-        const double reach = std::min(std::fabs(c.m0) <= kMatch ? c.t : 2.0,
-                                      std::fabs(c.m1) <= kMatch ? 1.0 - c.t : 2.0);
-        if (reach < 2.0 &&
-            (reach < best - 1e-6 || (reach <= best + 1e-6 && c.agree > pick->agree))) {
-            best = std::min(best, reach);
-            pick = &c;
-        }
-    }
-    if (pick) return pick;
-    if ((pick = three_pieces(cand, f0, f1, end0, end1))) return pick;
-    // Rule 3: the closest plane through our point (ties: normal agreement).
-    best = kOnPlane;
-    for (const PlaneCandidate& c : cand) {
-        if (c.off < best - 1e-3 || (pick && c.off <= best + 1e-3 && c.agree > pick->agree)) {
-            best = std::min(best, c.off);
-            pick = &c;
-        }
-    }
-    if (pick) return pick;
-    // Rule 4: the first root of a confirmed face below the field.
+    // Whether j lies on a confirmed face (rules 1 and 4; see repair_hermite).
     const auto is_face = [&](std::size_t j) {
         const openvdb::Vec3d nj(data[j].normal), pj(data[j].point);
         openvdb::Vec3d first(0.0);
@@ -318,6 +295,31 @@ const PlaneCandidate* pick_plane(const std::vector<PlaneCandidate>& cand,
         }
         return false;
     };
+    // Rule 1: an end's value explained, least extrapolation (ties: normal agreement).
+    const PlaneCandidate* pick = nullptr;
+    double best = 2.0;
+    for (const PlaneCandidate& c : cand) {
+        const double reach = std::min(std::fabs(c.m0) <= kMatch ? c.t : 2.0,
+                                      std::fabs(c.m1) <= kMatch ? 1.0 - c.t : 2.0);
+        if (reach < 2.0 &&
+            (reach < best - 1e-6 || (reach <= best + 1e-6 && c.agree > pick->agree)) &&
+            is_face(c.j)) {
+            best = std::min(best, reach);
+            pick = &c;
+        }
+    }
+    if (pick) return pick;
+    if ((pick = three_pieces(cand, f0, f1, end0, end1))) return pick;
+    // Rule 3: the closest plane through our point (ties: normal agreement).
+    best = kOnPlane;
+    for (const PlaneCandidate& c : cand) {
+        if (c.off < best - 1e-3 || (pick && c.off <= best + 1e-3 && c.agree > pick->agree)) {
+            best = std::min(best, c.off);
+            pick = &c;
+        }
+    }
+    if (pick) return pick;
+    // Rule 4: the first root of a confirmed face below the field.
     const PlaneCandidate* below = nullptr;
     for (const PlaneCandidate& c : cand) {
         if (c.agree >= kRoughAgreement && c.m0 >= -kMatch && c.m1 >= -kMatch &&
@@ -401,7 +403,10 @@ struct ReliableCrossings {
 ///   1. explains one end's value, |f(v_k) / voxel - P_j(v_k)| <= kMatch: that end lies in the
 ///      plane's linear region (over the face outside a convex feature, or where the face is the
 ///      nearest one inside). Along the edge the field is a few linear pieces and at most one of
-///      them has its root on the edge; the match extrapolated least from its end wins;
+///      them has its root on the edge; the match extrapolated least from its end wins. Only a
+///      confirmed face has a linear region (see rule 4): a curved wall's tangent plane from
+///      two voxels away explains a value by chance (a drilled hole's rim crossing moved 0.28
+///      voxel along its edge and took a normal 6 degrees off);
 ///   2. carries the field between two planes that explain the ends' values but do not cross
 ///      the edge: the field follows a from one end, then our plane c through its root, then b
 ///      to the other end, the lines meeting in that order along the edge (three_pieces). This

@@ -52,26 +52,11 @@ Row score(const Shape& shape, const Mesh& mesh, double voxel, std::size_t sample
     const EvalResult r = evaluate(mesh, shape.mesh, e);
     row.topo = r.recon;
     // Hausdorff also over the vertices (samples alone can miss a spike's tip).
-    const MeshDistance truth(shape.mesh);
-    double worst = r.hausdorff;
-    for (double d : truth.distances(mesh.vertices.to_vector())) worst = std::max(worst, d);
-    row.hausdorff = worst / voxel;
+    const Deviation dev = deviation(shape, mesh, voxel);
+    row.hausdorff = std::max(r.hausdorff / voxel, dev.vertex);
     row.chamfer = r.chamfer_l1 / voxel;
-    if (shape.cad) {
-        const Features f = sharp_features(shape.mesh);
-        const MeshDistance recon(mesh);
-        for (double d : recon.distances(points_on_edges(f, 0.25 * voxel))) {
-            row.edge = std::max(row.edge, d / voxel);
-        }
-        for (const Vec3f& c : f.corners) {
-            double best = 1e30;
-            for (const Vec3f& v : mesh.vertices) {
-                const double dx = v[0] - c[0], dy = v[1] - c[1], dz = v[2] - c[2];
-                best = std::min(best, dx * dx + dy * dy + dz * dz);
-            }
-            row.corner = std::max(row.corner, std::sqrt(best) / voxel);
-        }
-    }
+    row.edge = dev.edge;
+    row.corner = dev.corner;
     return row;
 }
 

@@ -19,7 +19,8 @@
 //     tested group by group); a voxel where such samples carry half the weight or more keeps
 //     the splat's value;
 //  2. each face f gives its own field F_f(x) = sum_f u_i n_i.(x - p_i) / sum_f u_i: the splat's
-//     field of that face alone, continued across the edge;
+//     field of that face alone, continued across the edge, with the second-order correction
+//     of a curved face's tangent planes (FaceSums::field);
 //  3. where two or three faces reach a voxel (two samples each at least), they are combined as
 //     the solid they bound. A pair is convex when each face's samples lie behind the other's
 //     plane, F_a(c_b) + F_b(c_a) < 0 (c: a face's weighted centroid); a convex pair meets as
@@ -76,6 +77,13 @@ constexpr int kMinCreaseFace = 12;       ///< ... and a leaf's crease test needs
 /// and dc at 1x and 1.5x). With no bound at all, a planar region of the room scan fell to 98 %
 /// of its points within half a voxel of the --planes mesh.
 constexpr double kMaxStray = 0.5;
+/// The largest bend of a face's normals per voxel of its samples' spread across them for which
+/// its field is corrected for curvature (FaceSums::field): 0.1, a radius of 10 voxels for a
+/// sphere, 5 for a cylinder seen along its axis as much as across. The flat faces of CAD parts
+/// with estimated normals, some blended next to edges, bend more where they bend at all; with
+/// 0.25 a few of their dual-contouring meshes moved by 0.15-0.3 voxel (the fan's blade tips,
+/// an L-bracket), with 0.1 fewer and less (bench/RESULTS.md).
+constexpr double kMaxFaceCurvature = 0.1;
 constexpr double kStepGap = 1.0;         ///< offset gap (voxels) that splits parallel faces
 
 /// Leader clustering of unit normals: a normal joins the first group whose first normal is
@@ -474,16 +482,52 @@ int assign_faces(LocalSamples& s, double cos_group, double cos_crease) {
     return drop_strays(s, group, groups.size(), count, cos_group);
 }
 
-/// One face's sums at a voxel x: u, u phi (world units), u n and u (p - x) (voxels).
+/// One face's sums at a voxel x: u, u phi (world units), u n, u (p - x) and u (p - x)(p - x)^T
+/// (voxels).
 struct FaceSums {
     double u = 0.0, uphi = 0.0;
     openvdb::Vec3d un{0.0}, up{0.0};
+    double upp[6] = {0, 0, 0, 0, 0, 0};  ///< u (p - x)(p - x)^T: xx, xy, xz, yy, yz, zz (voxels^2)
     int count = 0;
 
-    double field() const { return uphi / u; }
+    /// The face's signed distance at the voxel (world units), corrected for curvature. On a
+    /// surface of curvature k the mean of the samples' tangent planes, uphi / u, is off by
+    /// k <s^2> / 2 (s: a sample's offset along the surface from the voxel's foot point, <>:
+    /// the kernel-weighted mean), and the plane through their centroid with their mean normal
+    /// is off by k (2 <s>^2 - <s^2>) / 2. Their mean is off by k <s>^2 / 2 only, which
+    /// vanishes where the samples lie around the foot point. This is the second-order estimate
+    /// of smooth_estimate in mesh_dc.cpp, sum_i u_i (n_i.(x - p_i) - (x - p_i).(n_i - n) / 2)
+    /// / u, summed here over the samples. Without it the wall of a drilled hole of 24 voxels'
+    /// radius read 0.07 voxel high next to its rim, where few samples reach and those lie far
+    /// off, and the rim's dual-contouring vertices were 0.10-0.15 voxel off. For a plane the
+    /// two are the same.
+    ///
+    /// The two differ by k Var(s); where that says k > kMaxFaceCurvature (Var(s): the spread
+    /// of the samples' positions across n) the face is no smooth surface but, say, samples of
+    /// two faces grouped as one (estimated normals blended next to the fan's 40-degree blade
+    /// tips: a tip's voxels fell from 1.4 to 0.45 voxel and the tip was cut by a voxel), and
+    /// the mean of the tangent planes stays.
+    double field(double voxel) const {
+        const double f = tangent_mean(), len = un.length();
+        if (!(len > 0.0)) return f;
+        const openvdb::Vec3d n = un / len, mean = up / u;  // mean: centroid - x, voxels
+        const double centroid_plane = -n.dot(mean) * voxel;
+        // The spread of the positions (voxels^2) along n, and across it.
+        const double along = n[0] * n[0] * upp[0] + n[1] * n[1] * upp[3] + n[2] * n[2] * upp[5] +
+                             2.0 * (n[0] * n[1] * upp[1] + n[0] * n[2] * upp[2] +
+                                    n[1] * n[2] * upp[4]);
+        const double across = (upp[0] + upp[3] + upp[5] - along) / u -
+                              (mean.lengthSqr() - n.dot(mean) * n.dot(mean));
+        if (!(std::fabs(f - centroid_plane) / voxel <= kMaxFaceCurvature * across)) return f;
+        return 0.5 * (f + centroid_plane);
+    }
+    /// The mean of the samples' tangent planes at the voxel (world units): the field before
+    /// the curvature correction, which is what the ways the faces meet are chosen and scored
+    /// on (field_at, LeafSums::score); the correction refines the value only.
+    double tangent_mean() const { return uphi / u; }
     /// This face's field at another face's weighted centroid.
     double field_at(const FaceSums& other, double voxel) const {
-        return field() + un.dot(other.up) / (u * other.u) * voxel;
+        return tangent_mean() + un.dot(other.up) / (u * other.u) * voxel;
     }
 };
 
@@ -614,6 +658,12 @@ class LeafSums {
             F.uphi += u * n.dot(d) * voxel;
             F.un += u * n;
             F.up -= u * d;
+            F.upp[0] += u * d[0] * d[0];
+            F.upp[1] += u * d[0] * d[1];
+            F.upp[2] += u * d[0] * d[2];
+            F.upp[3] += u * d[1] * d[1];
+            F.upp[4] += u * d[1] * d[2];
+            F.upp[5] += u * d[2] * d[2];
             ++F.count;
         });
     }
@@ -648,7 +698,7 @@ class LeafSums {
             double at[3];
             for (int j = 0; j < n; ++j) {
                 const FaceSums& F = face_[std::size_t(v * faces_ + p[std::size_t(j)])];
-                at[j] = F.field() - F.un.dot(d) / F.u * voxel;  // at the sample, x - d
+                at[j] = F.tangent_mean() - F.un.dot(d) / F.u * voxel;  // at the sample, x - d
             }
             for (int way = 0; way < kWays[n]; ++way) {
                 score_[std::size_t(v * kMaxWays + way)] += u * std::fabs(meet(way, at, n));
@@ -668,7 +718,7 @@ class LeafSums {
         double f[3];
         for (int j = 0; j < n; ++j) {
             present[j] = face_[std::size_t(v * faces_ + p[std::size_t(j)])];
-            f[j] = present[j].field();
+            f[j] = present[j].field(voxel);
         }
         int way = centroid_meet(present, n, voxel);
         const double* sc = &score_[std::size_t(v * kMaxWays)];

@@ -7,6 +7,8 @@
 // error of a radius-0.2 circle is 3e-5, under 1 % of the finest voxel the tests use.
 #include "shapes.h"
 
+#include "vdbrecon/eval.h"
+
 #include <algorithm>
 #include <cmath>
 #include <map>
@@ -512,6 +514,28 @@ std::vector<Vec3f> points_on_edges(const Features& f, double step) {
             out.push_back({float(e[0][0] + t * d[0]), float(e[0][1] + t * d[1]),
                            float(e[0][2] + t * d[2])});
         }
+    }
+    return out;
+}
+
+Deviation deviation(const Shape& shape, const Mesh& mesh, double voxel) {
+    Deviation out;
+    for (double d : MeshDistance(shape.mesh).distances(mesh.vertices.to_vector())) {
+        out.vertex = std::max(out.vertex, d / voxel);
+    }
+    if (!shape.cad) return out;
+    const Features f = sharp_features(shape.mesh);
+    for (double d : MeshDistance(mesh).distances(points_on_edges(f, 0.25 * voxel))) {
+        out.edge = std::max(out.edge, d / voxel);
+    }
+    for (const Vec3f& c : f.corners) {
+        double best = 1e30;
+        for (const Vec3f& v : mesh.vertices) {
+            const double dx = double(v[0]) - c[0], dy = double(v[1]) - c[1],
+                         dz = double(v[2]) - c[2];
+            best = std::min(best, dx * dx + dy * dy + dz * dz);
+        }
+        out.corner = std::max(out.corner, std::sqrt(best) / voxel);
     }
     return out;
 }

@@ -49,6 +49,15 @@ Features sharp_features(const Mesh& mesh, double angle_degrees = 30.0);
 /// Points along the sharp edges, at most `step` apart (both ends of each edge included).
 std::vector<Vec3f> points_on_edges(const Features& f, double step);
 
+/// How far a reconstruction of `shape` lies from it, in voxels of `voxel` (world units): the
+/// worst distance of its vertices to the shape's surface; for a CAD part also the worst point of
+/// a sharp edge (points every quarter voxel along the edges; distance to the reconstruction)
+/// and the worst corner (distance to the nearest vertex); 0 for a smooth shape.
+struct Deviation {
+    double vertex = 0.0, edge = 0.0, corner = 0.0;
+};
+Deviation deviation(const Shape& shape, const Mesh& mesh, double voxel);
+
 /// A block of edge 1 with spherical cavities cut into it: one opening through each of two faces
 /// and meeting each other, and one closed inside. The thinnest walls, between the cavities and
 /// between a cavity and a face, are `wall` thick (world units). `n` uniform random samples with

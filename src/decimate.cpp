@@ -549,7 +549,8 @@ class Decimator {
     }
 
     /// Why c may not collapse (0: it may): 1 the edge has no face or more than two, 2 it would
-    /// pinch the border, 3 the link condition, 4 it would leave less than a tetrahedron, 5 a face
+    /// pinch the border, 3 the link condition, 4 it would leave less than a tetrahedron or no
+    /// face of an open piece, 5 a face
     /// would flip or degenerate. `shared` receives the edge's faces.
     int refusal(const Candidate& c, std::vector<std::int32_t>& shared) const {
         const std::int32_t a = c.a, b = c.b;
@@ -574,8 +575,13 @@ class Decimator {
         std::set_intersection(na.begin(), na.end(), nb.begin(), nb.end(), std::back_inserter(common));
         std::sort(opposite.begin(), opposite.end());
         if (common != opposite) return 3;
-        // A closed piece must keep at least a tetrahedron.
+        // A closed piece must keep at least a tetrahedron, an open one a face: no collapse
+        // removes every face around a and b (a lone triangle, a two-face strip's last pair).
         if (shared.size() == 2 && na.size() + nb.size() <= 6) return 4;
+        if (around_[std::size_t(a)].size() + around_[std::size_t(b)].size() ==
+            2 * shared.size()) {
+            return 4;
+        }
         // No face may flip or degenerate.
         for (std::int32_t v : {a, b}) {
             for (std::int32_t f : around_[std::size_t(v)]) {

@@ -196,6 +196,25 @@ TEST_CASE("decimation keeps closed shapes closed, their genus and pieces", "[dec
     }
 }
 
+TEST_CASE("decimation never removes a small open piece whole", "[decimate]") {
+    // A lone triangle, a fan of four around a centre and a strip of two: the clutter a scene's
+    // mesh keeps (no piece is dropped for its size). Each keeps at least a face.
+    Mesh m;
+    m.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0},                                   // triangle
+                  {5, 5, 0}, {6, 5, 0}, {5, 6, 0}, {4, 5, 0}, {5, 4, 0},             // fan
+                  {9, 0, 0}, {10, 0, 0}, {9, 1, 0.1f}, {10, 1, 0}};                  // strip
+    m.faces = {{0, 1, 2}, {3, 4, 5}, {3, 5, 6}, {3, 6, 7}, {3, 7, 4}, {8, 9, 10}, {9, 11, 10}};
+    for (const double ratio : {0.5, 0.01}) {
+        DecimateOptions o;
+        o.ratio = ratio;
+        o.max_error = 10.0;
+        const DecimateResult d = decimate(m, o);
+        const TopologyStats t = mesh_topology(d.mesh);
+        CHECK(t.components == 3);
+        CHECK(t.euler == mesh_topology(m).euler);
+    }
+}
+
 TEST_CASE("decimation leaves the open border in place and carries the colours", "[decimate]") {
     const Mesh sheet = wavy_sheet(60);
     DecimateOptions o;

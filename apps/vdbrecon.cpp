@@ -92,6 +92,32 @@ std::string fmt_megabytes(std::size_t bytes) {
     return s.str();
 }
 
+/// The orientation rule of estimated normals, for the log: "MST in 3 component(s) (1 open
+/// sheet turned up, 2 closed objects out)".
+std::string orientation_text(const NormalResult& n) {
+    std::ostringstream s;
+    if (n.orientation == "viewpoint") return "facing the viewpoint";
+    if (n.orientation == "up") return "facing the up direction";
+    if (n.orientation == "sensor at the origin") {
+        return "facing the origin (a height field along z seen from the origin: a depth "
+               "camera's frame; --viewpoint or --orient mst to override)";
+    }
+    if (n.orientation == "height field") {
+        s << "facing up (a height field: most normals near vertical, one surface over most "
+             "places; --orient mst to override)";
+    } else {
+        s << "MST in " << n.components << " component(s)";
+    }
+    std::vector<std::string> how;
+    if (n.components_up) how.push_back(std::to_string(n.components_up) + " open sheet(s) up");
+    if (n.components_flux) {
+        how.push_back(std::to_string(n.components_flux) + " closed object(s) outward");
+    }
+    if (n.components_seed) how.push_back(std::to_string(n.components_seed) + " by their seed");
+    for (std::size_t i = 0; i < how.size(); ++i) s << (i ? ", " : ": ") << how[i];
+    return s.str();
+}
+
 void print_help() {
     const PipelineOptions d;
     const EvalOptions e;
@@ -147,10 +173,16 @@ void print_help() {
         << fmt(d.normals.knn.eps) << "]\n"
         << "  --classes C,C,...      LAS input: keep the points of these classes (e.g. 2,6:\n"
         << "                         ground, buildings) [all]\n"
-        << "  --viewpoint x,y,z      sensor position; estimated normals face it [none: MST]\n"
+        << "  --viewpoint x,y,z      sensor position; estimated normals face it [none]\n"
         << "  --up x,y,z             direction estimated normals face (airborne: 0,0,1); like\n"
            "                         --viewpoint, lets --tile stream a cloud without\n"
-           "                         normals [none: MST]\n"
+           "                         normals [none; LAS files: 0,0,1]\n"
+        << "  --orient RULE          " << choice_list(orient_rule_choices(), "|")
+        << ", without --viewpoint/--up: auto faces a height\n"
+           "                         field up, a depth camera's frame its origin, anything else\n"
+           "                         by MST (closed objects out, open sheets up); mst: the MST\n"
+           "                         always ["
+        << choice_name(orient_rule_choices(), d.normals.orient) << "]\n"
         << "  --outliers, --no-outliers\n"
         << "                         remove stray points before splatting (statistical and\n"
         << "                         planarity rules, k=" << d.outliers.k << ") ["
@@ -187,20 +219,27 @@ void print_help() {
         << choice_name(mesher_choices(), d.mesh.method) << "]\n"
         << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
         << "]\n"
-        << "  --min-component R      drop pieces with fewer faces than R x the largest's ["
+        << "  --min-samples N        drop pieces backed by fewer than N samples (their area in\n"
+           "                         sample spacings^2, times their weight where below the\n"
+           "                         typical), 0 = keep all [" << fmt(d.clean.min_component_samples)
+        << "]\n"
+        << "  --min-component R      also drop pieces with fewer faces than R x the largest's\n"
+           "                         (for one object; 1 = the largest only) ["
         << fmt(d.clean.min_component_ratio) << "]\n"
         << "  --smooth N             Taubin lambda|mu smoothing iterations ["
         << d.clean.smooth_iterations << "]\n"
         << "  --ascii                write ascii PLY [binary little endian]\n"
         << "  --threads N            worker threads, 0 = all cores [" << d.threads << "]\n"
-        << "  --max-memory SIZE      refuse runs whose volume would need more, e.g. 8G, 500M\n"
+        << "  --max-memory SIZE      memory budget, e.g. 8G, 500M: a run that would need more\n"
+           "                         tiles itself (--tile 0: refuses it)\n"
         << "                         [half the physical memory: " << fmt_bytes(memory_budget(d.splat))
         << "]\n"
         << "  --no-vdb               do not write the .vdb volume\n"
         << "  --tile N|auto          splat, close and mesh tiles of N^3 voxels one at a time\n"
         << "                         (each with a halo of samples): less memory, the same mesh;\n"
         << "                         auto: the largest that fits --max-memory; no .vdb is\n"
-        << "                         written [0: off]\n"
+        << "                         written; 0: never, not even over --max-memory\n"
+           "                         [0: untiled unless over --max-memory]\n"
         << "  --stream MODE          tiles: read a PLY file with normals (with --up or\n"
         << "                         --viewpoint: a PLY, LAS or text file) a chunk at a time\n"
         << "                         and run the point stages a region at a time (memory\n"
@@ -429,6 +468,8 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         const std::vector<double> v = parse_list(a, args.value(a));
         if (v.size() != 3) throw UsageError("--up needs three numbers: x,y,z");
         o.normals.up = Vec3d{v[0], v[1], v[2]};
+    } else if (a == "--orient") {
+        o.normals.orient = parse_choice(a, args.value(a), orient_rule_choices());
     } else if (a == "--outliers") {
         o.outliers.enabled = true;
     } else if (a == "--no-outliers") {
@@ -468,6 +509,8 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.mesh.method = parse_choice(a, args.value(a), mesher_choices());
     } else if (a == "--adaptivity") {
         o.mesh.adaptivity = parse_number(a, args.value(a));
+    } else if (a == "--min-samples") {
+        o.clean.min_component_samples = parse_number(a, args.value(a));
     } else if (a == "--min-component") {
         o.clean.min_component_ratio = parse_number(a, args.value(a));
     } else if (a == "--smooth") {
@@ -486,6 +529,7 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
     } else if (a == "--tile") {
         const std::string v = args.value(a);
         o.tile = v == "auto" ? -1 : parse_int(a, v);
+        o.auto_tile = o.tile != 0;
         if (o.tile < -1 || (o.tile == -1 && v != "auto")) {
             throw UsageError(a + ": " + v + " must be a number of voxels > 0, or auto");
         }
@@ -551,13 +595,9 @@ void report(const RunResult& r, const PipelineOptions& o,
             s << "vdbrecon: normals: ";
             if (p.normals.estimated == 0) {
                 s << "from the file";
-            } else if (p.normals.oriented_to_viewpoint) {
-                s << p.normals.estimated << " estimated (k=" << o.normals.k
-                  << (o.normals.up ? "), oriented along the up direction"
-                                   : "), oriented towards the viewpoint");
             } else {
-                s << p.normals.estimated << " estimated (k=" << o.normals.k
-                  << "), oriented by MST in " << p.normals.components << " component(s)";
+                s << p.normals.estimated << " estimated (k=" << o.normals.k << "), oriented by "
+                  << orientation_text(p.normals);
             }
             s << "; median scale " << p.normals.median_scale << "\n";
         }
@@ -573,6 +613,11 @@ void report(const RunResult& r, const PipelineOptions& o,
             s << "vdbrecon: points: streamed, never held whole; the point stages in "
               << p.stream_units << " regions, the largest " << p.stream_largest
               << " points with its halo\n";
+        }
+        if (!p.auto_tiled.empty()) {
+            s << "vdbrecon: tiles: the run tiled itself (" << p.auto_tiled
+              << "); no .vdb is written (no tile holds the whole volume); --tile 0 refuses "
+                 "instead\n";
         }
         if (p.tile > 0) {
             s << "vdbrecon: tiles: " << p.tiles << " tiles of " << p.tile << "^3 voxels, halo "
@@ -605,8 +650,13 @@ void report(const RunResult& r, const PipelineOptions& o,
           << " triangles (" << p.mesh_stats.dropped_faces << " dropped outside valid cells, "
           << p.mesh_stats.trimmed_faces << " trimmed as unsupported)\n";
         s << "vdbrecon: clean: removed " << p.clean_stats.removed_components << " of "
-          << p.clean_stats.components_before << " components (" << p.clean_stats.removed_faces
-          << " faces)";
+          << p.clean_stats.components_before << " pieces (" << p.clean_stats.removed_faces
+          << " faces): " << p.clean_stats.removed_unsupported << " backed by fewer than "
+          << fmt(o.clean.min_component_samples) << " samples";
+        if (o.clean.min_component_ratio > 0.0 || o.watertight) {
+            s << ", " << p.clean_stats.removed_small << " smaller than "
+              << (o.watertight ? 1.0 : o.clean.min_component_ratio) << " x the largest";
+        }
         if (p.clean_stats.smoothed_iterations) {
             s << ", " << p.clean_stats.smoothed_iterations << " Taubin iterations";
         }

@@ -14,6 +14,15 @@
 namespace vdbrecon {
 
 void CleanOptions::validate() const {
+    if (!(std::isfinite(min_component_samples) && min_component_samples >= 0.0)) {
+        throw InvalidArgument("clean.min_component_samples = " +
+                              std::to_string(min_component_samples) +
+                              ": must be a non-negative count");
+    }
+    if (!(std::isfinite(sample_spacing) && sample_spacing >= 0.0)) {
+        throw InvalidArgument("clean.sample_spacing = " + std::to_string(sample_spacing) +
+                              ": must be a non-negative length (0 = from the mesh)");
+    }
     if (!(min_component_ratio >= 0.0 && min_component_ratio <= 1.0)) {
         throw InvalidArgument("clean.min_component_ratio = " + std::to_string(min_component_ratio) +
                               ": must be in 0..1");
@@ -91,23 +100,67 @@ void taubin(Mesh& m, const CleanOptions& o) {
     if (!m.normals.empty()) m.normals = vertex_normals(m);
 }
 
-}  // namespace
 
-CleanResult clean_mesh(Mesh&& mesh, const CleanOptions& options) {
-    options.validate();
-    for (const Triangle& t : mesh.faces) {
-        for (std::int32_t i : t) {
-            if (i < 0 || std::size_t(i) >= mesh.vertices.size()) {
-                throw InvalidArgument("clean_mesh: a face refers to vertex " + std::to_string(i) +
-                                      " of " + std::to_string(mesh.vertices.size()));
-            }
+/// The median of `values` (0 for none).
+double median_of(std::vector<float> values) {
+    if (values.empty()) return 0.0;
+    const auto mid = values.begin() + std::ptrdiff_t(values.size() / 2);
+    std::nth_element(values.begin(), mid, values.end());
+    return double(*mid);
+}
+
+/// The median edge length of the faces (each face's three edges), the unit of the evidence
+/// when no sample spacing is given.
+double median_edge(const Mesh& m) {
+    std::vector<float> len;
+    len.reserve(m.faces.size() * 3);
+    for (const Triangle& t : m.faces) {
+        for (int e = 0; e < 3; ++e) {
+            const Vec3f& a = m.vertices[std::size_t(t[std::size_t(e)])];
+            const Vec3f& b = m.vertices[std::size_t(t[std::size_t((e + 1) % 3)])];
+            const double dx = double(a[0]) - b[0], dy = double(a[1]) - b[1],
+                         dz = double(a[2]) - b[2];
+            len.push_back(float(std::sqrt(dx * dx + dy * dy + dz * dz)));
         }
     }
-    CleanResult r;
-    const std::size_t nf = mesh.faces.size();
+    return median_of(std::move(len));
+}
 
-    // Edge-connected components, by size.
-    std::vector<std::int32_t> label = detail::face_components(mesh.faces, mesh.vertices.size());
+/// Per component (indexed by its label, as `label` gives it per face): the samples' worth of
+/// supported surface that built it, sum area_f * min(1, w_f / w_typical) / h^2 (see clean.h).
+std::vector<double> component_evidence(const Mesh& m, const std::vector<std::int32_t>& label,
+                                       const std::vector<float>& support, double h,
+                                       double& typical) {
+    const bool weighted = !support.empty();
+    typical = weighted ? median_of(support) : 0.0;
+    const double inv_h2 = 1.0 / (h * h);
+    std::vector<double> evidence(m.faces.size(), 0.0);
+    for (std::size_t f = 0; f < m.faces.size(); ++f) {
+        const Triangle& t = m.faces[f];
+        const Vec3f& a = m.vertices[std::size_t(t[0])];
+        const Vec3f& b = m.vertices[std::size_t(t[1])];
+        const Vec3f& c = m.vertices[std::size_t(t[2])];
+        const double u[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]};
+        const double v[3] = {double(c[0]) - a[0], double(c[1]) - a[1], double(c[2]) - a[2]};
+        const double x = u[1] * v[2] - u[2] * v[1], y = u[2] * v[0] - u[0] * v[2],
+                     z = u[0] * v[1] - u[1] * v[0];
+        double share = 1.0;
+        if (weighted) {
+            const double w = (double(support[std::size_t(t[0])]) + support[std::size_t(t[1])] +
+                              support[std::size_t(t[2])]) / 3.0;
+            share = typical > 0.0 ? std::clamp(w / typical, 0.0, 1.0) : 1.0;
+        }
+        evidence[std::size_t(label[f])] += 0.5 * std::sqrt(x * x + y * y + z * z) * share * inv_h2;
+    }
+    return evidence;
+}
+
+/// Per component (by its label): 0 kept, 1 backed by too few samples, 2 too small beside the
+/// largest; the counts go into r.
+std::vector<char> verdicts(const Mesh& mesh, const std::vector<std::int32_t>& label,
+                           const std::vector<float>& support, const CleanOptions& options,
+                           CleanResult& r) {
+    const std::size_t nf = mesh.faces.size();
     std::vector<std::int32_t> size(nf, 0);
     for (std::size_t f = 0; f < nf; ++f) ++size[std::size_t(label[f])];
     std::size_t largest = 0;
@@ -119,15 +172,57 @@ CleanResult clean_mesh(Mesh&& mesh, const CleanOptions& options) {
     }
     const double min_faces = std::max(double(options.min_component_faces),
                                       options.min_component_ratio * double(largest));
-    for (std::size_t f = 0; f < nf; ++f) {
-        if (size[f] > 0 && double(size[f]) < min_faces) {
-            ++r.removed_components;
-            r.removed_faces += std::size_t(size[f]);
+    std::vector<double> evidence;
+    if (options.min_component_samples > 0.0 && nf > 0) {
+        const double h = options.sample_spacing > 0.0 ? options.sample_spacing : median_edge(mesh);
+        if (h > 0.0) evidence = component_evidence(mesh, label, support, h, r.typical_support);
+    }
+    std::vector<char> verdict(nf, 0);
+    for (std::size_t c = 0; c < nf; ++c) {
+        if (size[c] == 0) continue;
+        if (!evidence.empty() && evidence[c] < options.min_component_samples) {
+            verdict[c] = 1;
+            ++r.removed_unsupported;
+        } else if (double(size[c]) < min_faces) {
+            verdict[c] = 2;
+            ++r.removed_small;
+        } else {
+            continue;
+        }
+        ++r.removed_components;
+        r.removed_faces += std::size_t(size[c]);
+    }
+    return verdict;
+}
+
+}  // namespace
+
+CleanResult clean_mesh(Mesh&& mesh, const CleanOptions& options,
+                       const std::vector<float>& support) {
+    options.validate();
+    for (const Triangle& t : mesh.faces) {
+        for (std::int32_t i : t) {
+            if (i < 0 || std::size_t(i) >= mesh.vertices.size()) {
+                throw InvalidArgument("clean_mesh: a face refers to vertex " + std::to_string(i) +
+                                      " of " + std::to_string(mesh.vertices.size()));
+            }
         }
     }
+    if (!support.empty() && support.size() != mesh.vertices.size()) {
+        throw InvalidArgument("clean_mesh: " + std::to_string(support.size()) +
+                              " support values for " + std::to_string(mesh.vertices.size()) +
+                              " vertices");
+    }
+    CleanResult r;
+    const std::size_t nf = mesh.faces.size();
 
-    // Keep faces of large components, then the vertices they use, in input order: compacted in
-    // place (the kept ones only move down), so no second copy of the mesh joins the peak.
+    // Edge-connected components, and the verdict on each.
+    std::vector<std::int32_t> label = detail::face_components(mesh.faces, mesh.vertices.size());
+    std::vector<char> verdict = verdicts(mesh, label, support, options, r);
+
+    // Keep the faces of kept components, then the vertices they use, in input order:
+    // compacted in place (the kept ones only move down), so no second copy of the mesh joins
+    // the peak.
     r.mesh = std::move(mesh);
     Mesh& out = r.mesh;
     if (r.removed_faces > 0) {
@@ -136,7 +231,7 @@ CleanResult clean_mesh(Mesh&& mesh, const CleanOptions& options) {
         std::vector<std::int32_t>* reg = regions ? &out.regions.edit() : nullptr;
         std::size_t kept = 0;
         for (std::size_t f = 0; f < nf; ++f) {
-            if (double(size[std::size_t(label[f])]) < min_faces) continue;
+            if (verdict[std::size_t(label[f])]) continue;
             if (reg) (*reg)[kept] = (*reg)[f];
             faces[kept++] = faces[f];
         }
@@ -144,7 +239,7 @@ CleanResult clean_mesh(Mesh&& mesh, const CleanOptions& options) {
         if (reg) reg->resize(kept);
     }
     detail::release(label);
-    detail::release(size);
+    detail::release(verdict);
     std::size_t nv = 0;
     const std::size_t before = out.vertices.size();
     const std::vector<std::int32_t> remap = detail::compact_vertices(out.faces.edit(), before, &nv);
@@ -172,8 +267,10 @@ CleanResult clean_mesh(Mesh&& mesh, const CleanOptions& options) {
     return r;
 }
 
-CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options) {
-    return clean_mesh(Mesh(mesh), options);  // a borrowed array is copied only when changed
+CleanResult clean_mesh(const Mesh& mesh, const CleanOptions& options,
+                       const std::vector<float>& support) {
+    // A borrowed array is copied only when changed.
+    return clean_mesh(Mesh(mesh), options, support);
 }
 
 }  // namespace vdbrecon

@@ -411,6 +411,18 @@ ClassifiedSurface classify_surface(const Volume& volume, const MeshOptions& opti
             }
         });
     }
+    if (volume.weight) {
+        out.weight.assign(npoints, 0.0f);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            FloatAccessor wacc(volume.weight->tree());
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                if (status[i] == kInvalid) continue;
+                out.weight[i] = float(openvdb::tools::BoxSampler::sample(
+                    wacc, openvdb::Vec3d(out.points[i])));
+            }
+        });
+    }
     return out;
 }
 
@@ -458,6 +470,13 @@ MeshResult finish_surface(ClassifiedSurface&& surface, double voxel, const Vec3d
         }
     }
     release(surface.colors);
+    if (!surface.weight.empty() && !mesh.vertices.empty()) {
+        result.support.resize(mesh.vertices.size());
+        for (std::size_t i = 0; i < npoints; ++i) {
+            if (remap[i] >= 0) result.support[std::size_t(remap[i])] = surface.weight[i];
+        }
+    }
+    release(surface.weight);
     release(surface.status);
     if (options.normals && !mesh.vertices.empty()) {
         vertex_normals(mesh, std::move(surface.grad), remap);

@@ -3,12 +3,14 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <memory>
 #include <queue>
+#include <string>
 
 #include "detail/normal_rules.h"
 #include "detail/pca.h"
@@ -614,6 +616,31 @@ int outward_flux(Span<Vec3f> pts, const std::vector<Vec3f>& normals,
     return flux > 0.0 ? 1 : -1;
 }
 
+/// The sign a component grown from a free seed takes (+1 as grown, -1 turned round), by what
+/// it is: an open sheet whose normals face mostly one way along z (their mean, each weighted by
+/// the area it stands for, the squared distance to its k-th neighbour, is 0.5 or more along z:
+/// a terrain, a floor, a roof; a closed surface's is 0) faces up; else a closed object faces
+/// out where its flux says so clearly (outward_flux); else the seed's sign stands. The flux
+/// alone would turn a terrain over wherever trees or roofs lift the centroid above the ground.
+int component_sign(Span<Vec3f> pts, const std::vector<Vec3f>& normals, const KnnResult& knn,
+                   const std::vector<std::int32_t>& members, NormalResult& result) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    double total = 0.0;
+    for (std::int32_t m : members) {
+        const Vec3f& nm = normals[std::size_t(m)];
+        const double a = knn.k > 0 ? double(knn.sq_dist(pts, std::size_t(m), knn.k - 1)) : 1.0;
+        mean += a * Eigen::Vector3d(nm[0], nm[1], nm[2]);
+        total += a;
+    }
+    if (total > 0.0 && std::fabs(mean[2]) >= 0.5 * total) {
+        ++result.components_up;
+        return mean[2] > 0.0 ? 1 : -1;
+    }
+    const int flux = outward_flux(pts, normals, members);
+    ++(flux != 0 ? result.components_flux : result.components_seed);
+    return flux >= 0 ? 1 : -1;
+}
+
 /// The symmetric kNN graph in CSR form: point i's neighbours (its own and those that have it
 /// as theirs) are adj[start[i] .. start[i + 1]).
 std::vector<std::int32_t> symmetric_adjacency(const KnnResult& knn, std::size_t n,
@@ -1097,7 +1124,7 @@ std::vector<signed char> orient_patches(const Patches& patches, const OrientTree
 std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
                        const std::vector<float>& doubt, const std::vector<std::int32_t>& donor,
                        const KnnResult& knn, const std::vector<char>& state,
-                       std::size_t& flipped) {
+                       NormalResult& result) {
     const std::size_t n = pts.size();
     std::vector<std::size_t> start;
     std::vector<std::int32_t> adj = symmetric_adjacency(knn, n, start);
@@ -1120,7 +1147,7 @@ std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
         if (c >= 0) members[std::size_t(c)].push_back(std::int32_t(i));
     }
     for (const std::vector<std::int32_t>& m : members) {
-        if (outward_flux(pts, normals, m) >= 0) continue;
+        if (component_sign(pts, normals, knn, m, result) >= 0) continue;
         for (std::int32_t i : m) {
             flip(normals[std::size_t(i)]);
             turned[std::size_t(i)] ^= 1;
@@ -1135,7 +1162,7 @@ std::size_t orient_mst(Span<Vec3f> pts, std::vector<Vec3f>& normals,
             turned[i] ^= 1;
         }
     }
-    flipped += std::size_t(std::count(turned.begin(), turned.end(), 1));
+    result.flipped += std::size_t(std::count(turned.begin(), turned.end(), 1));
     return tree.seeds.size();
 }
 
@@ -1234,6 +1261,110 @@ std::vector<std::int32_t> adopt_neighbour_faces(Span<Vec3f> pts, const KnnResult
 /// The normals of the points with needs[i] (`needed` of them), from their k nearest (knn) PCA
 /// (neighbourhood_normal), oriented towards the viewpoint or by orient_mst; degenerate
 /// neighbourhoods get no normal (0, 0, 0). Fills the counts of `result`.
+/// What a cloud's shape says of the orientation of its estimated normals (OrientRule::automatic).
+enum class Shape { other, height_field, sensor_frame };
+
+/// Whether the cloud is a height field: most estimated normals within 30 degrees of vertical,
+/// and a vertical line through most places meets one surface only (the points of a column of
+/// 2 x 2 cells of the k-th neighbour distance lie in one layer, no gap over twice that). A
+/// terrain with roofs and trees (whose canopy and ground are two layers) passes; a closed
+/// object (a top and a bottom), a room (a floor and a ceiling) do not. Seen from a sensor at the
+/// origin instead -- every point in front of it (z > 0), within 56 degrees of +z, the origin
+/// inside the cloud's x-y extent, the far points 1.5x as far as the near ones -- it is a depth
+/// camera's frame in its own axes (a terrain is seen from far above, not from a point under it).
+Shape cloud_shape(const PointCloud& cloud, const std::vector<Vec3f>& normals,
+                  const std::vector<char>& state, const KnnResult& knn, int k) {
+    Span<Vec3f> pts = cloud.positions;
+    std::vector<float> reach;
+    std::size_t free = 0, vertical = 0;
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+        if (state[i] != kFree) continue;
+        ++free;
+        vertical += std::fabs(normals[i][2]) >= 0.866f;
+        reach.push_back(knn.sq_dist(pts, i, k - 1));
+    }
+    if (free < 16 || double(vertical) < 0.6 * double(free)) return Shape::other;
+    std::nth_element(reach.begin(), reach.begin() + std::ptrdiff_t(reach.size() / 2), reach.end());
+    const double cell = 2.0 * std::sqrt(double(reach[reach.size() / 2]));
+    if (!(cell > 0.0)) return Shape::other;
+    struct Entry {
+        std::int64_t column;
+        float z;
+        bool operator<(const Entry& o) const {
+            return column != o.column ? column < o.column : z < o.z;
+        }
+    };
+    std::vector<Entry> e;
+    e.reserve(free);
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+        if (state[i] != kFree) continue;
+        const auto cx = std::int64_t(std::floor(pts[i][0] / cell));
+        const auto cy = std::int64_t(std::floor(pts[i][1] / cell));
+        e.push_back({(cx << 32) ^ (cy & 0xffffffff), pts[i][2]});
+    }
+    tbb::parallel_sort(e.begin(), e.end());
+    std::size_t single = 0;
+    for (std::size_t a = 0, b = 0; a < e.size(); a = b) {
+        bool one = true;
+        for (b = a + 1; b < e.size() && e[b].column == e[a].column; ++b) {
+            one = one && double(e[b].z) - double(e[b - 1].z) <= 2.0 * cell;
+        }
+        if (one) single += b - a;
+    }
+    log_info("normals: height-field test: " +
+             std::to_string(int(100.0 * double(vertical) / double(free))) +
+             " % of the normals within 30 degrees of vertical (a height field has 60 % or more), " +
+             std::to_string(int(100.0 * double(single) / double(free))) +
+             " % of the points over a single surface (75 % or more)");
+    if (double(single) < 0.75 * double(free)) return Shape::other;
+
+    // Seen from the origin?
+    const Vec3d& o = cloud.origin;
+    double zmin = std::numeric_limits<double>::infinity(), zmax = 0.0;
+    double xlo = zmin, xhi = -zmin, ylo = zmin, yhi = -zmin;
+    bool in_front = true;
+    for (std::size_t i = 0; i < pts.size() && in_front; ++i) {
+        if (state[i] != kFree) continue;
+        const double x = o[0] + pts[i][0], y = o[1] + pts[i][1], z = o[2] + pts[i][2];
+        in_front = z > 0.0 && std::max(std::fabs(x), std::fabs(y)) <= 1.5 * z;
+        zmin = std::min(zmin, z);
+        zmax = std::max(zmax, z);
+        xlo = std::min(xlo, x);
+        xhi = std::max(xhi, x);
+        ylo = std::min(ylo, y);
+        yhi = std::max(yhi, y);
+    }
+    if (in_front && zmax >= 1.5 * zmin && xlo < 0.0 && xhi > 0.0 && ylo < 0.0 && yhi > 0.0) {
+        return Shape::sensor_frame;
+    }
+    return Shape::height_field;
+}
+
+/// Orients the estimated normals (state kFree) by the cloud's shape where OrientRule::automatic
+/// recognises it: a sensor's frame faces the origin (every point on its own; their state
+/// becomes kFixed), a height field's near-horizontal surfaces face up and become kFixed (the
+/// steep rest is left to the propagation from them). Returns the rule's name, "" for none.
+std::string orient_by_shape(const PointCloud& cloud, const NormalOptions& options,
+                            const KnnResult& knn, int k, std::vector<Vec3f>& normals,
+                            std::vector<char>& state, std::size_t& flipped) {
+    if (options.orient != OrientRule::automatic || k < 2) return "";
+    const Shape shape = cloud_shape(cloud, normals, state, knn, k);
+    if (shape == Shape::other) return "";
+    NormalOptions toward;
+    if (shape == Shape::sensor_frame) {
+        toward.viewpoint = Vec3d{0.0, 0.0, 0.0};
+    } else {
+        toward.up = Vec3d{0.0, 0.0, 1.0};
+    }
+    for (std::size_t i = 0; i < state.size(); ++i) {
+        if (state[i] != kFree) continue;
+        if (shape == Shape::height_field && std::fabs(normals[i][2]) < 0.5f) continue;
+        flipped += detail::orient_locally(toward, cloud.origin, cloud.positions[i], normals[i]);
+        state[i] = kFixed;
+    }
+    return shape == Shape::sensor_frame ? "sensor at the origin" : "height field";
+}
+
 void estimate_needed(const PointCloud& cloud, const NormalOptions& options, const KnnResult& knn,
                      int k, const std::vector<char>& needs, std::size_t needed,
                      bool estimate_all, NormalResult& result) {
@@ -1281,6 +1412,7 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
     // Orientation.
     if (options.orients_locally()) {
         result.oriented_to_viewpoint = true;
+        result.orientation = options.up ? "up" : "viewpoint";
         for (std::size_t i = 0; i < n; ++i) {
             if (!needs[i] || degenerate[i]) continue;
             result.flipped += detail::orient_locally(options, cloud.origin, cloud.positions[i],
@@ -1291,8 +1423,17 @@ void estimate_needed(const PointCloud& cloud, const NormalOptions& options, cons
         for (std::size_t i = 0; i < n; ++i) {
             state[i] = degenerate[i] ? kExcluded : needs[i] ? kFree : kFixed;
         }
-        result.components =
-            orient_mst(cloud.positions, normals, doubt, donor, knn, state, result.flipped);
+        // Whole clouds of estimated normals only: a file's normals already say how they face.
+        if (estimate_all) {
+            result.orientation = orient_by_shape(cloud, options, knn, k, normals, state,
+                                                 result.flipped);
+        }
+        if (result.orientation.empty()) result.orientation = "MST";
+        // A sensor's frame is oriented whole; otherwise the propagation (from the fixed points).
+        if (std::count(state.begin(), state.end(), char(kFree)) > 0) {
+            result.components =
+                orient_mst(cloud.positions, normals, doubt, donor, knn, state, result);
+        }
     }
 }
 

@@ -11,6 +11,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <mutex>
 #include <sstream>
 
@@ -179,7 +181,13 @@ void mesh_cleanup_stages(PipelineResult& r, const PipelineOptions& options, cons
         StageClock clock(r.timings, on_stage, "clean");
         CleanOptions clean = options.clean;
         if (options.watertight) clean.min_component_ratio = 1.0;  // one piece
-        r.clean_stats = clean_mesh(std::move(r.mesh), clean);
+        // The evidence is counted in samples: the cloud's spacing (a tiled run's is its plan's,
+        // so that the tiles and the whole volume agree), else the mesh's edges.
+        if (clean.sample_spacing == 0.0) {
+            clean.sample_spacing = sample_spacing(r) > 0.0 ? sample_spacing(r) : r.spacing;
+        }
+        r.clean_stats = clean_mesh(std::move(r.mesh), clean, r.mesh_stats.support);
+        detail::release(r.mesh_stats.support);
         r.mesh = std::move(r.clean_stats.mesh);
         r.clean_stats.mesh = Mesh{};
     }
@@ -275,6 +283,7 @@ void take_tiled(PipelineResult& r, detail::TiledResult&& tiled) {
     r.tiles = tiled.tiles;
     r.tile = tiled.tile;
     r.tile_halo = tiled.halo;
+    if (r.spacing == 0.0) r.spacing = tiled.sample_spacing;
     r.max_tile_points = tiled.max_tile_points;
 }
 
@@ -308,15 +317,35 @@ void tiled_stages(PipelineResult& r, PointCloud& cloud, bool consume,
     tiled_cleanup_stages(r, options, splat_options.voxel_size, origin, on_stage, on_volume);
 }
 
-/// splat(); a refusal for the memory budget also suggests tiles.
-SplatResult splat_or_suggest_tiles(const PointCloud& cloud, const SplatOptions& options) {
+/// Whether splat() refused for the memory budget (check_memory's message).
+bool over_budget(const InvalidArgument& e) {
+    return std::string(e.what()).find(" of memory (") != std::string::npos;
+}
+
+/// The splat, into r; false, with nothing done, when it would exceed the memory budget and the
+/// run may tile itself instead (PipelineOptions::auto_tile; r.auto_tiled says why). A refusal
+/// for the budget also suggests tiles.
+bool splat_untiled(PipelineResult& r, const PointCloud& cloud, const SplatOptions& splat_options,
+                   const PipelineOptions& options, const StageCallback& on_stage) {
+    StageClock clock(r.timings, on_stage, "splat");
     try {
-        return splat(cloud, options);
+        r.splat = splat(cloud, splat_options);
     } catch (const InvalidArgument& e) {
-        const std::string what = e.what();
-        if (what.find(" of memory (") == std::string::npos) throw;
-        throw InvalidArgument(what + ", or --tile auto (tile by tile, the same mesh)");
+        if (!over_budget(e)) throw;
+        std::string what = e.what();
+        if (options.close.solid_radius > 0) throw;  // needs the whole surface: no tiles
+        if (!options.auto_tile) {
+            throw InvalidArgument(what + ", or --tile auto (tile by tile, the same mesh)");
+        }
+        what = what.substr(0, what.find(". Hint"));
+        if (what.compare(0, 7, "splat: ") == 0) what = what.substr(7);
+        r.auto_tiled = what;
+        log_info("tiles: " + what + ": the run tiles itself (--tile auto; --tile 0 refuses)");
+        return false;
     }
+    r.volume = std::move(r.splat.volume);
+    r.splat.volume = Volume{};
+    return true;
 }
 
 /// The planar regions' textures from the (kept) cloud's colours, when asked for.
@@ -420,16 +449,12 @@ PipelineResult reconstruct_cloud(PointCloud& cloud, bool consume, const Pipeline
     PipelineResult r;
     in_arena(options.threads, [&] {
         const SplatOptions splat_options = point_stages(r, cloud, options, on_stage);
-        if (options.tile != 0) {
-            tiled_stages(r, cloud, consume, splat_options, options, on_stage, on_volume);
+        if (options.tile != 0 || !splat_untiled(r, cloud, splat_options, options, on_stage)) {
+            PipelineOptions tiled = options;
+            if (tiled.tile == 0) tiled.tile = detail::kAutoTile;  // over the budget
+            tiled_stages(r, cloud, consume, splat_options, tiled, on_stage, on_volume);
             texture_stage(r, cloud, options, on_stage);
             return;
-        }
-        {
-            StageClock clock(r.timings, on_stage, "splat");
-            r.splat = splat_or_suggest_tiles(cloud, splat_options);
-            r.volume = std::move(r.splat.volume);
-            r.splat.volume = Volume{};
         }
         // The trims' gap test allows the random gaps of the sample: it needs its spacing, which
         // the volume carries (also in its file) for the closing and the mesher.
@@ -541,6 +566,10 @@ RunResult run_to_files(const std::string& input, const std::string& output,
     // Errors of the computing stages name the input they are about ("scan.ply: splat: ...").
     try {
         out.result = compute(out, timings, write_vdb);
+        if (out.result.tile != 0) {  // tiled itself: no stage volume was whole
+            out.vdb_path.clear();
+            out.closed_vdb_path.clear();
+        }
         if (out.result.mesh.faces.empty()) {
             std::ostringstream s;
             s << "no surface: no valid cell crosses zero at voxel " << out.result.voxel_size
@@ -659,12 +688,59 @@ bool run_streamed(const std::string& input, const PipelineOptions& options,
 
 }  // namespace
 
-RunResult run(const std::string& input, const std::string& output, const PipelineOptions& options,
-              const StageCallback& on_stage) {
+namespace {
+
+/// Whether `path` is a LAS file (its signature; LAZ too, which the reader then refuses).
+bool is_las_file(const std::string& path) {
+    char magic[4] = {0, 0, 0, 0};
+    std::FILE* f = std::fopen(path.c_str(), "rb");
+    if (!f) return false;
+    const std::size_t got = std::fread(magic, 1, 4, f);
+    std::fclose(f);
+    return got == 4 && std::memcmp(magic, "LASF", 4) == 0;
+}
+
+/// The options a run from the file `input` goes with: a LAS file's estimated normals face up
+/// (PDAL's convention) unless a viewpoint, an up direction or OrientRule::mst says otherwise;
+/// with `auto_tiled`, a run whose points would take over half the memory budget tiles itself
+/// (PipelineOptions::auto_tile), and *auto_tiled says why.
+PipelineOptions input_options(const std::string& input, const PipelineOptions& options,
+                              std::string* auto_tiled) {
+    PipelineOptions o = options;
+    const NormalOptions& n = options.normals;
+    if (!n.orients_locally() && n.orient == OrientRule::automatic && is_las_file(input)) {
+        o.normals.up = Vec3d{0.0, 0.0, 1.0};
+        log_info(input + ": a LAS file: estimated normals face up (0,0,1), as PDAL's do; "
+                         "--viewpoint, --up or --orient mst to override");
+    }
+    if (auto_tiled && o.tile == 0 && o.auto_tile && o.close.solid_radius == 0) {
+        const double need = detail::points_memory_estimate(input, o.normals);
+        const double budget = double(memory_budget(o.splat));
+        if (need > 0.5 * budget) {
+            std::ostringstream s;
+            s << "its points need about " << int(need / 1e6) << " MB in memory, over half of "
+              << "--max-memory " << int(budget / 1e6) << " MB";
+            *auto_tiled = s.str();
+            o.tile = detail::kAutoTile;
+            log_info(input + ": tiles: " + *auto_tiled +
+                     ": the run tiles itself (--tile auto; --tile 0 refuses)");
+        }
+    }
+    return o;
+}
+
+}  // namespace
+
+RunResult run(const std::string& input, const std::string& output,
+              const PipelineOptions& given, const StageCallback& on_stage) {
+    given.validate();
+    std::string auto_tiled;
+    const PipelineOptions options = input_options(input, given, &auto_tiled);
     auto compute = [&](RunResult& out, std::vector<StageTiming>& timings,
                        const VolumeCallback& write_vdb) {
         PipelineResult streamed;
         if (run_streamed(input, options, on_stage, write_vdb, out, timings, streamed)) {
+            streamed.auto_tiled = auto_tiled;
             return streamed;
         }
         PointCloud cloud;
@@ -676,6 +752,7 @@ RunResult run(const std::string& input, const std::string& output, const Pipelin
         }
         const std::size_t points = cloud.size();
         PipelineResult r = reconstruct(std::move(cloud), options, on_stage, write_vdb);
+        if (r.auto_tiled.empty()) r.auto_tiled = auto_tiled;
         if (r.mesh.faces.empty()) {
             std::ostringstream s;
             s << "no surface: no valid cell crosses zero at voxel " << r.voxel_size << " ("
@@ -706,7 +783,8 @@ PipelineResult reconstruct_volume(Volume volume, const PipelineOptions& options,
 }
 
 TileJob prepare_tiles(const std::string& input, const std::string& dir,
-                      const PipelineOptions& options) {
+                      const PipelineOptions& given) {
+    const PipelineOptions& options = given;
     options.validate();
     if (options.tile == 0) {
         throw InvalidArgument("prepare_tiles: options.tile is 0; give a tile edge, or -1 (auto)");
@@ -719,6 +797,7 @@ TileJob prepare_tiles(const std::string& input, const std::string& dir,
     job.dir = dir;
     try {
         in_arena(options.threads, [&] {
+            const PipelineOptions options = input_options(input, given, nullptr);
             if (detail::prepare_streamed(input, dir, options, job)) return;
             job.read = read_points(input, options.read);
             PointCloud cloud = std::move(job.read.cloud);

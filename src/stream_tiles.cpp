@@ -1081,13 +1081,11 @@ std::string stream_refusal(const PipelineOptions& options) {
     return "";
 }
 
-namespace {
-
 /// About the bytes the in-memory point stages would take for this file: twice the size of a
 /// binary PLY file with normals kept (48 bytes a point: 20M terrain points, 965 MB); six times
 /// that of a file whose normals are estimated (their lists are kept too, about 100 bytes a
 /// point: 1M terrain points, 116 MB; a row is 12-34 bytes in PLY, LAS or text).
-double in_memory_estimate(const std::string& input, const NormalOptions& options) {
+double points_memory_estimate(const std::string& input, const NormalOptions& options) {
     struct stat st {};
     if (::stat(input.c_str(), &st) != 0) return 0.0;
     if (options.mode == NormalMode::estimate) return 6.0 * double(st.st_size);
@@ -1102,13 +1100,11 @@ double in_memory_estimate(const std::string& input, const NormalOptions& options
     return (normals ? 2.0 : 6.0) * double(st.st_size);
 }
 
-}  // namespace
-
 bool prepare_streamed(const std::string& input, const std::string& dir,
                       const PipelineOptions& options, TileJob& job) {
     std::string why = stream_refusal(options);
     if (why.empty() && options.stream == StreamMode::automatic) {
-        const double need = in_memory_estimate(input, options.normals);
+        const double need = points_memory_estimate(input, options.normals);
         const double budget = double(memory_budget(options.splat));
         if (need <= 0.5 * budget) {
             why = "the points fit in memory (about " + std::to_string(int(need / 1e6)) +

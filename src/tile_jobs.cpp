@@ -20,7 +20,7 @@ namespace {
 
 constexpr char kPlanTag[8] = {'v', 'd', 'b', 'r', 'P', 'L', 'N', '1'};
 constexpr char kBucketTag[8] = {'v', 'd', 'b', 'r', 'B', 'K', 'T', '1'};
-constexpr char kPieceTag[8] = {'v', 'd', 'b', 'r', 'P', 'C', 'E', '1'};
+constexpr char kPieceTag[8] = {'v', 'd', 'b', 'r', 'P', 'C', 'E', '2'};
 
 class Bytes {
   public:
@@ -253,6 +253,7 @@ std::string piece_bytes(const ClassifiedSurface& s, std::size_t index, const Til
     b.put_vector(s.status);
     b.put_vector(s.grad);
     b.put_vector(s.colors);
+    b.put_vector(s.weight);
     b.put<std::uint64_t>(s.dropped_faces);
     b.put<std::uint64_t>(stats.tiles);
     b.put<std::uint64_t>(stats.max_tile_points);
@@ -276,6 +277,7 @@ ClassifiedSurface read_piece(std::string_view bytes, std::size_t i, TiledResult&
     s.status = r.get_vector<char>();
     s.grad = r.get_vector<openvdb::Vec3f>();
     s.colors = r.get_vector<openvdb::Vec3f>();
+    s.weight = r.get_vector<float>();
     s.dropped_faces = r.get<std::uint64_t>();
     stats.tiles += r.get<std::uint64_t>();
     stats.max_tile_points = std::max<std::size_t>(stats.max_tile_points, r.get<std::uint64_t>());
@@ -283,7 +285,8 @@ ClassifiedSurface read_piece(std::string_view bytes, std::size_t i, TiledResult&
     stats.splat.leaves += r.get<std::uint64_t>();
     const std::size_t np = s.points.size();
     bool ok = s.status.size() == np && s.grad.size() == np &&
-              (s.colors.empty() || s.colors.size() == np);
+              (s.colors.empty() || s.colors.size() == np) &&
+              (s.weight.empty() || s.weight.size() == np);
     for (const Triangle& t : s.triangles) {
         for (std::int32_t v : t) ok = ok && v >= 0 && std::size_t(v) < np;
     }
@@ -293,7 +296,7 @@ ClassifiedSurface read_piece(std::string_view bytes, std::size_t i, TiledResult&
 
 /// The lengths of piece i's arrays (read_piece's layout), read without copying them.
 struct PieceSizes {
-    std::size_t points = 0, triangles = 0, colors = 0;
+    std::size_t points = 0, triangles = 0, colors = 0, weights = 0;
 };
 PieceSizes piece_sizes(std::string_view bytes, std::size_t i, const std::string& what) {
     Reader r(bytes, what + " " + std::to_string(i));
@@ -305,6 +308,7 @@ PieceSizes piece_sizes(std::string_view bytes, std::size_t i, const std::string&
     r.skip_vector<char>();            // status
     r.skip_vector<openvdb::Vec3f>();  // grad
     s.colors = r.skip_vector<openvdb::Vec3f>();
+    s.weights = r.skip_vector<float>();
     return s;
 }
 
@@ -313,18 +317,20 @@ PieceSizes piece_sizes(std::string_view bytes, std::size_t i, const std::string&
 ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledResult& stats,
                               const std::string& what) {
     std::string buffer;
-    std::size_t points = 0, triangles = 0, colors = 0;
+    std::size_t points = 0, triangles = 0, colors = 0, weights = 0;
     for (std::size_t i = 0; i < n; ++i) {  // the sizes first
         const PieceSizes s = piece_sizes(source(i, buffer), i, what);
         points += s.points;
         triangles += s.triangles;
         colors += s.colors;
+        weights += s.weights;
     }
     ClassifiedSurface all;
     all.points.reserve(points);
     all.status.reserve(points);
     all.grad.reserve(points);
     all.colors.reserve(colors);
+    all.weight.reserve(weights);
     all.triangles.reserve(triangles);
     for (std::size_t i = 0; i < n; ++i) append(all, read_piece(source(i, buffer), i, stats, what));
     return all;
@@ -340,6 +346,7 @@ TiledResult finish_tile_job(const std::string& dir, std::size_t count, const Pie
     const TiledOptions o = tile_options(plan, options);
     TiledResult result;
     result.tile = plan.setup.grid.n;
+    result.sample_spacing = plan.sample_spacing;
     result.halo = plan.setup.grid.halo;
     ClassifiedSurface all = join_pieces(count, pieces, result, "tile job piece");
     result.splat.sigma_median = plan.setup.frame.sigma_median;

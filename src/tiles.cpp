@@ -164,6 +164,7 @@ ClassifiedSurface tile_piece(const Volume& volume, const MeshOptions& options, R
     out.status.resize(used);
     out.grad.resize(used);
     if (!s.colors.empty()) out.colors.resize(used);
+    if (!s.weight.empty()) out.weight.resize(used);
     for (std::size_t i = 0; i < s.points.size(); ++i) {
         if (remap[i] < 0) continue;
         const std::size_t j = std::size_t(remap[i]);
@@ -171,6 +172,7 @@ ClassifiedSurface tile_piece(const Volume& volume, const MeshOptions& options, R
         out.status[j] = s.status[i];
         out.grad[j] = s.grad[i];
         if (!s.colors.empty()) out.colors[j] = s.colors[i];
+        if (!s.weight.empty()) out.weight[j] = s.weight[i];
     }
     out.triangles = std::move(s.triangles);  // renumbered by compact_vertices
     return out;
@@ -206,6 +208,7 @@ void append(ClassifiedSurface& all, ClassifiedSurface&& piece) {
     all.status.insert(all.status.end(), piece.status.begin(), piece.status.end());
     all.grad.insert(all.grad.end(), piece.grad.begin(), piece.grad.end());
     all.colors.insert(all.colors.end(), piece.colors.begin(), piece.colors.end());
+    all.weight.insert(all.weight.end(), piece.weight.begin(), piece.weight.end());
     for (Triangle t : piece.triangles) {
         for (std::int32_t& v : t) v += offset;
         all.triangles.push_back(t);
@@ -334,6 +337,7 @@ TiledResult tiled_surface(PointCloud& cloud, const TiledOptions& options, bool r
     for (;;) {
         TiledResult result;
         result.tile = g.n;
+        result.sample_spacing = options.sample_spacing;
         result.halo = g.halo;
         try {
             Spool spool("tiles: the tiles' pieces");  // on disk while the cloud is in memory

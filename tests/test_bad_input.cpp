@@ -687,14 +687,16 @@ TEST_CASE("bad input: --voxel so small the grid would not fit in memory", "[cli]
     REQUIRE_THAT(r.error, Catch::StartsWith(in + ": ") && Catch::Contains("memory"));
 }
 
-TEST_CASE("bad input: --max-memory refuses before the grids and suggests a voxel that fits",
-          "[cli][bad_input]") {
+TEST_CASE("bad input: --max-memory with --tile 0 refuses before the grids and suggests a voxel "
+          "that fits", "[cli][bad_input]") {
     Workspace w;
     const std::string in = w.input("s.ply", sample_sphere(5000, 1.0));
-    // A unit sphere at voxel 0.005 touches about 16k leaves, some 500 MB.
-    const Refusal r = run_refused(w, in, "--voxel 0.005 --max-memory 20M", 2);
+    // A unit sphere at voxel 0.005 touches about 16k leaves, some 500 MB. (Without --tile 0
+    // the run would tile itself: test_tiles.cpp.)
+    const Refusal r = run_refused(w, in, "--voxel 0.005 --max-memory 20M --tile 0", 2);
     REQUIRE_THAT(r.error, Catch::StartsWith(in + ": splat: voxel size 0.005 needs about ") &&
-                              Catch::Contains("more than the budget of 21 MB"));
+                              Catch::Contains("more than the budget of 21 MB") &&
+                              Catch::Contains("or --tile auto"));
     const std::size_t at = r.error.find("Hint: --voxel ");
     REQUIRE(at != std::string::npos);
     const double suggested = std::stod(r.error.substr(at + 14));

@@ -48,7 +48,7 @@ double radial_spread(const Mesh& m, double r, double* mean_error = nullptr) {
 
 }  // namespace
 
-TEST_CASE("clean: small islands are removed, exactly those", "[clean]") {
+TEST_CASE("clean: pieces too few samples built are removed, exactly those", "[clean]") {
     Mesh big = sphere_mesh(1.0, 0.05);
     Mesh small = sphere_mesh(0.3, 0.05, {3.0f, 0.0f, 0.0f});  // a second real object, ~9 % size
     const std::size_t big_faces = big.faces.size(), small_faces = small.faces.size();
@@ -57,9 +57,15 @@ TEST_CASE("clean: small islands are removed, exactly those", "[clean]") {
     append(m, small);
     append(m, tetra(-5, 0, 0));
     append(m, tetra(0, -5, 0));
-    const CleanResult r = clean_mesh(m);
+    // The spacing of a sample a voxel apart: a tetrahedron of 1 cm sides is 0.1 sample's
+    // worth, the small sphere 450, the big one 5000.
+    CleanOptions by_samples;
+    by_samples.sample_spacing = 0.05;
+    const CleanResult r = clean_mesh(m, by_samples);
     REQUIRE(r.components_before == 5);
     REQUIRE(r.removed_components == 3);
+    REQUIRE(r.removed_unsupported == 3);
+    REQUIRE(r.removed_small == 0);
     REQUIRE(r.removed_faces == 12);
     REQUIRE(r.removed_vertices == 12);
     REQUIRE(r.mesh.faces.size() == big_faces + small_faces);
@@ -69,17 +75,61 @@ TEST_CASE("clean: small islands are removed, exactly those", "[clean]") {
     REQUIRE(t.boundary_edges == 0);
     // Order is kept: the big sphere comes first, unchanged.
     for (std::size_t f = 0; f < big_faces; ++f) REQUIRE(r.mesh.faces[f] == big.faces[f]);
-    // A stricter ratio drops the small sphere too; ratio 0 keeps everything.
-    CleanOptions strict;
+    // Without a spacing the evidence is counted in the mesh's median edges: the same verdict.
+    REQUIRE(clean_mesh(m).removed_components == 3);
+    // For one object, a ratio drops the small sphere too (a piece smaller than half the big
+    // one, however well supported); 0 samples and ratio 0 keep everything.
+    CleanOptions strict = by_samples;
     strict.min_component_ratio = 0.5;
-    REQUIRE(clean_mesh(m, strict).mesh.faces.size() == big_faces);
+    const CleanResult one = clean_mesh(m, strict);
+    REQUIRE(one.mesh.faces.size() == big_faces);
+    REQUIRE(one.removed_small == 1);
+    REQUIRE(one.removed_unsupported == 3);
     CleanOptions keep;
-    keep.min_component_ratio = 0.0;
+    keep.min_component_samples = 0.0;
     REQUIRE(clean_mesh(m, keep).mesh.faces.size() == m.faces.size());
-    CleanOptions absolute;
-    absolute.min_component_ratio = 0.0;
+    CleanOptions absolute = keep;
     absolute.min_component_faces = 5;
     REQUIRE(clean_mesh(m, absolute).removed_components == 3);
+}
+
+TEST_CASE("clean: the evidence weighs a piece's area by its support, in the data's own scale",
+          "[clean]") {
+    // Two spheres of 450 samples' worth each (r = 0.3, spacing 0.05): one fully supported, one
+    // built by a kernel's tail only (a twentieth of the typical weight: 22 samples' worth) and
+    // one at a hundredth (4.5: the disc a few stray samples leave). Only the last goes.
+    const Mesh big = sphere_mesh(1.0, 0.05);
+    const Mesh small = sphere_mesh(0.3, 0.05, {3.0f, 0.0f, 0.0f});
+    const Mesh faint = sphere_mesh(0.3, 0.05, {-3.0f, 0.0f, 0.0f});
+    const Mesh stray = sphere_mesh(0.3, 0.05, {0.0f, 3.0f, 0.0f});
+    Mesh m = big;
+    append(m, small);
+    append(m, faint);
+    append(m, stray);
+    std::vector<float> support;
+    for (std::size_t i = 0; i < big.vertices.size() + small.vertices.size(); ++i) {
+        support.push_back(4.0f + 0.001f * float(i % 7));
+    }
+    support.insert(support.end(), faint.vertices.size(), 0.2f);
+    support.insert(support.end(), stray.vertices.size(), 0.04f);
+    CleanOptions o;
+    o.sample_spacing = 0.05;
+    const CleanResult r = clean_mesh(m, o, support);
+    CHECK(r.typical_support == Approx(4.0).margin(0.01));
+    REQUIRE(r.components_before == 4);
+    REQUIRE(r.removed_unsupported == 1);
+    REQUIRE(r.mesh.faces.size() == m.faces.size() - stray.faces.size());
+    // More weight everywhere (a denser scan, more frames) changes nothing; neither does the
+    // scale: the same scene 10x larger with a 10x coarser spacing.
+    for (float& w : support) w *= 8.0f;
+    REQUIRE(clean_mesh(m, o, support).removed_unsupported == 1);
+    Mesh large = m;
+    for (Vec3f& v : large.vertices.edit()) v = {v[0] * 10.0f, v[1] * 10.0f, v[2] * 10.0f};
+    o.sample_spacing = 0.5;
+    REQUIRE(clean_mesh(large, o, support).removed_unsupported == 1);
+    // A support of the wrong length is refused, not misread.
+    support.pop_back();
+    REQUIRE_THROWS_AS(clean_mesh(m, o, support), InvalidArgument);
 }
 
 TEST_CASE("clean: two faces touching at a vertex only are separate components", "[clean]") {

@@ -460,3 +460,92 @@ TEST_CASE("estimated normals next to sharp edges take the point's own face", "[n
         CHECK(flipped < 10);
     }
 }
+
+namespace {
+
+/// An airborne-like cloud, z up: a rolling ground of 60 x 60 m sampled every 0.5 m (jittered),
+/// the flat roofs of three buildings 9-15 m up (only their roofs: rays straight down see no
+/// walls, so the roofs are not connected to the ground) and a tree crown, which lift the
+/// centroid well above the ground.
+PointCloud airborne_block(std::uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> jitter(-0.2, 0.2);
+    std::normal_distribution<double> noise(0.0, 0.03);
+    struct Roof {
+        double x0, y0, x1, y1, z;
+    };
+    const Roof roofs[] = {{5, 5, 20, 18, 12}, {30, 8, 45, 28, 15}, {10, 35, 28, 50, 9}};
+    PointCloud c;
+    std::vector<Vec3f>& p = c.positions.edit();
+    for (double y = 0.0; y < 60.0; y += 0.5) {
+        for (double x = 0.0; x < 60.0; x += 0.5) {
+            const double px = x + jitter(rng), py = y + jitter(rng);
+            double z = 0.5 * std::sin(px / 9.0) + 0.3 * std::cos(py / 7.0) + noise(rng);
+            for (const Roof& r : roofs) {
+                if (px > r.x0 && px < r.x1 && py > r.y0 && py < r.y1) z = r.z + noise(rng);
+            }
+            const double dx = px - 45.0, dy = py - 45.0;  // a crown of radius 5 at 8 m
+            if (dx * dx + dy * dy < 25.0) z = 8.0 + std::sqrt(25.0 - dx * dx - dy * dy) * 0.6;
+            p.push_back({float(px), float(py), float(z)});
+        }
+    }
+    return c;
+}
+
+}  // namespace
+
+TEST_CASE("a height field faces up, whatever lifts its centroid (roofs, trees)", "[normals]") {
+    const PointCloud c = airborne_block(3);
+    auto share_up = [&](const NormalResult& n) {
+        std::size_t flat = 0, up = 0;
+        for (const Vec3f& v : n.normals) {
+            if (std::fabs(v[2]) < 0.5f) continue;
+            ++flat;
+            up += v[2] > 0.0f;
+        }
+        return double(up) / double(flat);
+    };
+    NormalOptions o;
+    const NormalResult n = estimate_normals(c, o);
+    CHECK(n.orientation == "height field");
+    CHECK(share_up(n) == 1.0);
+    // The MST alone (--orient mst): each roof is a component of its own, an open sheet, turned
+    // up by its mean normal; the outward flux, which the roofs and crown lift above the ground,
+    // would turn the ground over.
+    o.orient = OrientRule::mst;
+    const NormalResult m = estimate_normals(c, o);
+    CHECK(m.orientation == "MST");
+    CHECK(m.components >= 3);
+    CHECK(m.components_up == m.components);
+    CHECK(share_up(m) > 0.995);
+}
+
+TEST_CASE("a depth camera's frame in its own axes faces the camera", "[normals]") {
+    // A wall 3 m in front of a camera at the origin looking along +z, a box 1.5 m in front of
+    // it, seen through a 60-degree field of view: a height field along z, seen from under it.
+    PointCloud c;
+    std::vector<Vec3f>& p = c.positions.edit();
+    for (int v = -60; v <= 60; ++v) {
+        for (int u = -80; u <= 80; ++u) {
+            const double dx = u / 140.0, dy = v / 140.0;  // ray direction (dx, dy, 1)
+            double z = 3.0;
+            if (std::fabs(dx * 1.5) < 0.3 && std::fabs(dy * 1.5) < 0.3) z = 1.5;
+            p.push_back({float(dx * z), float(dy * z), float(z)});
+        }
+    }
+    const NormalResult n = estimate_normals(c, NormalOptions{});
+    CHECK(n.orientation == "sensor at the origin");
+    std::size_t facing = 0;
+    for (std::size_t i = 0; i < c.size(); ++i) facing += dot(n.normals[i], c.positions[i]) < 0.0;
+    CHECK(facing == c.size());
+}
+
+TEST_CASE("a closed object is oriented by the MST and its outward flux", "[normals]") {
+    const Shape part = make_shape("boss");
+    PointCloud s = sample_uniform(part.mesh, 20000, 2);
+    s.normals.clear();
+    const NormalResult n = estimate_normals(s, NormalOptions{});
+    CHECK(n.orientation == "MST");
+    CHECK(n.components_flux == n.components);
+    CHECK(n.components_up == 0);
+}

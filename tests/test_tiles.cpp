@@ -13,6 +13,7 @@
 #include "shapes.h"
 #include "support.h"
 #include "vdbrecon/error.h"
+#include "vdbrecon/eval.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/log.h"
 #include "vdbrecon/pipeline.h"
@@ -204,20 +205,56 @@ TEST_CASE("tile auto fits the memory budget that refuses the untiled run", "[til
     const PointCloud sample = sample_sphere(20000, 1.0);
     PipelineOptions o = options_at(0.01, Mesher::vdb, 0);  // 200 voxels across
     o.splat.max_memory = std::size_t(100) << 20;
+    o.auto_tile = false;  // --tile 0: refuse, do not tile
     try {
         run_on(sample, o);
         FAIL("the untiled run fitted the budget");
     } catch (const InvalidArgument& e) {
         CHECK(std::string(e.what()).find("--tile auto") != std::string::npos);
     }
+    o.auto_tile = true;
     o.tile = -1;
     const PipelineResult tiled = run_on(sample, o);
     CHECK(tiled.tile >= 32);
     CHECK(tiled.tile % 8 == 0);
     CHECK(tiled.tiles > 1);
+    CHECK(tiled.auto_tiled.empty());  // asked for
+    // No --tile at all: over the budget the run tiles itself, as --tile auto, and says why.
     o.tile = 0;
+    const PipelineResult itself = run_on(sample, o);
+    CHECK(itself.tile == tiled.tile);
+    CHECK_THAT(itself.auto_tiled, Catch::Contains("more than the budget"));
+    check_same_mesh(itself.mesh, tiled.mesh, 0.0);
     o.splat.max_memory = 0;
-    check_same_mesh(run_on(sample, o).mesh, tiled.mesh, 0.01);
+    const PipelineResult whole = run_on(sample, o);
+    CHECK(whole.tile == 0);
+    CHECK(whole.auto_tiled.empty());
+    check_same_mesh(whole.mesh, tiled.mesh, 0.01);
+}
+
+TEST_CASE("a file whose points would not fit the memory budget tiles itself before reading",
+          "[tiles][cli]") {
+    TempDir dir;
+    PointCloud bare = sample_sphere(100000, 1.0);
+    bare.normals.clear();
+    write_points(dir.file("in.ply"), bare);
+    PipelineOptions o = options_at(0.05, Mesher::vdb, 0);
+    // The file is 1.2 MB: its points take about six times that in memory with the neighbour
+    // lists for their normals, more than half of 12 MB.
+    o.splat.max_memory = std::size_t(12) << 20;
+    const RunResult r = run(dir.file("in.ply"), dir.file("out.ply"), o);
+    CHECK(r.result.tile > 0);
+    CHECK_THAT(r.result.auto_tiled, Catch::Contains("over half of --max-memory"));
+    CHECK(r.vdb_path.empty());  // no stage volume was whole
+    CHECK_FALSE(file_exists(dir.file("out.splat.vdb")));
+    o.splat.max_memory = 0;
+    o.write_vdb = false;
+    const RunResult whole = run(dir.file("in.ply"), dir.file("whole.ply"), o);
+    CHECK(whole.result.tile == 0);
+    check_same_mesh(whole.result.mesh, r.result.mesh, 0.01);
+    o.splat.max_memory = std::size_t(1) << 20;
+    o.auto_tile = false;  // --tile 0: refused as before (a budget this small fits no volume)
+    CHECK_THROWS_AS(run(dir.file("in.ply"), dir.file("refused.ply"), o), InvalidArgument);
 }
 
 TEST_CASE("tile jobs: prepared, run in any order and finished give the bytes of run --tile", "[tiles]") {
@@ -628,6 +665,51 @@ void write_las(const std::string& path, const std::vector<std::array<double, 3>>
 }
 
 }  // namespace
+
+TEST_CASE("a LAS file's estimated normals face up by default, as PDAL's", "[tiles][las]") {
+    // A rolling ground with a block 12 m high whose roof (no walls: rays straight down) lifts
+    // the centroid: the MST's outward flux would turn the ground over.
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> u(0.0, 40.0);
+    const std::size_t n = 12000;
+    std::vector<std::array<double, 3>> p(n);
+    std::vector<std::uint8_t> cls(n, 2);
+    std::vector<std::array<std::uint16_t, 3>> rgb(n, {100, 100, 100});
+    for (std::size_t i = 0; i < n; ++i) {
+        const double x = u(rng), y = u(rng);
+        const bool roof = x > 10.0 && x < 25.0 && y > 10.0 && y < 25.0;
+        p[i] = {1000.0 + x, 2000.0 + y, roof ? 12.0 : 0.4 * std::sin(0.3 * x) * std::cos(0.2 * y)};
+    }
+    TempDir dir;
+    write_las(dir.file("in.las"), p, cls, rgb);
+    PipelineOptions o;
+    o.write_vdb = false;
+    o.splat.voxel_size = 0.6;
+    auto down_share = [](const Mesh& m) {
+        double down = 0.0, all = 0.0;
+        for (const Triangle& t : m.faces) {
+            const Vec3f& a = m.vertices[std::size_t(t[0])];
+            const Vec3f& b = m.vertices[std::size_t(t[1])];
+            const Vec3f& c = m.vertices[std::size_t(t[2])];
+            const double nz = (double(b[0]) - a[0]) * (double(c[1]) - a[1]) -
+                              (double(b[1]) - a[1]) * (double(c[0]) - a[0]);
+            all += std::fabs(nz);
+            if (nz < 0.0) down -= nz;
+        }
+        return down / all;
+    };
+    const RunResult r = run(dir.file("in.las"), dir.file("out.ply"), o);
+    CHECK(r.result.normals.orientation == "up");
+    CHECK(down_share(r.result.mesh) < 0.01);
+    // Both pieces stay: the roof is no smaller piece to drop beside the ground.
+    CHECK(mesh_topology(r.result.mesh).components == 2);
+    // The same points as a PLY file: not LAS, so the height field is recognised instead.
+    PointCloud c = read_points(dir.file("in.las")).cloud;
+    write_points(dir.file("in.ply"), c);
+    const RunResult ply = run(dir.file("in.ply"), dir.file("ply.ply"), o);
+    CHECK(ply.result.normals.orientation == "height field");
+    CHECK(down_share(ply.result.mesh) < 0.01);
+}
 
 TEST_CASE("streamed tiles: LAS and text files stream too, a chunk of rows at a time",
           "[tiles][stream]") {

@@ -24,6 +24,11 @@ inline const Choices<NormalMode>& normal_mode_choices() {
         {"auto", NormalMode::automatic}, {"estimate", NormalMode::estimate}, {"keep", NormalMode::keep}};
     return c;
 }
+inline const Choices<OrientRule>& orient_rule_choices() {
+    static const Choices<OrientRule> c = {{"auto", OrientRule::automatic},
+                                          {"mst", OrientRule::mst}};
+    return c;
+}
 inline const Choices<ScaleMode>& scale_mode_choices() {
     static const Choices<ScaleMode> c = {
         {"auto", ScaleMode::automatic}, {"knn", ScaleMode::knn}, {"none", ScaleMode::none}};

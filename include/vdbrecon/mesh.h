@@ -25,6 +25,7 @@
 #pragma once
 
 #include <cstddef>
+#include <vector>
 
 #include "vdbrecon/types.h"
 #include "vdbrecon/volume.h"
@@ -76,6 +77,10 @@ struct MeshResult {
     Mesh mesh;
     std::size_t dropped_faces = 0;  ///< faces removed because they touched an invalid cell
     std::size_t trimmed_faces = 0;  ///< faces trimmed as unsupported (weight or gap)
+    /// Per vertex of `mesh`, the summed kernel weight there (the volume's "weight" grid,
+    /// trilinear); empty when the volume has none. clean_mesh() measures each piece's evidence
+    /// with it.
+    std::vector<float> support;
 };
 
 /// Extracts the iso-surface of volume.sdf. Throws InvalidArgument when the volume has no sdf.

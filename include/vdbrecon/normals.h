@@ -2,16 +2,26 @@
 //
 // Normal: the eigenvector of the smallest eigenvalue of the covariance of the k nearest
 // neighbours (PCA). Orientation, in order of preference: towards a known viewpoint (sensor
-// position) or along a known direction (`up`); otherwise minimum-spanning-tree propagation
-// over the kNN graph with edge cost 1 - |n_i . n_j|, seeded in each connected component at its
-// highest point, whose normal is turned to point up (+z) -- H. Hoppe et al., "Surface
-// reconstruction from unorganized points", SIGGRAPH 1992.
+// position) or along a known direction (`up`); otherwise by what the cloud is (OrientRule):
+//  - a height field (most normals within 30 degrees of vertical, and a vertical line through
+//    the cloud meets one surface in most places: airborne LiDAR, a terrain, a floor seen from
+//    above) faces up: its near-horizontal surfaces are turned up and fixed, and the steep rest
+//    (walls) takes their orientation by the propagation below;
+//  - the same seen from a sensor at the origin (every point in front of it, within a 75-degree
+//    cone around +z: a depth camera's frame in its own axes) faces the origin;
+//  - anything else: minimum-spanning-tree propagation over the kNN graph with edge cost
+//    1 - |n_i . n_j| (H. Hoppe et al., "Surface reconstruction from unorganized points",
+//    SIGGRAPH 1992), each connected component's sign then chosen by what it is: an open sheet
+//    that faces mostly up or down (its mean normal) faces up, a closed object faces out (the
+//    outward flux of its normals), anything else keeps its seed's sign (its highest point,
+//    turned away from the centroid).
 // Scale: the mean distance to the k nearest neighbours (the sample footprint FSSR expects,
 // S. Fuhrmann and M. Goesele, "Floating scale surface reconstruction", SIGGRAPH 2014).
 #pragma once
 
 #include <cstddef>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "vdbrecon/knn.h"
@@ -31,6 +41,12 @@ enum class ScaleMode {
     none,       ///< no per-point scale (splat falls back to a fixed sigma in voxels)
 };
 
+/// How estimated normals are oriented when neither a viewpoint nor an up direction is given.
+enum class OrientRule {
+    automatic,  ///< by what the cloud is (height field, a sensor's frame, MST; see above)
+    mst,        ///< always the MST propagation with its per-component sign
+};
+
 struct NormalOptions {
     /// Where normals come from.
     NormalMode mode = NormalMode::automatic;
@@ -43,6 +59,8 @@ struct NormalOptions {
     /// streamed tiled run (PipelineOptions::stream) can estimate normals a region at a time;
     /// without them the orientation propagates over the whole cloud.
     std::optional<Vec3d> up;
+    /// Without a viewpoint or `up`: how the orientation is chosen.
+    OrientRule orient = OrientRule::automatic;
     /// Where the per-point scale comes from.
     ScaleMode scale = ScaleMode::automatic;
     /// The neighbour search (when the outlier stage hands over no lists).
@@ -65,6 +83,12 @@ struct NormalResult {
     std::size_t flipped = 0;     ///< estimated normals flipped by the orientation step
     std::size_t components = 0;  ///< kNN-graph components oriented separately (MST mode)
     bool oriented_to_viewpoint = false;  ///< towards the viewpoint or along `up`
+    /// The rule that oriented the estimated normals, for the log: "viewpoint", "up", "height
+    /// field", "sensor at the origin", "MST"; empty when none was estimated.
+    std::string orientation;
+    /// MST components whose sign was chosen by each rule (orientation "MST" or "height field"):
+    /// open sheets turned up, closed objects turned out by their flux, the rest by the seed.
+    std::size_t components_up = 0, components_flux = 0, components_seed = 0;
     double median_scale = 0.0;   ///< median of `scales` (0 when none), world units
     /// The median sample spacing from the density of each point's k nearest (see
     /// median_density_spacing in knn.h) when this stage searched neighbours itself, else 0;

@@ -82,6 +82,11 @@ struct PipelineOptions {
     /// -1 = automatic: the largest edge whose tile should fit splat.max_memory beside the
     /// cloud. Not with a solid closing (close.solid_radius), which needs the whole surface.
     int tile = 0;
+    /// With tile == 0: tile anyway (as tile = -1 would) when the run would not fit
+    /// splat.max_memory: decided before the point stages from the file's size where run()
+    /// reads a file, else when the splat's estimate exceeds the budget. The same mesh; no stage
+    /// volume is written then. false: refuse such a run (the CLI's --tile 0).
+    bool auto_tile = true;
     /// Tiled runs from a file (run(), prepare_tiles()): stream the input (see StreamMode).
     StreamMode stream = StreamMode::automatic;
     /// Return the splatted (and closed) volumes in the result. false frees them as soon as the
@@ -130,6 +135,8 @@ struct PipelineResult {
     bool voxel_chosen = false;  ///< true when it was picked automatically
     double spacing = 0.0;       ///< the median sample spacing it was picked from, world units
     int tile = 0;               ///< tiled runs: the tile edge used, voxels (0: untiled)
+    /// Why the run tiled itself (PipelineOptions::auto_tile); empty when it did not.
+    std::string auto_tiled;
     int tile_halo = 0;          ///< ... the halo of samples around each tile, voxels
     std::size_t tiles = 0;      ///< ... tiles that had samples near them
     std::size_t max_tile_points = 0;  ///< ... samples of the largest tile with its halo

@@ -6,11 +6,19 @@ namespace vdbrecon::python {
 
 void bind_clean(py::module_& m) {
     OptionsClass<CleanOptions> o(m, "CleanOptions",
-                                 "Mesh cleanup: small edge-connected components are removed, "
-                                 "optional Taubin lambda|mu smoothing (Taubin 95).");
-    o.field("min_component_ratio", &CleanOptions::min_component_ratio,
-            "Components with fewer faces than this fraction of the largest one's are removed; "
-            "0 keeps all (CLI --min-component).")
+                                 "Mesh cleanup: edge-connected components too few samples "
+                                 "built are removed, optional Taubin lambda|mu smoothing "
+                                 "(Taubin 95).");
+    o.field("min_component_samples", &CleanOptions::min_component_samples,
+            "Components backed by fewer samples than this are removed: the sum over their faces "
+            "of area * min(1, weight / median weight) / spacing^2; 0 keeps all (CLI "
+            "--min-samples).")
+        .field("sample_spacing", &CleanOptions::sample_spacing,
+               "The sample spacing the evidence is counted in, world units; 0 = the mesh's "
+               "median edge length.")
+        .field("min_component_ratio", &CleanOptions::min_component_ratio,
+            "Components with fewer faces than this fraction of the largest one's are removed "
+            "too; 0 (default) keeps all, 1 only the largest (CLI --min-component).")
         .field("min_component_faces", &CleanOptions::min_component_faces,
                "Components with fewer faces than this are removed, whatever the ratio, count.")
         .field("smooth_iterations", &CleanOptions::smooth_iterations,
@@ -26,7 +34,13 @@ void bind_clean(py::module_& m) {
         .def_readonly("components_before", &CleanResult::components_before,
                       "Edge-connected components in the input.")
         .def_readonly("removed_components", &CleanResult::removed_components,
-                      "Components dropped as too small.")
+                      "Components dropped.")
+        .def_readonly("removed_unsupported", &CleanResult::removed_unsupported,
+                      "... of them backed by too few samples.")
+        .def_readonly("removed_small", &CleanResult::removed_small,
+                      "... of them smaller than min_component_ratio x the largest.")
+        .def_readonly("typical_support", &CleanResult::typical_support,
+                      "The median summed weight at the vertices (0 without support).")
         .def_readonly("removed_faces", &CleanResult::removed_faces,
                       "Faces in the dropped components.")
         .def_readonly("removed_vertices", &CleanResult::removed_vertices,
@@ -40,11 +54,18 @@ void bind_clean(py::module_& m) {
 
     m.def(
         "clean_mesh",
-        [](const Mesh& mesh, const CleanOptions& o) {
-            return without_gil([&] { return clean_mesh(mesh, o); });
+        [](const Mesh& mesh, const CleanOptions& o, const py::object& support) {
+            std::vector<float> w;
+            if (!support.is_none()) {
+                const Column<float> c = borrow_column(support, "support",
+                                                      py::ssize_t(mesh.vertices.size()));
+                w.assign(c.begin(), c.end());
+            }
+            return without_gil([&] { return clean_mesh(mesh, o, w); });
         },
-        py::arg("mesh"), py::arg("options") = CleanOptions{},
-        "Removes small components and optionally smooths the mesh.");
+        py::arg("mesh"), py::arg("options") = CleanOptions{}, py::arg("support") = py::none(),
+        "Removes components too few samples built (support: per-vertex summed weight, "
+        "MeshResult.support) and optionally smooths the mesh.");
 }
 
 }  // namespace vdbrecon::python

@@ -46,6 +46,14 @@ void bind_mesh(py::module_& m) {
                       "Faces removed because they touched an invalid cell.")
         .def_readonly("trimmed_faces", &MeshResult::trimmed_faces,
                       "Faces trimmed as unsupported (relative weight or gap).")
+        .def_property_readonly(
+            "support",
+            [](const MeshResult& r) {
+                std::vector<float> v = r.support;
+                return adopt(std::move(v), 0);
+            },
+            "(V,) float32: the summed kernel weight at each vertex (empty without a weight "
+            "grid); clean_mesh's support.")
         .def("__repr__", [](const MeshResult& r) {
             return "MeshResult(" + std::to_string(r.mesh.faces.size()) +
                    " faces, dropped_faces=" + std::to_string(r.dropped_faces) +

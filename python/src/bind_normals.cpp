@@ -22,7 +22,11 @@ void bind_normals(py::module_& m) {
                "A direction (x, y, z) estimated normals are turned towards, e.g. (0, 0, 1) for "
                "airborne data; not with a viewpoint. Like the viewpoint it orients each point "
                "on its own, so a tiled run can stream a cloud without normals. None: "
-               "minimum-spanning-tree orientation (CLI --up).")
+               "orientation by `orient` (CLI --up).")
+        .choice("orient", &NormalOptions::orient, orient_rule_choices(),
+                "Without a viewpoint or up: 'auto' orients by what the cloud is (a height field "
+                "faces up, a depth camera's frame the origin, else the MST with closed objects "
+                "facing out and open sheets up), 'mst' always the MST (CLI --orient).")
         .choice(
             "scale", &NormalOptions::scale,
             scale_mode_choices(),
@@ -49,6 +53,15 @@ void bind_normals(py::module_& m) {
         .def_readonly("components", &NormalResult::components,
                       "kNN-graph components oriented separately (MST mode).")
         .def_readonly("oriented_to_viewpoint", &NormalResult::oriented_to_viewpoint)
+        .def_readonly("orientation", &NormalResult::orientation,
+                      "The rule that oriented the estimated normals: 'viewpoint', 'up', 'height "
+                      "field', 'sensor at the origin', 'MST' ('' when none was estimated).")
+        .def_readonly("components_up", &NormalResult::components_up,
+                      "MST components turned up as open sheets.")
+        .def_readonly("components_flux", &NormalResult::components_flux,
+                      "MST components turned outward by their flux (closed objects).")
+        .def_readonly("components_seed", &NormalResult::components_seed,
+                      "MST components left with their seed's sign.")
         .def_readonly("median_scale", &NormalResult::median_scale,
                       "Median of `scales`, world units (0 when none).")
         .def_readonly("density_spacing", &NormalResult::density_spacing,

@@ -49,6 +49,9 @@ void bind_pipeline(py::module_& m) {
                "multiple of 8), each from the samples within a halo of it: the same mesh in "
                "less memory, no volumes kept; 0 = untiled, -1 = the largest that fits "
                "splat.max_memory (CLI --tile N|auto).")
+        .field("auto_tile", &PipelineOptions::auto_tile,
+               "With tile = 0: tile anyway (as tile = -1) when the run would not fit "
+               "splat.max_memory, and keep no volumes; False refuses such a run (CLI --tile 0).")
         .choice("stream", &PipelineOptions::stream, stream_mode_choices(),
                 "Tiled runs from a file (run(), prepare_tiles()): read a PLY file with normals "
                 "a chunk at a time and run the point stages a region at a time, memory bounded "
@@ -113,6 +116,8 @@ void bind_pipeline(py::module_& m) {
                       "The median sample spacing it was picked from, world units.")
         .def_readonly("tile", &PipelineResult::tile,
                       "Tiled runs: the tile edge used, voxels (0: untiled).")
+        .def_readonly("auto_tiled", &PipelineResult::auto_tiled,
+                      "Why the run tiled itself over its memory budget ('' when it did not).")
         .def_readonly("tile_halo", &PipelineResult::tile_halo,
                       "Tiled runs: the halo of samples around each tile, voxels.")
         .def_readonly("tiles", &PipelineResult::tiles,

@@ -154,9 +154,17 @@ def test_shared_bunny_scans_match_the_reference(shared_data):
     assert e.chamfer_l1 < 0.0001
 
 
-def test_memory_budget_refuses_before_the_grids():
+def test_memory_budget_refuses_before_the_grids_or_tiles():
     points, normals = sphere(5000)
     with pytest.raises(ValueError, match=r"needs about .* Hint: --voxel"):
-        vdbrecon.reconstruct(points, normals, voxel=0.005, max_memory=20 << 20)
+        vdbrecon.reconstruct(points, normals, voxel=0.005, max_memory=20 << 20, auto_tile=False)
     mesh = vdbrecon.reconstruct(points, normals, voxel=0.05, max_memory=20 << 20)
     assert len(mesh.faces) > 1000
+    # Over the budget without auto_tile=False the run tiles itself and says why.
+    points, normals = sphere(20000)
+    r = vdbrecon.reconstruct(points, normals, voxel=0.01, max_memory=100 << 20,
+                             return_result=True)
+    assert r.tile > 0 and "more than the budget" in r.auto_tiled
+    whole = vdbrecon.reconstruct(points, normals, voxel=0.01, return_result=True)
+    assert whole.tile == 0 and whole.auto_tiled == ""
+    assert len(whole.mesh.faces) == len(r.mesh.faces)

@@ -588,14 +588,16 @@ Returns a MeshResult: .mesh, .dropped_faces, .trimmed_faces.""",
           _struct_entries(MeshOptions), [_pos("volume")])
 
 
-def clean_mesh(mesh, **options):
-    return _v.clean_mesh(_mesh(mesh, "mesh"), _fill(CleanOptions, options, "clean_mesh"))
+def clean_mesh(mesh, support=None, **options):
+    return _v.clean_mesh(_mesh(mesh, "mesh"), _fill(CleanOptions, options, "clean_mesh"), support)
 
 
-_document(clean_mesh, """Removes small edge-connected components and optionally smooths (Taubin
-lambda|mu, boundary vertices fixed).
+_document(clean_mesh, """Removes the edge-connected components too few samples built (and, with
+min_component_ratio, small ones) and optionally smooths (Taubin lambda|mu, boundary vertices
+fixed).
 
-mesh: Mesh or mesh path.
+mesh: Mesh or mesh path. support: optional (V,) per-vertex summed weight (MeshResult.support);
+without it every face counts as fully supported.
 Returns a CleanResult: .mesh, .components_before, .removed_components, .removed_faces.""",
           _struct_entries(CleanOptions), [_pos("mesh")])
 

@@ -192,6 +192,7 @@ struct ClassifiedSurface {
     std::vector<char> status;            ///< per point, a PointStatus (kInvalid when unused)
     std::vector<openvdb::Vec3f> grad;    ///< per point, the mesher's normal or the SDF gradient
     std::vector<openvdb::Vec3f> colors;  ///< per point, from the "color" grid; empty without
+    std::vector<float> weight;           ///< per point, from the "weight" grid; empty without
     std::size_t dropped_faces = 0;
 };
 

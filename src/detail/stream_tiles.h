@@ -17,6 +17,10 @@ namespace vdbrecon::detail {
 /// approximate neighbour search, a texture (it reads every point's colour), or no tiles.
 std::string stream_refusal(const PipelineOptions& options);
 
+/// About the bytes the in-memory point stages would take for the file `input` (from its size
+/// and whether it has normals; 0 when it cannot be read).
+double points_memory_estimate(const std::string& input, const NormalOptions& options);
+
 /// prepare_tiles() streaming `input` (options as stream_refusal() accepts). Returns false,
 /// having written nothing, when the file turns out not to be streamable -- not a PLY, LAS or
 /// text file; without a viewpoint or up direction, not a PLY file or points without normals

@@ -42,6 +42,7 @@ struct TiledResult {
     std::size_t max_tile_points = 0;  ///< samples of the largest tile (its own and its halo)
     int tile = 0;                     ///< the tile edge used, voxels
     int halo = 0;                     ///< voxels of samples around a tile, each side
+    double sample_spacing = 0.0;      ///< TiledOptions::sample_spacing (the plan's)
 };
 
 /// Tile coordinates (x, y, z).

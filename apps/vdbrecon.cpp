@@ -277,6 +277,8 @@ void print_help() {
         << "                         direction and sigma level into one kernel; 0 = off ["
         << fmt(DepthOptions{}.aggregate) << "]\n"
         << "  --frame-step N, --max-frames N  every N-th frame; at most N frames [1, all]\n"
+        << "  --skip-bad-frames      a frame that cannot be read or fused is skipped with a\n"
+           "                         warning naming it [off: the run stops with its error]\n"
         << "  the voxel defaults to 1.4 x the first frame's median pixel footprint\n"
         << "\n"
         << "eval options:\n"
@@ -775,6 +777,8 @@ int run_fuse(Args& args, double startup_rss_mb) {
             f.depth.aggregate = parse_number(a, args.value(a));
         } else if (a == "--reference-depth") {
             f.depth.reference_depth = parse_number(a, args.value(a));
+        } else if (a == "--skip-bad-frames") {
+            f.skip_bad_frames = true;
         } else if (a == "--frame-step" || a == "--max-frames") {
             const int n = parse_int(a, args.value(a));
             if (n < (a == "--frame-step" ? 1 : 0)) throw UsageError(a + ": " + std::to_string(n) + " is out of range");

@@ -22,6 +22,7 @@
 #include "vdbrecon/scene.h"
 #include "detail/vec3.h"
 #include "vdbrecon/error.h"
+#include "vdbrecon/log.h"
 
 namespace vdbrecon {
 
@@ -773,11 +774,18 @@ FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3
     return out;
 }
 
+/// The warning for a frame --skip-bad-frames skips.
+void skip_frame(const std::string& path, const Error& e) {
+    std::string what = e.what();
+    if (what.compare(0, path.size() + 2, path + ": ") == 0) what = what.substr(path.size() + 2);
+    log_warning(path + ": frame skipped (--skip-bad-frames): " + what);
+}
+
 /// Depth frames [first, last): read (and with the splat rule turned into samples) in parallel, at
 /// most kInFlight at once, and added to the fusion one after another in frame order as they are
 /// ready, while later frames are read (an error is the first bad frame's, whatever the threads).
 void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::size_t first,
-                            std::size_t last, Fusion& fusion, int threads) {
+                            std::size_t last, Fusion& fusion, int threads, bool skip_bad) {
     constexpr std::size_t kInFlight = 8;  // frames in flight: a few MB of samples each
     using Ready = std::pair<std::size_t, FrameSamples>;
     const Vec3d origin = fusion.origin();
@@ -797,7 +805,8 @@ void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::s
                 fusion.integrate_presummed(s.groups, s.count);
             }
         } catch (const Error& e) {
-            detail::rethrow_naming(frames[r.first]->depth_path, e);
+            if (!skip_bad) detail::rethrow_naming(frames[r.first]->depth_path, e);
+            skip_frame(frames[r.first]->depth_path, e);
         }
     };
     detail::in_arena(threads, [&] {
@@ -842,11 +851,14 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
                 continue;
             }
         } catch (const Error& e) {
-            detail::rethrow_naming(f.depth_path, e);
+            if (!fo.skip_bad_frames) detail::rethrow_naming(f.depth_path, e);
+            skip_frame(f.depth_path, e);
+            ++g;
+            continue;
         }
         std::size_t end = g;
         while (end < frames.size() && !frames[end]->organized) ++end;
-        integrate_depth_frames(frames, g, end, *fusion, threads);
+        integrate_depth_frames(frames, g, end, *fusion, threads, fo.skip_bad_frames);
         g = end;
     }
 }

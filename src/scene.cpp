@@ -56,6 +56,16 @@ Intrinsics camera(const Json& obj, const Intrinsics& base, const std::string& pa
     Intrinsics K = base;
     K.width = int(number(obj, "w", K.width, path, where));
     K.height = int(number(obj, "h", K.height, path, where));
+    for (const char* key : {"w", "h", "fl_x", "fl_y", "camera_angle_x", "camera_angle_y"}) {
+        // Given, a size, focal length or field of view must be positive (absent: from the
+        // image or another key).
+        const double v = number(obj, key, NAN, path, where);
+        if (obj.contains(key) && !obj.at(key).is_null() && !(v > 0.0)) {
+            throw FormatError(detail::where(path, where + "'" + key + "' is " +
+                                                      detail::format_number(v) +
+                                                      ", not a positive number"));
+        }
+    }
     const double angle_x = number(obj, "camera_angle_x", NAN, path, where);
     const double angle_y = number(obj, "camera_angle_y", NAN, path, where);
     if (std::isfinite(angle_x) && K.width > 0) K.fx = K.fy = 0.5 * K.width / std::tan(0.5 * angle_x);

@@ -302,6 +302,32 @@ TEST_CASE("fuse: bad frames give one line naming the file, a non-zero exit and n
         check_failed(fuse(), "d_1.exr", "d_1.exr");
         std::rename(dir.file("gone.exr").c_str(), dir.file("d_1.exr").c_str());
     }
+    {  // a truncated frame in the middle stops the run naming it; --skip-bad-frames goes on
+       // with one warning naming it (the other frames fuse as before)
+        const std::string bytes = read_bytes(dir.file("d_2.exr"));
+        write_bytes(dir.file("d_2.exr"), bytes.substr(0, bytes.size() / 2));
+        check_failed(fuse(), "d_2.exr", "d_2.exr");
+        const CliRun skipped = run_cli("fuse '" + json + "' -o '" + mesh +
+                                       "' --voxel 0.05 --skip-bad-frames");
+        INFO(skipped.err);
+        CHECK(skipped.code == 0);
+        CHECK(file_exists(mesh));
+        const std::string warning = "d_2.exr: frame skipped (--skip-bad-frames)";
+        CHECK(skipped.err.find(warning) != std::string::npos);
+        CHECK(skipped.err.find(warning) == skipped.err.rfind(warning));  // once
+        for (const std::string f : {mesh, out.file("m.splat.vdb")}) std::remove(f.c_str());
+        write_bytes(dir.file("d_2.exr"), bytes);
+    }
+    for (const char* bad : {"\"w\": 0", "\"h\": -48", "\"fl_x\": 0"}) {  // invalid metadata
+        std::string s = good;
+        const std::string key = std::string(bad).substr(0, std::string(bad).find(':') + 1);
+        const std::size_t at = s.find(key);
+        REQUIRE(at != std::string::npos);
+        s.replace(at, s.find_first_of(",}\n", at) - at, bad);
+        write_bytes(json, s);
+        check_failed(fuse(), "transforms.json", "not a positive number");
+    }
+    write_bytes(json, good);
     auto with_matrix = [&](const std::string& row) {  // frame 0's first row replaced
         std::string s = good;
         const std::size_t a = s.find("\"transform_matrix\": [[") + 22;

@@ -93,6 +93,9 @@ struct FuseOptions {
     std::size_t frame_step = 1;
     /// At most this many frames (0 = all).
     std::size_t max_frames = 0;
+    /// A frame that cannot be read or fused (a corrupt or missing file, another size) is
+    /// skipped with one warning naming it, instead of stopping the run with that error.
+    bool skip_bad_frames = false;
 };
 
 /// Reads a scene, fuses its frames one at a time (the pipeline's splat options; voxel 0 =

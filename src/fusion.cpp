@@ -745,6 +745,19 @@ class FusionStart {
     std::unique_ptr<Fusion> fusion_;
 };
 
+/// A scene frame's depth image, its layout's "no measurement" value cleared.
+DepthImage frame_depth(const SceneFrame& f) {
+    DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
+    if (f.invalid_value > 0) {
+        // Stored values convert to depth / units exactly enough to tell the largest apart.
+        const float none = float((double(f.invalid_value) - 0.5) / f.units_per_metre);
+        for (float& d : img.depth) {
+            if (d >= none) d = 0.0f;
+        }
+    }
+    return img;
+}
+
 /// One depth frame read and, with the splat rule, turned into samples and presummed (or its
 /// error). The tsdf rule integrates the image itself.
 struct FrameSamples {
@@ -758,7 +771,7 @@ struct FrameSamples {
 FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3d& origin) {
     FrameSamples out;
     try {
-        DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
+        DepthImage img = frame_depth(f);
         const Intrinsics K = frame_intrinsics(f, img);  // checked with the frame
         if (fusion.tsdf()) {
             out.image = std::move(img);
@@ -841,7 +854,7 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
                 fusion.get(PointCloud{}, f.depth_path, Vec3d{f.pose[3], f.pose[7], f.pose[11]});
             }
             if (!fusion.started()) {  // the first frame: its samples choose the voxel
-                const DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
+                const DepthImage img = frame_depth(f);
                 const Intrinsics K = frame_intrinsics(f, img);
                 fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
                            Vec3d{f.pose[3], f.pose[7], f.pose[11]});

@@ -9,6 +9,7 @@
 
 #include "detail/io_common.h"
 #include "detail/io_pcd.h"
+#include "detail/scene_layouts.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/scene.h"
@@ -362,7 +363,17 @@ Scene read_scene(const std::string& path, const SceneOptions& options) {
     }
     if (is_dir(path)) {
         if (is_file(path + "/transforms.json")) return read_transforms(path + "/transforms.json", options);
-        return read_tum(path + "/depth.txt", options);
+        if (is_file(path + "/depth.txt")) return read_tum(path + "/depth.txt", options);
+        std::string log;
+        const std::string layout = detail::detect_layout(path, log);
+        if (layout == "7scenes") return detail::read_7scenes(path, options);
+        if (layout == "redwood") return detail::read_redwood(path, log, options);
+        if (layout == "scannet") return detail::read_scannet(path, options);
+        if (layout == "replica") return detail::read_replica(path, options);
+        throw FormatError(detail::where(
+            path, "not a scene folder: looked for transforms.json, depth.txt (TUM), "
+                  "frame-NNNNNN.depth.png (7-Scenes/3DMatch), a .log and depth/ (Redwood/Open3D), "
+                  "pose/ depth/ intrinsic/ (ScanNet), traj.txt and results/ (Replica)"));
     }
     const std::string ext = file_extension(path);
     if (ext == "json") return read_transforms(path, options);

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <iomanip>
 #include <random>
 #include <sstream>
 
@@ -171,6 +172,93 @@ std::string write_tum_scene(const std::string& dir, const std::vector<DepthImage
     }
     std::ofstream(dir + "/depth.txt") << list.str();
     std::ofstream(dir + "/groundtruth.txt") << gt.str();
+    return dir;
+}
+
+}  // namespace vdbrecon::test
+
+namespace vdbrecon::test {
+
+namespace {
+
+/// A 4x4 row-major matrix as four text lines.
+std::string matrix_text(const Pose& m) {
+    std::ostringstream s;
+    s.precision(17);
+    for (int r = 0; r < 4; ++r) {
+        for (int c = 0; c < 4; ++c) s << (c ? " " : "") << m[std::size_t(r * 4 + c)];
+        s << "\n";
+    }
+    return s.str();
+}
+
+/// The depth in millimetres as a dataset stores it, holes (0) kept, `none` where nothing was
+/// seen (7-Scenes writes 65535 there).
+DepthImage with_none(DepthImage d, float none_metres) {
+    for (float& v : d.depth) {
+        if (!(v > 0.0f)) v = none_metres;
+    }
+    return d;
+}
+
+std::string frame_number(std::size_t i, int width) {
+    std::ostringstream s;
+    s << std::setw(width) << std::setfill('0') << i;
+    return s.str();
+}
+
+}  // namespace
+
+std::string write_layout_scene(const std::string& layout, const std::string& dir,
+                               const std::vector<DepthImage>& depths, const Intrinsics& K,
+                               const std::vector<Pose>& poses) {
+    std::ostringstream k;
+    k.precision(17);
+    if (layout == "7scenes") {
+        k << K.fx << " 0 " << K.cx << "\n0 " << K.fy << " " << K.cy << "\n0 0 1\n";
+        std::ofstream(dir + "/camera-intrinsics.txt") << k.str();
+        for (std::size_t i = 0; i < depths.size(); ++i) {
+            const std::string stem = dir + "/frame-" + frame_number(i, 6);
+            write_depth_image(stem + ".depth.png", with_none(depths[i], 65.535f), 1000.0);
+            std::ofstream(stem + ".pose.txt") << matrix_text(poses[i]);
+        }
+    } else if (layout == "redwood") {
+        ::mkdir((dir + "/depth").c_str(), 0755);
+        k << "{\"width\": " << K.width << ", \"height\": " << K.height
+          << ", \"intrinsic_matrix\": [" << K.fx << ", 0, 0, 0, " << K.fy << ", 0, " << K.cx << ", "
+          << K.cy << ", 1]}\n";
+        std::ofstream(dir + "/camera_intrinsic.json") << k.str();
+        std::ostringstream log;
+        for (std::size_t i = 0; i < depths.size(); ++i) {
+            write_depth_image(dir + "/depth/" + frame_number(i, 6) + ".png", depths[i], 1000.0);
+            log << i << " " << i << " " << i + 1 << "\n" << matrix_text(poses[i]);
+        }
+        std::ofstream(dir + "/trajectory.log") << log.str();
+    } else if (layout == "scannet") {
+        for (const char* sub : {"/depth", "/pose", "/intrinsic", "/color"}) {
+            ::mkdir((dir + sub).c_str(), 0755);
+        }
+        k << K.fx << " 0 " << K.cx << " 0\n0 " << K.fy << " " << K.cy << " 0\n0 0 1 0\n0 0 0 1\n";
+        std::ofstream(dir + "/intrinsic/intrinsic_depth.txt") << k.str();
+        for (std::size_t i = 0; i < depths.size(); ++i) {
+            write_depth_image(dir + "/depth/" + std::to_string(i) + ".png", depths[i], 1000.0);
+            std::ofstream(dir + "/pose/" + std::to_string(i) + ".txt") << matrix_text(poses[i]);
+        }
+    } else if (layout == "replica") {
+        ::mkdir((dir + "/results").c_str(), 0755);
+        k << "{\"camera\": {\"w\": " << K.width << ", \"h\": " << K.height << ", \"fx\": " << K.fx
+          << ", \"fy\": " << K.fy << ", \"cx\": " << K.cx << ", \"cy\": " << K.cy
+          << ", \"scale\": 6553.5}}\n";
+        std::ofstream(dir + "/cam_params.json") << k.str();
+        std::ostringstream traj;
+        traj.precision(17);
+        for (std::size_t i = 0; i < depths.size(); ++i) {
+            write_depth_image(dir + "/results/depth" + frame_number(i, 6) + ".png", depths[i], 6553.5);
+            for (std::size_t j = 0; j < 16; ++j) traj << (j ? " " : "") << poses[i][j];
+            traj << "\n";
+        }
+        std::ofstream(dir + "/traj.txt") << traj.str();
+    }
     return dir;
 }
 

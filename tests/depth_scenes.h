@@ -36,4 +36,13 @@ std::string write_transforms_scene(const std::string& dir, const std::vector<Dep
 std::string write_tum_scene(const std::string& dir, const std::vector<DepthImage>& depths,
                             const std::vector<Pose>& poses);
 
+/// Writes the frames in a dataset layout: "7scenes" (frame-NNNNNN.depth.png in mm with 65535
+/// where nothing was seen, .pose.txt, camera-intrinsics.txt), "redwood" (depth/*.png,
+/// trajectory.log, camera_intrinsic.json), "scannet" (depth/N.png, pose/N.txt,
+/// intrinsic/intrinsic_depth.txt) or "replica" (results/depthNNNNNN.png at 6553.5 units a
+/// metre, traj.txt, cam_params.json); returns the folder.
+std::string write_layout_scene(const std::string& layout, const std::string& dir,
+                               const std::vector<DepthImage>& depths, const Intrinsics& K,
+                               const std::vector<Pose>& poses);
+
 }  // namespace vdbrecon::test

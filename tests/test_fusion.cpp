@@ -251,6 +251,90 @@ TEST_CASE("vdbrecon fuse reads transforms.json (EXR and PNG) and TUM folders ali
     }
 }
 
+TEST_CASE("vdbrecon fuse detects the RGB-D dataset layouts of a folder", "[fusion][cli][layouts]") {
+    const Shape shape = make_shape("boss");
+    const double voxel = bounding_box(shape.mesh.vertices).diagonal() / 60.0;
+    const Views v = views_of(shape.mesh, 20, 200, 150);
+    const struct {
+        const char* layout;
+        const char* logged;
+    } cases[] = {{"7scenes", "7-Scenes/3DMatch"}, {"redwood", "Redwood/Open3D"},
+                 {"scannet", "ScanNet"}, {"replica", "Replica"}};
+    for (const auto& c : cases) {
+        TempDir dir, out;
+        write_layout_scene(c.layout, dir.path(), v.depths, v.K, v.poses);
+        std::ostringstream args;
+        args.precision(17);
+        args << "fuse '" << dir.path() << "' -o '" << out.file("m.ply") << "' --voxel " << voxel;
+        const CliRun r = run_cli(args.str());
+        INFO(c.layout << ": " << r.err);
+        REQUIRE(r.code == 0);
+        CHECK(r.err.find(std::string("(") + c.logged + ")") != std::string::npos);
+        const EvalResult e = compare(read_mesh(out.file("m.ply")), shape.mesh, voxel);
+        INFO("F@voxel " << e.fscores[0].fscore);
+        CHECK(e.fscores[0].fscore >= 0.99);
+        CHECK(e.recon.components == 1);
+        CHECK(e.recon.watertight());
+    }
+}
+
+TEST_CASE("fuse: broken dataset layouts give one line naming the file", "[fusion][cli][layouts][bad]") {
+    const Shape shape = make_shape("sphere");
+    const Views v = views_of(shape.mesh, 4, 64, 48);
+    TempDir out;
+    auto fuse = [&](const std::string& dir, const std::string& extra = "") {
+        return run_cli("fuse '" + dir + "' -o '" + out.file("m.ply") + "' --voxel 0.05 -q " + extra);
+    };
+    auto check_failed = [&](const CliRun& r, const std::string& names) {
+        INFO(r.err);
+        CHECK(r.code != 0);
+        CHECK(r.err.find(names) != std::string::npos);
+        CHECK(std::count(r.err.begin(), r.err.end(), '\n') == 1);
+        CHECK(!file_exists(out.file("m.ply")));
+    };
+    {  // a folder of none of them: the error lists what was looked for
+        TempDir empty;
+        const CliRun r = fuse(empty.path());
+        check_failed(r, "not a scene folder");
+        CHECK(r.err.find("7-Scenes") != std::string::npos);
+        CHECK(r.err.find("ScanNet") != std::string::npos);
+    }
+    {  // 7-Scenes: a missing pose
+        TempDir d;
+        write_layout_scene("7scenes", d.path(), v.depths, v.K, v.poses);
+        std::remove(d.file("frame-000002.pose.txt").c_str());
+        check_failed(fuse(d.path()), "frame-000002.pose.txt");
+    }
+    {  // ScanNet: unreadable intrinsics; a lost pose (-inf) is skipped with a warning
+        TempDir d;
+        write_layout_scene("scannet", d.path(), v.depths, v.K, v.poses);
+        const std::string good = read_bytes(d.file("intrinsic/intrinsic_depth.txt"));
+        write_bytes(d.file("intrinsic/intrinsic_depth.txt"), "fx fy\n");
+        check_failed(fuse(d.path()), "intrinsic_depth.txt");
+        write_bytes(d.file("intrinsic/intrinsic_depth.txt"), good);
+        write_bytes(d.file("pose/1.txt"), "-inf -inf -inf -inf\n-inf -inf -inf -inf\n"
+                                          "-inf -inf -inf -inf\n-inf -inf -inf -inf\n");
+        const CliRun r = run_cli("fuse '" + d.path() + "' -o '" + out.file("m.ply") + "' --voxel 0.05");
+        INFO(r.err);
+        CHECK(r.code == 0);
+        CHECK(r.err.find("1.txt: the pose is marked lost") != std::string::npos);
+        for (const std::string f : {out.file("m.ply"), out.file("m.splat.vdb")}) std::remove(f.c_str());
+    }
+    {  // Redwood: a truncated trajectory
+        TempDir d;
+        write_layout_scene("redwood", d.path(), v.depths, v.K, v.poses);
+        const std::string log = read_bytes(d.file("trajectory.log"));
+        write_bytes(d.file("trajectory.log"), log.substr(0, log.size() / 2));
+        check_failed(fuse(d.path()), "trajectory.log");
+    }
+    {  // Replica: no cam_params.json and no --intrinsics
+        TempDir d;
+        write_layout_scene("replica", d.path(), v.depths, v.K, v.poses);
+        std::remove(d.file("cam_params.json").c_str());
+        check_failed(fuse(d.path()), "cam_params.json");
+    }
+}
+
 TEST_CASE("the bunny's reference mesh seen from 24 poses fuses back onto itself", "[fusion][data]") {
     const std::string gt = shared_data("stanford_bunny/bun_zipper_gt.ply");
     if (gt.empty()) return;

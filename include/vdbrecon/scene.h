@@ -48,6 +48,8 @@ struct SceneFrame {
     Intrinsics intrinsics;  ///< width/height 0: taken from the image (cx, cy then its centre)
     Pose pose{};            ///< camera to world, OpenCV axes
     double units_per_metre = 1000.0;  ///< for PNG depth
+    /// A stored PNG value that means "no measurement" besides 0 (7-Scenes' 65535); 0 = none.
+    int invalid_value = 0;
 };
 
 struct SceneOptions {
@@ -59,7 +61,9 @@ struct SceneOptions {
 };
 
 struct Scene {
-    std::string kind;  ///< "transforms.json" or "tum"
+    /// The layout: "transforms.json", "tum", "7-Scenes/3DMatch", "Redwood/Open3D", "ScanNet",
+    /// "Replica", "organized pcd"
+    std::string kind;
     std::vector<SceneFrame> frames;
 };
 
@@ -105,8 +109,11 @@ struct FuseOptions {
 RunResult fuse(const std::string& scene, const std::string& output, const PipelineOptions& options,
                const FuseOptions& fuse_options = {}, const StageCallback& on_stage = {});
 
-/// Reads a scene: a transforms.json file, or a TUM RGB-D folder (or its depth.txt). The depth
-/// files are not opened. Throws IoError / FormatError / InvalidArgument naming the file.
+/// Reads a scene: a transforms.json file, or a folder of one of the layouts, detected by the
+/// files present: transforms.json, TUM RGB-D (depth.txt), 7-Scenes / 3DMatch, Redwood /
+/// Open3D, ScanNet, Replica / NICE-SLAM (see src/detail/scene_layouts.h); a folder that is none
+/// of them is an error listing what was looked for. The depth files are not opened. Throws
+/// IoError / FormatError / InvalidArgument naming the file.
 Scene read_scene(const std::string& path, const SceneOptions& options = {});
 
 }  // namespace vdbrecon

@@ -118,25 +118,61 @@ std::string orientation_text(const NormalResult& n) {
     return s.str();
 }
 
-void print_help() {
-    const PipelineOptions d;
-    const EvalOptions e;
+/// The usage lines and the input formats.
+void help_usage() {
     std::cout
         << "vdbrecon " << version() << " - surface reconstruction from point clouds on OpenVDB\n"
         << "\n"
-        << "usage: vdbrecon INPUT [options]\n"
-        << "       vdbrecon fuse SCENE [fuse options] [reconstruction options]\n"
-        << "       vdbrecon eval RECON REF [--tau T[,T...]] [--samples N]\n"
-        << "                     [--mask-points FILE --mask-distance D]\n"
-        << "                     [--ignore-reference-holes]\n"
+        << "Usage: vdbrecon INPUT [options]\n"
+        << "  or:  vdbrecon fuse SCENE [fuse options] [reconstruction options]\n"
+        << "  or:  vdbrecon eval RECON REF [eval options]\n"
         << "\n"
         << "INPUT: .ply (ascii/binary), .xyz/.pts/.txt (x y z [nx ny nz]), .obj (v/vn),\n"
-        << "       .las (LAS 1.0-1.4, point formats 0-10; LAZ: decompress it first)\n"
-        << "\n"
-        << "reconstruction options:\n"
-        << "  -o, --output PATH      mesh to write, .ply or .obj [<input stem>.recon.ply]\n"
-        << "                         the volume goes to <output stem>.splat.vdb (and the\n"
-        << "                         closed one to <output stem>.closed.vdb)\n"
+        << "       .las (LAS 1.0-1.4, point formats 0-10; LAZ: decompress it first)\n";
+}
+
+/// The reconstruction options of the stage group "input", with their defaults.
+void help_input() {
+    std::cout << "\ninput options:\n"
+        << "  --classes C,C,...      LAS input: keep the points of these classes (e.g. 2,6:\n"
+        << "                         ground, buildings) [all]\n";
+}
+
+/// The reconstruction options of the stage group "points and normals", with their defaults.
+void help_points() {
+    const PipelineOptions d;
+    std::cout << "\npoints and normals options:\n"
+        << "  --outliers, --no-outliers\n"
+        << "                         remove stray points before splatting (statistical and\n"
+        << "                         planarity rules, k=" << d.outliers.k << ") ["
+        << (d.outliers.enabled ? "on" : "off") << "]\n"
+        << "  --normals MODE         " << choice_list(normal_mode_choices(), "|") << " ["
+        << choice_name(normal_mode_choices(), d.normals.mode) << "]\n"
+        << "  --k K                  neighbours for normals and spacing [" << d.normals.k << "]\n"
+        << "  --scale MODE           per-point scale: " << choice_list(scale_mode_choices(), "|") << " ["
+        << choice_name(scale_mode_choices(), d.normals.scale) << "]\n"
+        << "  --knn NAME             neighbour search: " << choice_list(knn_backend_choices(), "|")
+        << " (FLANN's kd-tree) ["
+        << choice_name(knn_backend_choices(), d.normals.knn.backend) << "]\n"
+        << "  --knn-eps E            flann: eps-approximate search (no neighbour farther than\n"
+        << "                         sqrt(1+E) x the true k-th; huge clouds); 0 = exact ["
+        << fmt(d.normals.knn.eps) << "]\n"
+        << "  --viewpoint x,y,z      sensor position; estimated normals face it [none]\n"
+        << "  --up x,y,z             direction estimated normals face (airborne: 0,0,1); like\n"
+           "                         --viewpoint, lets --tile stream a cloud without\n"
+           "                         normals [none; LAS files: 0,0,1]\n"
+        << "  --orient RULE          " << choice_list(orient_rule_choices(), "|")
+        << ", without --viewpoint/--up: auto faces a height\n"
+           "                         field up, a depth camera's frame its origin, anything else\n"
+           "                         by MST (closed objects out, open sheets up); mst: the MST\n"
+           "                         always ["
+        << choice_name(orient_rule_choices(), d.normals.orient) << "]\n";
+}
+
+/// The reconstruction options of the stage group "splat", with their defaults.
+void help_splat() {
+    const PipelineOptions d;
+    std::cout << "\nsplat options:\n"
         << "  --voxel V              voxel edge, world units [auto: " << fmt(d.auto_voxel_factor)
         << " x median point spacing]\n"
         << "  --sigma S              kernel width, sigma = S x per-point scale ["
@@ -153,46 +189,52 @@ void print_help() {
         << fmt(d.splat.min_weight) << "]\n"
         << "  --crease-angle A       sample normals this far apart (degrees) meet at a sharp\n"
         << "                         crease: each face's own field, no blend [" << fmt(d.splat.crease_angle)
-        << "; 0: off]\n"
+        << "; 0: off]\n";
+}
+
+/// The reconstruction options of the stage group "close", with their defaults.
+void help_close() {
+    const PipelineOptions d;
+    std::cout << "\nclose options:\n"
+        << "  --close R              close holes up to ~2R voxels across (dilate, fill, erode);\n"
+        << "                         open borders stay [" << d.close.hole_radius << ": off]\n"
+        << "  --close-solid R        close concavities narrower than ~2R voxels of a\n"
+        << "                         watertight surface [" << d.close.solid_radius << ": off]\n";
+}
+
+/// The reconstruction options of the stage group "mesh", with their defaults.
+void help_mesh() {
+    const PipelineOptions d;
+    std::cout << "\nmesh options:\n"
+        << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
+        << choice_name(mesher_choices(), d.mesh.method) << "]\n"
+        << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
+        << "]\n"
         << "  --surface-weight W     faces whose summed weight is below W times the weight at\n"
         << "                         their nearest point, reached from an open border, are\n"
         << "                         trimmed (ghost sheets past a scan's edge; 0 = off) ["
         << fmt(d.mesh.min_surface_weight) << "]\n"
         << "  --max-gap G            faces farther than G voxels (and 2.5 point spacings) from\n"
         << "                         every point are trimmed [" << fmt(d.mesh.max_gap) << "]\n"
-        << "  --normals MODE         " << choice_list(normal_mode_choices(), "|") << " ["
-        << choice_name(normal_mode_choices(), d.normals.mode) << "]\n"
-        << "  --k K                  neighbours for normals and spacing [" << d.normals.k << "]\n"
-        << "  --scale MODE           per-point scale: " << choice_list(scale_mode_choices(), "|") << " ["
-        << choice_name(scale_mode_choices(), d.normals.scale) << "]\n"
-        << "  --knn NAME             neighbour search: " << choice_list(knn_backend_choices(), "|")
-        << " (FLANN's kd-tree) ["
-        << choice_name(knn_backend_choices(), d.normals.knn.backend) << "]\n"
-        << "  --knn-eps E            flann: eps-approximate search (no neighbour farther than\n"
-        << "                         sqrt(1+E) x the true k-th; huge clouds); 0 = exact ["
-        << fmt(d.normals.knn.eps) << "]\n"
-        << "  --classes C,C,...      LAS input: keep the points of these classes (e.g. 2,6:\n"
-        << "                         ground, buildings) [all]\n"
-        << "  --viewpoint x,y,z      sensor position; estimated normals face it [none]\n"
-        << "  --up x,y,z             direction estimated normals face (airborne: 0,0,1); like\n"
-           "                         --viewpoint, lets --tile stream a cloud without\n"
-           "                         normals [none; LAS files: 0,0,1]\n"
-        << "  --orient RULE          " << choice_list(orient_rule_choices(), "|")
-        << ", without --viewpoint/--up: auto faces a height\n"
-           "                         field up, a depth camera's frame its origin, anything else\n"
-           "                         by MST (closed objects out, open sheets up); mst: the MST\n"
-           "                         always ["
-        << choice_name(orient_rule_choices(), d.normals.orient) << "]\n"
-        << "  --outliers, --no-outliers\n"
-        << "                         remove stray points before splatting (statistical and\n"
-        << "                         planarity rules, k=" << d.outliers.k << ") ["
-        << (d.outliers.enabled ? "on" : "off") << "]\n"
-        << "  --close R              close holes up to ~2R voxels across (dilate, fill, erode);\n"
-        << "                         open borders stay [" << d.close.hole_radius << ": off]\n"
-        << "  --close-solid R        close concavities narrower than ~2R voxels of a\n"
-        << "                         watertight surface [" << d.close.solid_radius << ": off]\n"
+        << "  --min-samples N        drop pieces backed by fewer than N samples (their area in\n"
+           "                         sample spacings^2, times their weight where below the\n"
+           "                         typical), 0 = keep all [" << fmt(d.clean.min_component_samples)
+        << "]\n"
+        << "  --min-component R      also drop pieces with fewer faces than R x the largest's\n"
+           "                         (for one object; 1 = the largest only) ["
+        << fmt(d.clean.min_component_ratio) << "]\n"
+        << "  --smooth N             Taubin lambda|mu smoothing iterations ["
+        << d.clean.smooth_iterations << "]\n";
+}
+
+/// The reconstruction options of the stage group "refine", with their defaults.
+void help_refine() {
+    const PipelineOptions d;
+    std::cout << "\nrefine options:\n"
         << "  --fill-holes N         fill the mesh's boundary loops of at most N edges with a\n"
         << "                         fair patch (Liepa 2003) [" << d.fill_holes << ": off]\n"
+        << "  --watertight           a closed, manifold, one-piece mesh: keep the largest piece,\n"
+        << "                         fill every hole; its volume goes to <out>.closed.vdb [off]\n"
         << "  --decimate R           keep at most R of the faces (QEM edge collapses, Garland &\n"
         << "                         Heckbert 1997; topology, borders and colours kept) [1: off]\n"
         << "  --max-error E          stop decimating before a collapse moves the surface more\n"
@@ -212,29 +254,17 @@ void print_help() {
         << fmt(d.planes.max_error) << "]\n"
         << "  --texture              textures for the planar regions from the points' colours\n"
         << "                         (turns --planes on): OUT.obj + OUT.mtl + OUT.texture.png [off]\n"
-        << "  --texel T              texture texel edge, world units [half a voxel]\n"
-        << "  --watertight           a closed, manifold, one-piece mesh: keep the largest piece,\n"
-        << "                         fill every hole; its volume goes to <out>.closed.vdb [off]\n"
-        << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
-        << choice_name(mesher_choices(), d.mesh.method) << "]\n"
-        << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
-        << "]\n"
-        << "  --min-samples N        drop pieces backed by fewer than N samples (their area in\n"
-           "                         sample spacings^2, times their weight where below the\n"
-           "                         typical), 0 = keep all [" << fmt(d.clean.min_component_samples)
-        << "]\n"
-        << "  --min-component R      also drop pieces with fewer faces than R x the largest's\n"
-           "                         (for one object; 1 = the largest only) ["
-        << fmt(d.clean.min_component_ratio) << "]\n"
-        << "  --smooth N             Taubin lambda|mu smoothing iterations ["
-        << d.clean.smooth_iterations << "]\n"
-        << "  --ascii                write ascii PLY [binary little endian]\n"
-        << "  --threads N            worker threads, 0 = all cores [" << d.threads << "]\n"
+        << "  --texel T              texture texel edge, world units [half a voxel]\n";
+}
+
+/// The reconstruction options of the stage group "tiles and memory", with their defaults.
+void help_tiles() {
+    const PipelineOptions d;
+    std::cout << "\ntiles and memory options:\n"
         << "  --max-memory SIZE      memory budget, e.g. 8G, 500M: a run that would need more\n"
            "                         tiles itself (--tile 0: refuses it)\n"
         << "                         [half the physical memory: " << fmt_bytes(memory_budget(d.splat))
         << "]\n"
-        << "  --no-vdb               do not write the .vdb volume\n"
         << "  --tile N|auto          splat, close and mesh tiles of N^3 voxels one at a time\n"
         << "                         (each with a halo of samples): less memory, the same mesh;\n"
         << "                         auto: the largest that fits --max-memory; no .vdb is\n"
@@ -248,15 +278,45 @@ void print_help() {
         << "                         auto: when the points would take over half of\n"
         << "                         --max-memory ["
         << choice_name(stream_mode_choices(), d.stream) << "]\n"
+        << "  --threads N            worker threads, 0 = all cores [" << d.threads << "]\n";
+}
+
+/// The reconstruction options of the stage group "output", with their defaults.
+void help_output() {
+    std::cout << "\noutput options:\n"
+        << "  -o, --output PATH      mesh to write, .ply or .obj [<input stem>.recon.ply]\n"
+        << "                         the volume goes to <output stem>.splat.vdb (and the\n"
+        << "                         closed one to <output stem>.closed.vdb)\n"
+        << "  --ascii                write ascii PLY [binary little endian]\n"
+        << "  --no-vdb               do not write the .vdb volume\n"
         << "  --preview PATH         write a shaded picture of the mesh: .png, or .exr with a\n"
         << "                         depth channel Z [none]\n"
         << "  -q, --quiet            no progress or timings on stderr\n"
-        << "  --help, --version\n"
+        << "  --help, --version\n";
+}
+
+/// Every reconstruction option, grouped by stage.
+void help_reconstruction() {
+    help_input();
+    help_points();
+    help_splat();
+    help_close();
+    help_mesh();
+    help_refine();
+    help_tiles();
+    help_output();
+}
+
+/// fuse's own options.
+void help_fuse() {
+    std::cout
         << "\n"
-        << "fuse: SCENE is a transforms.json (NeRF/Blender: depth_file_path or file_path +\n"
-        << "      _depth.exr/.png, transform_matrix in OpenGL axes) or a TUM RGB-D folder\n"
-        << "      (depth.txt + groundtruth.txt); depth images .exr (channel Z, depth, R, Y or\n"
-        << "      a layer's .Z) or 16-bit .png. Every reconstruction option applies.\n"
+        << "fuse options: SCENE is a transforms.json (NeRF/Blender: depth_file_path or\n"
+        << "      file_path + _depth.exr/.png, transform_matrix in OpenGL axes), a folder of a\n"
+        << "      dataset layout (TUM RGB-D, 7-Scenes/3DMatch, Redwood/Open3D, ScanNet,\n"
+        << "      Replica/NICE-SLAM; detected from its files), an organized .pcd, or a point\n"
+        << "      file of scans; depth images .exr (channel Z, depth, R, Y or a layer's .Z) or\n"
+        << "      16-bit .png. Every reconstruction option applies.\n"
         << "  --scan-origins FILE    SCENE is a point file of scans (PLY 'scan' property): their\n"
         << "                         sensors, 'x y z' per scan or a Stanford .conf (directions)\n"
         << "  --depth-scale S        PNG depth units per metre [transforms.json: 1/depth_scale,\n"
@@ -279,7 +339,13 @@ void print_help() {
         << "  --frame-step N, --max-frames N  every N-th frame; at most N frames [1, all]\n"
         << "  --skip-bad-frames      a frame that cannot be read or fused is skipped with a\n"
            "                         warning naming it [off: the run stops with its error]\n"
-        << "  the voxel defaults to 1.4 x the first frame's median pixel footprint\n"
+        << "  the voxel defaults to 1.4 x the first frame's median pixel footprint\n";
+}
+
+/// eval's options and the exit codes.
+void help_eval() {
+    const EvalOptions e;
+    std::cout
         << "\n"
         << "eval options:\n"
         << "  --tau T[,T...]         F-score thresholds, world units [0.2% of REF's diagonal]\n"
@@ -294,6 +360,22 @@ void print_help() {
         << "                         accuracy and precision [off]\n"
         << "\n"
         << "exit codes: 0 ok, 2 usage/invalid argument, 3 I/O or file format, 4 other error\n";
+}
+
+/// `vdbrecon --help`: the usage, the reconstruction options by stage, fuse's, eval's.
+void print_help() {
+    help_usage();
+    help_reconstruction();
+    help_fuse();
+    help_eval();
+}
+
+/// `vdbrecon fuse --help`: fuse's own options first, then the reconstruction options.
+void print_fuse_help() {
+    help_usage();
+    help_fuse();
+    help_reconstruction();
+    help_eval();
 }
 
 double parse_number(const std::string& opt, const std::string& s) {
@@ -820,7 +902,11 @@ int main(int argc, char** argv) {
         }
         for (const std::string& a : args.argv) {
             if (a == "--help" || a == "-h") {
-                print_help();
+                if (args.argv[0] == "fuse") {
+                    print_fuse_help();
+                } else {
+                    print_help();
+                }
                 return kExitOk;
             }
             if (a == "--version") {

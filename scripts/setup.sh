@@ -6,6 +6,7 @@ cd "$(dirname "$0")/.."
 
 PACKAGES=(
   cmake g++ make ccache
+  help2man                                # the man page, from --help
   libopenvdb-dev libboost-iostreams-dev   # OpenVDB 10; FindOpenVDB needs boost_iostreams
   libtbb-dev libeigen3-dev
   libopenexr-dev zlib1g-dev               # --preview pictures: .exr (with depth), .png

@@ -24,6 +24,38 @@ TEST_CASE("cli: help lists the defaults, version prints", "[cli]") {
     REQUIRE_THAT(r.out, Catch::StartsWith("vdbrecon "));
 }
 
+TEST_CASE("cli: help groups the options by stage; fuse --help shows fuse's first", "[cli]") {
+    const CliRun r = run_cli("--help");
+    REQUIRE(r.code == 0);
+    // The groups in pipeline order, each option under its own.
+    const char* groups[] = {"input options:", "points and normals options:", "splat options:",
+                            "close options:", "mesh options:", "refine options:",
+                            "tiles and memory options:", "output options:", "fuse options:",
+                            "eval options:"};
+    std::size_t at = 0;
+    for (const char* g : groups) {
+        INFO(g);
+        const std::size_t next = r.out.find(std::string("\n") + g, at);
+        REQUIRE(next != std::string::npos);
+        at = next + 1;
+    }
+    auto group_of = [&](const std::string& out, const std::string& option) {
+        const std::size_t o = out.find("  " + option + " ");
+        REQUIRE(o != std::string::npos);
+        const std::size_t head = out.rfind(" options:", o);
+        return out.substr(out.rfind('\n', head) + 1, head - out.rfind('\n', head) - 1);
+    };
+    CHECK(group_of(r.out, "--orient") == "points and normals");
+    CHECK(group_of(r.out, "--crease-angle") == "splat");
+    CHECK(group_of(r.out, "--min-samples") == "mesh");
+    CHECK(group_of(r.out, "--decimate") == "refine");
+    CHECK(group_of(r.out, "--tile") == "tiles and memory");
+    const CliRun f = run_cli("fuse --help");
+    REQUIRE(f.code == 0);
+    CHECK(f.out.find("fuse options:") < f.out.find("splat options:"));
+    CHECK(f.out.find("--skip-bad-frames") < f.out.find("--voxel"));
+}
+
 TEST_CASE("cli: reconstructs, writes mesh and volume, says where", "[cli]") {
     TempDir dir;
     write_points(dir.file("s.ply"), sample_sphere(20000, 1.0));

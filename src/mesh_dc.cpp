@@ -1024,15 +1024,11 @@ float onto_level_set(const SurfaceCell& cell, const openvdb::Vec3f& n, FloatAcce
 
 }  // namespace
 
-RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
-    const openvdb::FloatTree& tree = volume.sdf->tree();
-    const float iso = float(options.isovalue);
-    Crossings crossings = find_crossings(tree, iso, false);
-
-    // Hermite data at the crossings, leaf by leaf (a crossing's stencils stay in its leaf's block).
+/// Hermite data at the crossings, leaf by leaf (a crossing's stencils stay in its leaf's block).
+FillLater<HermiteSample> hermite_data(
+    const openvdb::FloatTree& tree, const Crossings& crossings,
+    const std::vector<const openvdb::FloatTree::LeafNodeType*>& leaves, float iso) {
     FillLater<HermiteSample> data(crossings.size());
-    std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
-    tree.getNodes(leaves);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           FloatAccessor acc(tree);
@@ -1083,6 +1079,109 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                               }
                           }
                       });
+    return data;
+}
+
+/// A vertex slot of a crossing's cell that has no vertex (mesh_dc's `around`).
+constexpr std::uint64_t kNone = ~std::uint64_t(0);
+
+/// The triangles: one quad per crossing whose four cells all have a vertex (`around`, as (leaf,
+/// index) ids numbered from base), split along the diagonal that follows a sharp edge; counted
+/// per leaf first, so each leaf writes its triangles straight into place.
+void emit_quads(RawSurface& raw, const Crossings& crossings,
+                const FillLater<std::array<std::uint64_t, 4>>& around,
+                const std::vector<std::size_t>& base, const FillLater<float>& level) {
+    const std::size_t leaf_count =
+        crossings.leaf_begin.empty() ? 0 : crossings.leaf_begin.size() - 1;
+    const std::vector<openvdb::Vec3f>& patch_normal = raw.normals;
+    const auto has_quad = [&](std::size_t c) {
+        const auto& q = around[c];
+        return q[0] != kNone && q[1] != kNone && q[2] != kNone && q[3] != kNone;
+    };
+    std::vector<std::size_t> first(leaf_count + 1, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaf_count, 64),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                              std::size_t n = 0;
+                              for (std::size_t c = crossings.leaf_begin[L];
+                                   c < crossings.leaf_begin[L + 1]; ++c) {
+                                  n += has_quad(c) ? 2 : 0;
+                              }
+                              first[L + 1] = n;
+                          }
+                      });
+    std::partial_sum(first.begin(), first.end(), first.begin());
+    raw.triangles.resize(first.back());
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, leaf_count, 8),
+        [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t L = r.begin(); L < r.end(); ++L) {
+                Triangle* out = raw.triangles.data() + first[L];
+                for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1];
+                     ++c) {
+                    if (!has_quad(c)) continue;
+                    const auto& q = around[c];
+                    const auto global = [&](std::uint64_t id) {
+                        return std::int32_t(base[id >> 32] + (id & 0xffffffffu));
+                    };
+                    // Counter-clockwise around +axis: slots 0, 1, 3, 2. Outward is +axis when the
+                    // edge starts inside.
+                    std::array<std::int32_t, 4> v = {global(q[0]), global(q[1]), global(q[3]),
+                                                     global(q[2])};
+                    if (!crossings.start_inside[c]) std::reverse(v.begin(), v.end());
+                    const openvdb::Vec3f* x[4];
+                    const openvdb::Vec3f* n[4];
+                    double e[4];
+                    for (int k = 0; k < 4; ++k) {
+                        x[k] = &raw.points[std::size_t(v[k])];
+                        n[k] = &patch_normal[std::size_t(v[k])];
+                        e[k] = double(level[std::size_t(v[k])]);
+                    }
+                    // Next to a sharp edge the diagonal must run along it, between the two
+                    // vertices whose patch normals agree, not across it (which cuts the edge
+                    // off). The field cannot tell: it is rounded at the edge. Where the normals
+                    // do not discriminate, the field decides.
+                    const double agree02 = double(n[0]->dot(*n[2])),
+                                 agree13 = double(n[1]->dot(*n[3]));
+                    bool use02 = agree02 > agree13;
+                    if (std::fabs(agree02 - agree13) <= 0.05) {
+                        // The diagonal whose triangles stay closer to the zero level: the field
+                        // at each triangle's centroid, estimated to second order from its
+                        // vertices. For a quadratic f with Hessian H, f at the centroid of
+                        // x_1..x_3 is sum_i f(x_i) / 3 - sum_{i<j} d_ij^T H d_ij / 18 with
+                        // d_ij = x_j - x_i, and d_ij^T H d_ij = d_ij . (grad f(x_j) - grad f(x_i)).
+                        // f(x_i) is the vertex's level; the gradient of a distance field (voxels
+                        // per voxel) is its unit normal, taken as the patch normal. This replaces
+                        // four trilinear lookups per quad.
+                        const auto bend = [&](int a, int b) {
+                            return double((*x[b] - *x[a]).dot(*n[b] - *n[a]));
+                        };
+                        const auto off = [&](int a, int b, int d) {
+                            return std::fabs((e[a] + e[b] + e[d]) / 3.0 -
+                                             (bend(a, b) + bend(b, d) + bend(a, d)) / 18.0);
+                        };
+                        use02 = off(0, 1, 2) + off(0, 2, 3) <= off(0, 1, 3) + off(1, 2, 3);
+                    }
+                    if (use02) {
+                        *out++ = {v[0], v[1], v[2]};
+                        *out++ = {v[0], v[2], v[3]};
+                    } else {
+                        *out++ = {v[0], v[1], v[3]};
+                        *out++ = {v[1], v[2], v[3]};
+                    }
+                }
+            }
+        });
+}
+
+RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
+    const openvdb::FloatTree& tree = volume.sdf->tree();
+    const float iso = float(options.isovalue);
+    Crossings crossings = find_crossings(tree, iso, false);
+
+    std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
+    tree.getNodes(leaves);
+    FillLater<HermiteSample> data = hermite_data(tree, crossings, leaves, iso);
     repair_hermite(crossings, tree, leaves, volume.sdf->voxelSize()[0], iso, data);
     // One vertex per chain. Each crossing learns the vertices of its four cells as (leaf, index
     // in the leaf): every (crossing, slot) belongs to exactly one cell, so there are no two
@@ -1094,7 +1193,6 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     tbb::enumerable_thread_specific<VertexBlocks> buffers;
     std::vector<VertexBlocks*> leaf_buffer(leaves.size(), nullptr);
     std::vector<std::size_t> leaf_first(leaves.size(), 0), leaf_count(leaves.size() + 1, 0);
-    constexpr std::uint64_t kNone = ~std::uint64_t(0);
     FillLater<std::array<std::uint64_t, 4>> around(crossings.size());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, around.size(), 4096),
                       [&](const tbb::blocked_range<std::size_t>& r) {
@@ -1169,86 +1267,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                       });
     buffers.clear();
 
-    // One quad per crossing whose four cells all have a vertex: counted per leaf first, so each
-    // leaf writes its triangles straight into place.
-    const auto has_quad = [&](std::size_t c) {
-        const auto& q = around[c];
-        return q[0] != kNone && q[1] != kNone && q[2] != kNone && q[3] != kNone;
-    };
-    std::vector<std::size_t> first(leaves.size() + 1, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 64),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                              std::size_t n = 0;
-                              for (std::size_t c = crossings.leaf_begin[L];
-                                   c < crossings.leaf_begin[L + 1]; ++c) {
-                                  n += has_quad(c) ? 2 : 0;
-                              }
-                              first[L + 1] = n;
-                          }
-                      });
-    std::partial_sum(first.begin(), first.end(), first.begin());
-    raw.triangles.resize(first.back());
-    tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, leaves.size(), 8),
-        [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                Triangle* out = raw.triangles.data() + first[L];
-                for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1];
-                     ++c) {
-                    if (!has_quad(c)) continue;
-                    const auto& q = around[c];
-                    const auto global = [&](std::uint64_t id) {
-                        return std::int32_t(base[id >> 32] + (id & 0xffffffffu));
-                    };
-                    // Counter-clockwise around +axis: slots 0, 1, 3, 2. Outward is +axis when the
-                    // edge starts inside.
-                    std::array<std::int32_t, 4> v = {global(q[0]), global(q[1]), global(q[3]),
-                                                     global(q[2])};
-                    if (!crossings.start_inside[c]) std::reverse(v.begin(), v.end());
-                    const openvdb::Vec3f* x[4];
-                    const openvdb::Vec3f* n[4];
-                    double e[4];
-                    for (int k = 0; k < 4; ++k) {
-                        x[k] = &raw.points[std::size_t(v[k])];
-                        n[k] = &patch_normal[std::size_t(v[k])];
-                        e[k] = double(level[std::size_t(v[k])]);
-                    }
-                    // Next to a sharp edge the diagonal must run along it, between the two
-                    // vertices whose patch normals agree, not across it (which cuts the edge
-                    // off). The field cannot tell: it is rounded at the edge. Where the normals
-                    // do not discriminate, the field decides.
-                    const double agree02 = double(n[0]->dot(*n[2])),
-                                 agree13 = double(n[1]->dot(*n[3]));
-                    bool use02 = agree02 > agree13;
-                    if (std::fabs(agree02 - agree13) <= 0.05) {
-                        // The diagonal whose triangles stay closer to the zero level: the field
-                        // at each triangle's centroid, estimated to second order from its
-                        // vertices. For a quadratic f with Hessian H, f at the centroid of
-                        // x_1..x_3 is sum_i f(x_i) / 3 - sum_{i<j} d_ij^T H d_ij / 18 with
-                        // d_ij = x_j - x_i, and d_ij^T H d_ij = d_ij . (grad f(x_j) - grad f(x_i)).
-                        // f(x_i) is the vertex's level; the gradient of a distance field (voxels
-                        // per voxel) is its unit normal, taken as the patch normal. This replaces
-                        // four trilinear lookups per quad.
-                        const auto bend = [&](int a, int b) {
-                            return double((*x[b] - *x[a]).dot(*n[b] - *n[a]));
-                        };
-                        const auto off = [&](int a, int b, int d) {
-                            return std::fabs((e[a] + e[b] + e[d]) / 3.0 -
-                                             (bend(a, b) + bend(b, d) + bend(a, d)) / 18.0);
-                        };
-                        use02 = off(0, 1, 2) + off(0, 2, 3) <= off(0, 1, 3) + off(1, 2, 3);
-                    }
-                    if (use02) {
-                        *out++ = {v[0], v[1], v[2]};
-                        *out++ = {v[0], v[2], v[3]};
-                    } else {
-                        *out++ = {v[0], v[1], v[3]};
-                        *out++ = {v[1], v[2], v[3]};
-                    }
-                }
-            }
-        });
+    emit_quads(raw, crossings, around, base, level);
     return raw;
 }
 

@@ -125,6 +125,104 @@ std::uint16_t largest_code(double v) {
     return std::uint16_t(code);
 }
 
+/// A list's near_code (classify): one of its first ks neighbours fails the statistical rule
+/// (kTouched), not yet known (kWaiting), else largest_code of their largest d_j.
+constexpr std::uint16_t kTouched = 65535, kWaiting = 0;
+
+/// The rules' verdicts from the statistical one's (`verdict`) and each point's d_i: 1 =
+/// statistical, 2 = planarity (the candidates' lists searched again unless handed over), 0 =
+/// kept; the counts and r.removed filled in.
+std::vector<char> apply_rules(const KnnIndex& index, Span<Vec3f> pts,
+                              const OutlierOptions& options, const OutlierHandOver& hand_over, int k,
+                              const std::vector<float>& spacing, std::vector<char>&& verdict,
+                              double median, OutlierResult& r) {
+    using detail::kFails;
+    const std::size_t n = pts.size();
+    // 3 = a planarity candidate, decided below.
+    std::vector<char> rule(n, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
+            if (verdict[i] == kFails) {
+                rule[i] = 1;
+            } else if (detail::planarity_candidate(verdict[i], spacing[i], median, options)) {
+                rule[i] = 3;
+            }
+        }
+    });
+    detail::release(verdict);
+    std::vector<std::size_t> candidates;
+    for (std::size_t i = 0; i < n; ++i) {
+        if (rule[i] == 3) candidates.push_back(i);
+    }
+    KnnResult searched;
+    if (!hand_over.lists) searched = index.self_neighbours_of(candidates, k);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, candidates.size(), 256),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t c = rg.begin(); c < rg.end(); ++c) {
+            const std::size_t i = candidates[c];
+            const int* nb = hand_over.lists ? r.neighbours.neighbours(i) : searched.neighbours(c);
+            rule[i] = detail::scattered(pts, i, nb, k, options) ? 2 : 0;
+        }
+    });
+    for (std::size_t i = 0; i < n; ++i) {
+        if (rule[i] == 1) ++r.statistical;
+        if (rule[i] == 2) ++r.planarity;
+        r.removed[i] = rule[i] != 0;
+    }
+    return rule;
+}
+
+/// The spacing of the kept points whose first ks neighbours may have lost one (near_code
+/// kTouched, or a neighbour the planarity rule could take): from the first ks kept points of
+/// their nearest, into first_spacing.
+void respace_touched(const KnnIndex& index, Span<Vec3f> pts, const OutlierOptions& options, int k,
+                     int ks, double median, const std::vector<char>& rule,
+                     std::vector<std::uint16_t>&& near_code, const OutlierResult& r,
+                     std::vector<float>& first_spacing) {
+    const std::size_t n = pts.size();
+    std::vector<std::size_t> again;
+    for (std::size_t i = 0; i < n; ++i) {
+        const bool planar_near = options.planarity_ratio > 0.0 &&
+                                 largest_bound(near_code[i]) > options.planarity_spacing * median;
+        if (rule[i] == 0 && (near_code[i] == kTouched || planar_near)) again.push_back(i);
+    }
+    detail::release(near_code);
+    // Their spacing from the first ks kept points of their K nearest: the nearest ks kept ones,
+    // ties broken by index as among the kept points alone. K grows (from k) for the few rows
+    // whose K nearest hold fewer than ks kept points; with K = n - 1 all do, as more than ks
+    // points are kept.
+    std::vector<std::size_t> rows = std::move(again);
+    for (int K = k; !rows.empty(); K = int(std::min<std::size_t>(2 * std::size_t(K), n - 1))) {
+        const KnnResult lists = index.self_neighbours_of(rows, K);
+        std::vector<char> short_row(rows.size(), 0);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
+                          [&](const tbb::blocked_range<std::size_t>& rg) {
+            std::vector<int> kept_nb(std::size_t(ks), 0);
+            for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
+                int m = 0;
+                for (int j = 0; j < lists.k && m < ks; ++j) {
+                    const int nb = lists.neighbours(a)[j];
+                    if (!r.removed[std::size_t(nb)]) kept_nb[std::size_t(m++)] = nb;
+                }
+                if (m < ks) {
+                    short_row[a] = 1;
+                } else {
+                    first_spacing[rows[a]] = detail::mean_distance(pts, rows[a], kept_nb.data(), ks);
+                }
+            }
+        });
+        std::size_t out = 0;
+        for (std::size_t a = 0; a < rows.size(); ++a) {
+            if (short_row[a]) rows[out++] = rows[a];
+        }
+        rows.resize(out);
+        if (!rows.empty() && std::size_t(K) >= n - 1) {
+            throw Error("outliers: internal error: too few kept neighbours for the spacing");
+        }
+    }
+}
+
 /// The rules of remove_outliers: fills r.removed, the counts, and what is handed over
 /// (r.neighbours; r.spacing for every input point, compacted by the caller).
 ///
@@ -161,7 +259,6 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     std::vector<char> verdict(n, kUnknown);
     // For the spacing: its value from the first ks of all points, and whether one of those may
     // go (kTouched: one fails the statistical rule; else largest_code of their largest d_j).
-    constexpr std::uint16_t kTouched = 65535, kWaiting = 0;
     std::vector<float> first_spacing(ks > 0 ? n : 0);
     std::vector<float> kth_sq(n);  // squared distance to the k-th neighbour: the density
     std::vector<std::uint16_t> near_code(ks > 0 ? n : 0, kWaiting);
@@ -246,85 +343,16 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
     detail::release(work_near);
 
     const double median = median_of(spacing);
-    // 1 = statistical, 2 = planarity (0 = kept); 3 = a planarity candidate, decided below.
-    std::vector<char> rule(n, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
-            if (verdict[i] == kFails) {
-                rule[i] = 1;
-            } else if (detail::planarity_candidate(verdict[i], spacing[i], median, options)) {
-                rule[i] = 3;
-            }
-        }
-    });
-    detail::release(verdict);
-    std::vector<std::size_t> candidates;
-    for (std::size_t i = 0; i < n; ++i) {
-        if (rule[i] == 3) candidates.push_back(i);
-    }
-    KnnResult searched;
-    if (!hand_over.lists) searched = index.self_neighbours_of(candidates, k);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, candidates.size(), 256),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-        for (std::size_t c = rg.begin(); c < rg.end(); ++c) {
-            const std::size_t i = candidates[c];
-            const int* nb = hand_over.lists ? r.neighbours.neighbours(i) : searched.neighbours(c);
-            rule[i] = detail::scattered(pts, i, nb, k, options) ? 2 : 0;
-        }
-    });
-    for (std::size_t i = 0; i < n; ++i) {
-        if (rule[i] == 1) ++r.statistical;
-        if (rule[i] == 2) ++r.planarity;
-        r.removed[i] = rule[i] != 0;
-    }
+    std::vector<char> rule =
+        apply_rules(index, pts, options, hand_over, k, spacing, std::move(verdict), median, r);
     const std::size_t kept_count = n - r.statistical - r.planarity;
     compact(kth_sq, r.removed, kept_count);
     r.density_spacing = median_density_spacing(kth_sq, k);
     detail::release(kth_sq);
     if (ks == 0 || kept_count <= std::size_t(ks)) return;  // too few kept: no spacing
 
-    // The spacing: kept points whose first ks neighbours may have lost one are searched again.
-    std::vector<std::size_t> again;
-    for (std::size_t i = 0; i < n; ++i) {
-        const bool planar_near = options.planarity_ratio > 0.0 &&
-                                 largest_bound(near_code[i]) > options.planarity_spacing * median;
-        if (rule[i] == 0 && (near_code[i] == kTouched || planar_near)) again.push_back(i);
-    }
-    detail::release(near_code);
-    // Their spacing from the first ks kept points of their K nearest: the nearest ks kept ones,
-    // ties broken by index as among the kept points alone. K grows (from k) for the few rows
-    // whose K nearest hold fewer than ks kept points; with K = n - 1 all do, as more than ks
-    // points are kept.
-    std::vector<std::size_t> rows = std::move(again);
-    for (int K = k; !rows.empty(); K = int(std::min<std::size_t>(2 * std::size_t(K), n - 1))) {
-        const KnnResult lists = index.self_neighbours_of(rows, K);
-        std::vector<char> short_row(rows.size(), 0);
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, rows.size(), 1024),
-                          [&](const tbb::blocked_range<std::size_t>& rg) {
-            std::vector<int> kept_nb(std::size_t(ks), 0);
-            for (std::size_t a = rg.begin(); a < rg.end(); ++a) {
-                int m = 0;
-                for (int j = 0; j < lists.k && m < ks; ++j) {
-                    const int nb = lists.neighbours(a)[j];
-                    if (!r.removed[std::size_t(nb)]) kept_nb[std::size_t(m++)] = nb;
-                }
-                if (m < ks) {
-                    short_row[a] = 1;
-                } else {
-                    first_spacing[rows[a]] = detail::mean_distance(pts, rows[a], kept_nb.data(), ks);
-                }
-            }
-        });
-        std::size_t out = 0;
-        for (std::size_t a = 0; a < rows.size(); ++a) {
-            if (short_row[a]) rows[out++] = rows[a];
-        }
-        rows.resize(out);
-        if (!rows.empty() && std::size_t(K) >= n - 1) {
-            throw Error("outliers: internal error: too few kept neighbours for the spacing");
-        }
-    }
+    respace_touched(index, pts, options, k, ks, median, rule, std::move(near_code), r,
+                    first_spacing);
     r.spacing = std::move(first_spacing);  // input order; compacted with the cloud
 }
 

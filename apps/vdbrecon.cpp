@@ -339,6 +339,8 @@ void help_fuse() {
         << "  --frame-step N, --max-frames N  every N-th frame; at most N frames [1, all]\n"
         << "  --skip-bad-frames      a frame that cannot be read or fused is skipped with a\n"
            "                         warning naming it [off: the run stops with its error]\n"
+        << "  --no-color             ignore the frames' colour images (.png, .jpg): a grey mesh\n"
+           "                         [colour images fused into vertex colours]\n"
         << "  the voxel defaults to 1.4 x the first frame's median pixel footprint\n";
 }
 
@@ -861,6 +863,8 @@ int run_fuse(Args& args, double startup_rss_mb) {
             f.depth.reference_depth = parse_number(a, args.value(a));
         } else if (a == "--skip-bad-frames") {
             f.skip_bad_frames = true;
+        } else if (a == "--no-color") {
+            f.color = false;
         } else if (a == "--frame-step" || a == "--max-frames") {
             const int n = parse_int(a, args.value(a));
             if (n < (a == "--frame-step" ? 1 : 0)) throw UsageError(a + ": " + std::to_string(n) + " is out of range");

@@ -11,6 +11,7 @@ PACKAGES=(
   libtbb-dev libeigen3-dev
   libopenexr-dev zlib1g-dev               # --preview pictures: .exr (with depth), .png
   libpng-dev nlohmann-json3-dev           # fuse: 16-bit PNG depth, transforms.json
+  libjpeg-dev                             # fuse: JPEG colour images (libjpeg-turbo)
   libflann-dev liblz4-dev                 # --knn flann: FLANN's kd-trees
   catch2                                  # Catch2 v2 tests
   pybind11-dev python3-dev python3-numpy  # the Python module (built for /usr/bin/python3)

@@ -415,6 +415,44 @@ double grid_focal(const FramePoints& f, double max_jump) {
 
 }  // namespace
 
+void color_samples(PointCloud& samples, const ColorImage& color, const Intrinsics& K,
+                   const Pose& pose) {
+    if (color.width <= 0 || color.height <= 0 ||
+        color.rgb.size() != std::size_t(color.width) * std::size_t(color.height)) {
+        throw InvalidArgument("colour image: its pixels do not fill width x height");
+    }
+    K.validate();
+    const std::size_t n = samples.size();
+    std::vector<Vec3f> out(n);
+    const Vec3d& o = samples.origin;
+    const int w = color.width, h = color.height;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            const Vec3f& p = samples.positions[i];
+            // World to camera: R^T (x - t).
+            const double d[3] = {o[0] + p[0] - pose[3], o[1] + p[1] - pose[7], o[2] + p[2] - pose[11]};
+            const double x = pose[0] * d[0] + pose[4] * d[1] + pose[8] * d[2];
+            const double y = pose[1] * d[0] + pose[5] * d[1] + pose[9] * d[2];
+            const double z = pose[2] * d[0] + pose[6] * d[1] + pose[10] * d[2];
+            const double u = z > 0.0 ? K.fx * x / z + K.cx : 0.0;
+            const double v = z > 0.0 ? K.fy * y / z + K.cy : 0.0;
+            // Bilinear, clamped at the border (pixel centres at integers).
+            const double uc = std::clamp(u, 0.0, double(w - 1)), vc = std::clamp(v, 0.0, double(h - 1));
+            const int u0 = std::min(int(uc), w - 1), v0 = std::min(int(vc), h - 1);
+            const int u1 = std::min(u0 + 1, w - 1), v1 = std::min(v0 + 1, h - 1);
+            const float fu = float(uc - u0), fv = float(vc - v0);
+            const auto at = [&](int a, int b) { return color.rgb[std::size_t(b) * std::size_t(w) + std::size_t(a)]; };
+            const Vec3f c00 = at(u0, v0), c10 = at(u1, v0), c01 = at(u0, v1), c11 = at(u1, v1);
+            for (int c = 0; c < 3; ++c) {
+                out[i][std::size_t(c)] = (1 - fv) * ((1 - fu) * c00[std::size_t(c)] + fu * c10[std::size_t(c)]) +
+                                         fv * ((1 - fu) * c01[std::size_t(c)] + fu * c11[std::size_t(c)]);
+            }
+        }
+    });
+    samples.colors = std::move(out);
+}
+
 PointCloud organized_samples(const OrganizedCloud& c, const DepthOptions& options,
                              const Vec3d& origin) {
     options.validate();
@@ -625,6 +663,14 @@ std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, cons
     return add_frame(depth_samples(depth, K, pose, depth_, accumulator_.origin()));
 }
 
+std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
+                              const ColorImage& color, const Intrinsics& color_K) {
+    if (tsdf_) return integrate(depth, K, pose);
+    PointCloud samples = depth_samples(depth, K, pose, depth_, accumulator_.origin());
+    color_samples(samples, color, color_K, pose);
+    return add_frame(samples);
+}
+
 std::size_t Fusion::add_frame(const PointCloud& samples) {
     ++frames_;
     if (samples.empty()) return 0;
@@ -768,7 +814,22 @@ struct FrameSamples {
     std::exception_ptr error;
 };
 
-FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3d& origin) {
+/// The colour camera of a frame whose depth camera is K: its own intrinsics, else K scaled to
+/// the colour image's size (pixel centres at integers).
+Intrinsics color_camera(const SceneFrame& f, const Intrinsics& K, const ColorImage& c) {
+    if (f.color_intrinsics) {
+        Intrinsics C = *f.color_intrinsics;
+        if (C.width == 0 && C.height == 0) C.width = c.width, C.height = c.height;
+        return C;
+    }
+    if (c.width == K.width && c.height == K.height) return K;
+    const double sx = double(c.width) / K.width, sy = double(c.height) / K.height;
+    return Intrinsics{K.fx * sx, K.fy * sy, (K.cx + 0.5) * sx - 0.5, (K.cy + 0.5) * sy - 0.5,
+                      c.width, c.height};
+}
+
+FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3d& origin,
+                           bool color) {
     FrameSamples out;
     try {
         DepthImage img = frame_depth(f);
@@ -779,6 +840,10 @@ FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3
             return out;
         }
         PointCloud samples = depth_samples(img, K, f.pose, fusion.depth_options(), origin);
+        if (color && !f.color_path.empty()) {
+            const ColorImage c = read_color_image(f.color_path);
+            color_samples(samples, c, color_camera(f, K, c), f.pose);
+        }
         out.count = samples.size();
         out.groups = fusion.presum(std::move(samples));  // owned: the samples die here
     } catch (...) {
@@ -798,7 +863,8 @@ void skip_frame(const std::string& path, const Error& e) {
 /// most kInFlight at once, and added to the fusion one after another in frame order as they are
 /// ready, while later frames are read (an error is the first bad frame's, whatever the threads).
 void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::size_t first,
-                            std::size_t last, Fusion& fusion, int threads, bool skip_bad) {
+                            std::size_t last, Fusion& fusion, int threads, bool skip_bad,
+                            bool color) {
     constexpr std::size_t kInFlight = 8;  // frames in flight: a few MB of samples each
     using Ready = std::pair<std::size_t, FrameSamples>;
     const Vec3d origin = fusion.origin();
@@ -807,7 +873,9 @@ void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::s
         if (next == last) fc.stop();
         return next++;
     };
-    auto prepare = [&](std::size_t i) { return Ready(i, frame_samples(*frames[i], fusion, origin)); };
+    auto prepare = [&](std::size_t i) {
+        return Ready(i, frame_samples(*frames[i], fusion, origin, color));
+    };
     auto add = [&](Ready r) {
         try {
             const FrameSamples& s = r.second;
@@ -859,7 +927,13 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
                 fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
                            Vec3d{f.pose[3], f.pose[7], f.pose[11]});
                 Fusion& fu = *fusion;
-                detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose); });
+                if (fo.color && !f.color_path.empty()) {
+                    const ColorImage c = read_color_image(f.color_path);
+                    const Intrinsics C = color_camera(f, K, c);
+                    detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose, c, C); });
+                } else {
+                    detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose); });
+                }
                 ++g;
                 continue;
             }
@@ -871,7 +945,7 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
         }
         std::size_t end = g;
         while (end < frames.size() && !frames[end]->organized) ++end;
-        integrate_depth_frames(frames, g, end, *fusion, threads, fo.skip_bad_frames);
+        integrate_depth_frames(frames, g, end, *fusion, threads, fo.skip_bad_frames, fo.color);
         g = end;
     }
 }

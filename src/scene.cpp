@@ -80,6 +80,21 @@ Intrinsics camera(const Json& obj, const Intrinsics& base, const std::string& pa
     return K;
 }
 
+/// A frame's colour image: file_path when it names an existing .png/.jpg (as given, or with
+/// that extension added), other than the depth file; else "".
+std::string color_file(const Json& frame, const std::string& dir, const std::string& depth) {
+    auto it = frame.find("file_path");
+    if (it == frame.end() || !it->is_string()) return "";
+    const std::string p = join(dir, it->get<std::string>());
+    const std::string ext = file_extension(p);
+    if ((ext == "png" || ext == "jpg" || ext == "jpeg") && p != depth && is_file(p)) return p;
+    if (!ext.empty() && ext != "png" && ext != "jpg" && ext != "jpeg") return "";
+    for (const char* e : {".png", ".jpg", ".jpeg"}) {
+        if (is_file(p + e) && p + e != depth) return p + e;
+    }
+    return "";
+}
+
 /// A frame's depth file: depth_file_path (or depth_path), else file_path plus a depth suffix.
 std::string depth_file(const Json& frame, const std::string& dir, const std::string& path,
                        const std::string& where) {
@@ -167,6 +182,7 @@ Scene read_transforms(const std::string& path, const SceneOptions& options) {
         if (!f.is_object()) throw FormatError(detail::where(path, where + "is not a JSON object"));
         SceneFrame frame;
         frame.depth_path = depth_file(f, dir, path, where);
+        frame.color_path = color_file(f, dir, frame.depth_path);
         frame.pose = gl_pose(f, path, where);
         frame.intrinsics = options.intrinsics ? *options.intrinsics : camera(f, base, path, where);
         frame.units_per_metre = options.units_per_metre > 0.0 ? options.units_per_metre
@@ -249,6 +265,20 @@ Scene read_tum(const std::string& depth_txt, const SceneOptions& options) {
     }
     const auto depth = tum_lines(depth_txt);
     const auto gt = tum_lines(gt_path);
+    // The colour images (rgb.txt), by time: the nearest within 0.02 s goes with a depth frame.
+    std::vector<std::pair<double, std::string>> rgb;
+    if (is_file(dir + "/rgb.txt")) rgb = tum_lines(dir + "/rgb.txt");
+    std::sort(rgb.begin(), rgb.end());
+    const auto nearest_rgb = [&](const std::vector<std::pair<double, std::string>>& list, double t) {
+        auto c = std::lower_bound(list.begin(), list.end(), std::make_pair(t, std::string()));
+        std::string best;
+        double gap = 0.02;
+        for (auto x : {c, c == list.begin() ? c : c - 1}) {
+            if (x == list.end()) continue;
+            if (std::fabs(x->first - t) <= gap) gap = std::fabs(x->first - t), best = join(dir, x->second);
+        }
+        return best;
+    };
     std::vector<std::size_t> order(gt.size());
     for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
     std::stable_sort(order.begin(), order.end(),
@@ -269,6 +299,7 @@ Scene read_tum(const std::string& depth_txt, const SceneOptions& options) {
         if (best == gt.size()) continue;  // no pose for this frame
         SceneFrame frame;
         frame.depth_path = join(dir, file);
+        frame.color_path = nearest_rgb(rgb, t);
         frame.pose = tum_pose(gt[best].second, gt_path, gt[best].first);
         frame.intrinsics = *options.intrinsics;
         frame.units_per_metre = options.units_per_metre > 0.0 ? options.units_per_metre : 5000.0;

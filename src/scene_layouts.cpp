@@ -9,6 +9,8 @@
 #include <cctype>
 #include <cmath>
 #include <filesystem>
+#include <initializer_list>
+#include <optional>
 #include <sstream>
 
 #include "detail/io_common.h"
@@ -189,6 +191,28 @@ Intrinsics replica_intrinsics(const fs::path& path, double& scale) {
     return K;
 }
 
+/// The first of `stem` + each extension that is a file, else "".
+std::string first_image(const fs::path& stem, std::initializer_list<const char*> exts) {
+    for (const char* e : exts) {
+        fs::path p = stem;
+        p += e;
+        if (exists_file(p)) return p.string();
+    }
+    return "";
+}
+
+/// The image files of a folder (.png, .jpg, .jpeg), in name order.
+std::vector<fs::path> images_in(const fs::path& dir) {
+    std::vector<fs::path> out;
+    std::error_code ec;
+    for (const fs::directory_entry& e : fs::directory_iterator(dir, ec)) {
+        const std::string x = e.path().extension().string();
+        if (x == ".png" || x == ".jpg" || x == ".jpeg") out.push_back(e.path());
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+}
+
 SceneFrame frame_of(const fs::path& depth, const Intrinsics& K, const Pose& pose, double units,
                     const SceneOptions& options) {
     SceneFrame f;
@@ -222,6 +246,8 @@ Scene read_7scenes(const std::string& folder, const SceneOptions& options) {
         }
         SceneFrame f = frame_of(depth, K, pose, 1000.0, options);
         f.invalid_value = 65535;
+        const std::string name = depth.filename().string();
+        f.color_path = first_image(dir / name.substr(0, name.size() - 10), {".color.png", ".color.jpg"});
         scene.frames.push_back(std::move(f));
     }
     require_frames(scene, dir, "frame-NNNNNN.depth.png with .pose.txt");
@@ -253,8 +279,11 @@ Scene read_redwood(const std::string& folder, const std::string& log, const Scen
                                          std::to_string(depths.size()) + " images in " +
                                          (dir / "depth").string()));
     }
+    std::vector<fs::path> colors = images_in(dir / "color");
+    if (colors.empty()) colors = images_in(dir / "image");
     for (std::size_t i = 0; i < frames; ++i) {
         scene.frames.push_back(frame_of(depths[i], K, pose_at(v, 19 * i + 3), 1000.0, options));
+        if (colors.size() == depths.size()) scene.frames.back().color_path = colors[i].string();
     }
     return scene;
 }
@@ -265,6 +294,11 @@ Scene read_scannet(const std::string& folder, const SceneOptions& options) {
     scene.kind = "ScanNet";
     const Intrinsics K = intrinsics_of(options, {dir / "intrinsic" / "intrinsic_depth.txt"}, scene.kind,
                                        "", matrix_intrinsics);
+    // The colour camera has its own intrinsics (and size, taken from its images).
+    std::optional<Intrinsics> color_K;
+    if (exists_file(dir / "intrinsic" / "intrinsic_color.txt")) {
+        color_K = matrix_intrinsics(dir / "intrinsic" / "intrinsic_color.txt");
+    }
     for (const auto& [index, depth] : numbered_files(dir / "depth", "", ".png")) {
         const fs::path pose_path = dir / "pose" / (std::to_string(index) + ".txt");
         if (!exists_file(pose_path)) throw IoError(where(pose_path.string(), "missing: the pose of " + depth.string()));
@@ -273,7 +307,10 @@ Scene read_scannet(const std::string& folder, const SceneOptions& options) {
             log_warning(pose_path.string() + ": the pose is marked lost (-inf); frame skipped");
             continue;
         }
-        scene.frames.push_back(frame_of(depth, K, pose, 1000.0, options));
+        SceneFrame f = frame_of(depth, K, pose, 1000.0, options);
+        f.color_path = first_image(dir / "color" / std::to_string(index), {".jpg", ".png"});
+        f.color_intrinsics = color_K;
+        scene.frames.push_back(std::move(f));
     }
     require_frames(scene, dir, "depth/N.png with pose/N.txt");
     return scene;
@@ -306,6 +343,9 @@ Scene read_replica(const std::string& folder, const SceneOptions& options) {
     }
     for (std::size_t i = 0; i < depths.size(); ++i) {
         scene.frames.push_back(frame_of(depths[i].second, K, pose_at(v, 16 * i), scale, options));
+        const std::string name = depths[i].second.filename().string();  // depthNNNNNN.png
+        scene.frames.back().color_path =
+            first_image(dir / "results" / ("frame" + name.substr(5, name.size() - 9)), {".jpg", ".png"});
     }
     return scene;
 }

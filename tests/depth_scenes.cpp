@@ -209,9 +209,32 @@ std::string frame_number(std::size_t i, int width) {
 
 }  // namespace
 
+ColorImage render_color(const DepthImage& depth, const Intrinsics& K, const Pose& m,
+                        const std::function<Vec3f(const Vec3d&)>& paint) {
+    ColorImage c;
+    c.width = depth.width;
+    c.height = depth.height;
+    c.rgb.assign(depth.depth.size(), Vec3f{0.0f, 0.0f, 0.0f});
+    for (int v = 0; v < depth.height; ++v) {
+        for (int u = 0; u < depth.width; ++u) {
+            const double z = depth.at(u, v);
+            if (!(z > 0.0)) continue;
+            const double x = (u - K.cx) / K.fx * z, y = (v - K.cy) / K.fy * z;
+            const Vec3d w{m[0] * x + m[1] * y + m[2] * z + m[3], m[4] * x + m[5] * y + m[6] * z + m[7],
+                          m[8] * x + m[9] * y + m[10] * z + m[11]};
+            c.rgb[std::size_t(v) * std::size_t(depth.width) + std::size_t(u)] = paint(w);
+        }
+    }
+    return c;
+}
+
 std::string write_layout_scene(const std::string& layout, const std::string& dir,
                                const std::vector<DepthImage>& depths, const Intrinsics& K,
-                               const std::vector<Pose>& poses) {
+                               const std::vector<Pose>& poses,
+                               const std::vector<ColorImage>* colors) {
+    auto color = [&](std::size_t i, const std::string& path) {
+        if (colors) write_color_image(path, (*colors)[i]);
+    };
     std::ostringstream k;
     k.precision(17);
     if (layout == "7scenes") {
@@ -220,10 +243,12 @@ std::string write_layout_scene(const std::string& layout, const std::string& dir
         for (std::size_t i = 0; i < depths.size(); ++i) {
             const std::string stem = dir + "/frame-" + frame_number(i, 6);
             write_depth_image(stem + ".depth.png", with_none(depths[i], 65.535f), 1000.0);
+            color(i, stem + ".color.png");
             std::ofstream(stem + ".pose.txt") << matrix_text(poses[i]);
         }
     } else if (layout == "redwood") {
         ::mkdir((dir + "/depth").c_str(), 0755);
+        ::mkdir((dir + "/color").c_str(), 0755);
         k << "{\"width\": " << K.width << ", \"height\": " << K.height
           << ", \"intrinsic_matrix\": [" << K.fx << ", 0, 0, 0, " << K.fy << ", 0, " << K.cx << ", "
           << K.cy << ", 1]}\n";
@@ -231,6 +256,7 @@ std::string write_layout_scene(const std::string& layout, const std::string& dir
         std::ostringstream log;
         for (std::size_t i = 0; i < depths.size(); ++i) {
             write_depth_image(dir + "/depth/" + frame_number(i, 6) + ".png", depths[i], 1000.0);
+            color(i, dir + "/color/" + frame_number(i, 6) + ".jpg");
             log << i << " " << i << " " << i + 1 << "\n" << matrix_text(poses[i]);
         }
         std::ofstream(dir + "/trajectory.log") << log.str();
@@ -240,8 +266,10 @@ std::string write_layout_scene(const std::string& layout, const std::string& dir
         }
         k << K.fx << " 0 " << K.cx << " 0\n0 " << K.fy << " " << K.cy << " 0\n0 0 1 0\n0 0 0 1\n";
         std::ofstream(dir + "/intrinsic/intrinsic_depth.txt") << k.str();
+        std::ofstream(dir + "/intrinsic/intrinsic_color.txt") << k.str();
         for (std::size_t i = 0; i < depths.size(); ++i) {
             write_depth_image(dir + "/depth/" + std::to_string(i) + ".png", depths[i], 1000.0);
+            color(i, dir + "/color/" + std::to_string(i) + ".jpg");
             std::ofstream(dir + "/pose/" + std::to_string(i) + ".txt") << matrix_text(poses[i]);
         }
     } else if (layout == "replica") {
@@ -254,6 +282,7 @@ std::string write_layout_scene(const std::string& layout, const std::string& dir
         traj.precision(17);
         for (std::size_t i = 0; i < depths.size(); ++i) {
             write_depth_image(dir + "/results/depth" + frame_number(i, 6) + ".png", depths[i], 6553.5);
+            color(i, dir + "/results/frame" + frame_number(i, 6) + ".jpg");
             for (std::size_t j = 0; j < 16; ++j) traj << (j ? " " : "") << poses[i][j];
             traj << "\n";
         }

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -21,6 +22,11 @@ std::vector<Pose> orbit_poses(int count, const Vec3d& centre, double radius);
 
 /// Intrinsics of a width x height camera with horizontal field of view `fov_degrees`.
 Intrinsics camera_intrinsics(int width, int height, double fov_degrees);
+
+/// The colours `paint` gives the world points a camera sees (its depth image `depth`, planar);
+/// black where it sees nothing.
+ColorImage render_color(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,
+                        const std::function<Vec3f(const Vec3d&)>& paint);
 
 /// Adds Gaussian noise of `sigma` (world units) to every measured depth (seeded).
 void add_depth_noise(DepthImage& depth, double sigma, std::uint64_t seed);
@@ -41,8 +47,12 @@ std::string write_tum_scene(const std::string& dir, const std::vector<DepthImage
 /// trajectory.log, camera_intrinsic.json), "scannet" (depth/N.png, pose/N.txt,
 /// intrinsic/intrinsic_depth.txt) or "replica" (results/depthNNNNNN.png at 6553.5 units a
 /// metre, traj.txt, cam_params.json); returns the folder.
+/// With `colors`, each frame's colour image too where the layout has them (7scenes
+/// frame-NNNNNN.color.png, redwood color/*.jpg, scannet color/N.jpg with
+/// intrinsic/intrinsic_color.txt, replica results/frameNNNNNN.jpg).
 std::string write_layout_scene(const std::string& layout, const std::string& dir,
                                const std::vector<DepthImage>& depths, const Intrinsics& K,
-                               const std::vector<Pose>& poses);
+                               const std::vector<Pose>& poses,
+                               const std::vector<ColorImage>* colors = nullptr);
 
 }  // namespace vdbrecon::test

@@ -58,6 +58,13 @@ struct DepthImage {
     float at(int u, int v) const { return depth[std::size_t(v) * std::size_t(width) + std::size_t(u)]; }
 };
 
+/// A colour image: width x height pixels, row-major, top row first, RGB 0..1 (the stored 8-bit
+/// values / 255, as point colours are read).
+struct ColorImage {
+    int width = 0, height = 0;
+    std::vector<Vec3f> rgb;
+};
+
 /// Camera-to-world rigid transform, row-major 4x4 (OpenCV camera axes).
 using Pose = std::array<double, 16>;
 
@@ -136,6 +143,14 @@ struct DepthOptions {
 PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,
                          const DepthOptions& options, const Vec3d& origin = {0.0, 0.0, 0.0});
 
+/// Gives each sample (relative to samples.origin) the colour the camera with intrinsics K at
+/// `camera_to_world` saw there: the sample projected into `color` (its own intrinsics, as
+/// ScanNet's colour camera has; the same pose as the depth) and read bilinearly, clamped at the
+/// border. A sample's colour is then splatted with the weights of its signed distance, so a
+/// surface's colour is the weighted mean of the pixels that saw it.
+void color_samples(PointCloud& samples, const ColorImage& color, const Intrinsics& K,
+                   const Pose& camera_to_world);
+
 /// An organized cloud (a depth camera's frame as points, PCL's organized PCD): width x height
 /// points in raster order, NaN where nothing was measured, relative to `origin`, seen from
 /// `sensor` (world).
@@ -178,6 +193,10 @@ class Fusion {
 
     /// Adds one frame; returns its number of samples (0: nothing usable in it, not an error).
     std::size_t integrate(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world);
+    /// The same with its colour image, seen through `color_K` from the same pose
+    /// (color_samples); the tsdf rule takes the depth only.
+    std::size_t integrate(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,
+                          const ColorImage& color, const Intrinsics& color_K);
     /// Adds an oriented cloud (normals required), e.g. one scan with normals toward its sensor.
     std::size_t integrate(const PointCloud& cloud);
     /// A frame's samples (relative to origin()) presummed as integrate() does

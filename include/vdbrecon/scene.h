@@ -35,6 +35,14 @@ namespace vdbrecon {
 /// are taken as they are). Throws IoError / FormatError naming the file.
 DepthImage read_depth_image(const std::string& path, double units_per_metre = 1000.0);
 
+/// Reads a colour image: .png (8- or 16-bit grey, RGB, RGBA or palette; libpng) or .jpg /
+/// .jpeg (libjpeg-turbo), as RGB 0..1. Throws IoError / FormatError naming the file.
+ColorImage read_color_image(const std::string& path);
+
+/// Writes a colour image as 8-bit RGB: .png, or .jpg at quality 95. Atomic. Throws IoError /
+/// InvalidArgument.
+void write_color_image(const std::string& path, const ColorImage& image);
+
 /// Writes a depth image: .exr (one float channel "Z") or .png (16-bit greyscale, value =
 /// round(depth x units_per_metre), 0 for no measurement; depths past 65535 units are refused).
 /// Atomic (temporary file + rename). Throws IoError / InvalidArgument.
@@ -50,6 +58,11 @@ struct SceneFrame {
     double units_per_metre = 1000.0;  ///< for PNG depth
     /// A stored PNG value that means "no measurement" besides 0 (7-Scenes' 65535); 0 = none.
     int invalid_value = 0;
+    /// The frame's colour image (.png, .jpg), or empty.
+    std::string color_path;
+    /// The colour camera's intrinsics when they are not the depth's (ScanNet); without them a
+    /// colour image of another size is the depth camera's scaled.
+    std::optional<Intrinsics> color_intrinsics;
 };
 
 struct SceneOptions {
@@ -100,6 +113,9 @@ struct FuseOptions {
     /// A frame that cannot be read or fused (a corrupt or missing file, another size) is
     /// skipped with one warning naming it, instead of stopping the run with that error.
     bool skip_bad_frames = false;
+    /// Fuse the frames' colour images where the scene has them (vertex colours); false skips
+    /// them (--no-color).
+    bool color = true;
 };
 
 /// Reads a scene, fuses its frames one at a time (the pipeline's splat options; voxel 0 =

@@ -307,7 +307,7 @@ FramePoints merge_blocks(const FramePoints& f, int b, double max_jump) {
 /// focal length in cells. Grid: FramePoints or DepthRows (rows by row(v)).
 template <typename Grid>
 PointCloud grid_samples(const Grid& f, double focal, const Pose& pose, const DepthOptions& options,
-                        const Vec3d& origin) {
+                        const Vec3d& origin, std::vector<std::uint32_t>* cells = nullptr) {
     const int w = f.w, h = f.h;
     auto usable = [&](const GridRow* row, int u, double d) {  // a neighbour on the same surface
         if (!row || u < 0 || u >= w) return false;
@@ -385,6 +385,7 @@ PointCloud grid_samples(const Grid& f, double focal, const Pose& pose, const Dep
             row_n[k] = {float(nw[0] / len), float(nw[1] / len), float(nw[2] / len)};
             row_s[k] = float(footprint);
             row_c[k++] = float(conf);
+            if (cells) cells->push_back(std::uint32_t(std::size_t(v) * width + std::size_t(u)));
         }
         append(positions, row_p, k);
         append(normals, row_n, k);
@@ -473,7 +474,16 @@ PointCloud organized_samples(const OrganizedCloud& c, const DepthOptions& option
     }
     // The sensor frame is the world's axes moved to the sensor: a pure translation.
     const Pose pose{1, 0, 0, c.sensor[0], 0, 1, 0, c.sensor[1], 0, 0, 1, c.sensor[2], 0, 0, 0, 1};
-    return grid_samples(f, grid_focal(f, options.max_jump), pose, options, origin);
+    if (c.colors.size() != c.points.size()) {
+        return grid_samples(f, grid_focal(f, options.max_jump), pose, options, origin);
+    }
+    // Each sample is a point of the raster: it keeps that point's colour.
+    std::vector<std::uint32_t> cells;
+    PointCloud s = grid_samples(f, grid_focal(f, options.max_jump), pose, options, origin, &cells);
+    std::vector<Vec3f> colors(cells.size());
+    for (std::size_t j = 0; j < cells.size(); ++j) colors[j] = c.colors[cells[j]];
+    s.colors = std::move(colors);
+    return s;
 }
 
 PointCloud scan_samples(const PointCloud& scan, const std::optional<Vec3d>& origin,
@@ -911,7 +921,8 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
         const SceneFrame& f = *frames[g];
         try {
             if (f.organized) {
-                const OrganizedCloud c = read_organized_cloud(f.depth_path);
+                OrganizedCloud c = read_organized_cloud(f.depth_path);
+                if (!fo.color) c.colors.clear();
                 Fusion& fu = fusion.get(organized_samples(c, fo.depth), f.depth_path, c.origin);
                 detail::in_arena(threads, [&] { fu.integrate(c); });
                 ++g;

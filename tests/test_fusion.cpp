@@ -9,6 +9,7 @@
 #include <numeric>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <sstream>
 
 #include "depth_scenes.h"
@@ -348,8 +349,10 @@ TEST_CASE("fuse: the frames' colour images become the mesh's colours, in every l
         double p99 = 0.0;
         const double mean = color_error(m, p99);
         INFO("colour error: mean " << mean << ", 99th percentile " << p99);
-        CHECK(mean < 0.01);  // measured 0.0024 (under a 255th), 99th percentile 0.0075
-        CHECK(p99 < 0.03);
+        // Measured: PNG 0.0024 (under a 255th), 99th percentile 0.0075; JPEG (quality 95)
+        // 0.0063 and 0.031.
+        CHECK(mean < 0.01);
+        CHECK(p99 < 0.06);
         if (layout == "7scenes") {  // --no-color: a grey mesh
             const CliRun g = run_cli(args.str() + " --no-color");
             REQUIRE(g.code == 0);
@@ -570,6 +573,65 @@ TEST_CASE("PCD: ascii, binary and binary_compressed read the same points", "[fus
     lzf += std::string("\x08\x00\x00\x00\x60\x00\x00\x00", 8) + "\x1f\x01\x02";  // bad reference
     write_bytes(dir.file("c.pcd"), lzf);
     CHECK_THROWS_WITH(read_points(dir.file("c.pcd")), Catch::Contains("c.pcd"));
+}
+
+TEST_CASE("fuse: an organized PCD's rgb becomes the mesh's colours", "[fusion][pcd][color]") {
+    // One view of the boss part as a depth camera's organized cloud in its own axes (sensor at
+    // the origin), each point with the colour a smooth pattern gives it.
+    const Shape shape = make_shape("boss");
+    const Views v = views_of(shape.mesh, 1, 200, 150);
+    const double diag = bounding_box(shape.mesh.vertices).diagonal(), s = diag / 6.0;
+    const auto paint = [s](const Vec3d& p) {
+        return Vec3f{float(0.5 + 0.4 * std::sin(p[0] / s)), float(0.5 + 0.4 * std::cos(p[1] / s)),
+                     float(0.5 + 0.4 * std::sin(p[2] / s + 1.0))};
+    };
+    const DepthImage& d = v.depths[0];
+    std::string pcd = "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\n"
+                      "COUNT 1 1 1 1\nWIDTH " + std::to_string(d.width) + "\nHEIGHT " +
+                      std::to_string(d.height) + "\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " +
+                      std::to_string(d.depth.size()) + "\nDATA binary\n";
+    for (int y = 0; y < d.height; ++y) {
+        for (int x = 0; x < d.width; ++x) {
+            const float z = d.at(x, y);
+            float row[4] = {NAN, NAN, NAN, 0.0f};
+            if (z > 0.0f) {
+                row[0] = float((x - v.K.cx) / v.K.fx * z);
+                row[1] = float((y - v.K.cy) / v.K.fy * z);
+                row[2] = z;
+                const Vec3f c = paint({row[0], row[1], row[2]});
+                const std::uint32_t bits = std::uint32_t(std::lround(c[0] * 255.0f)) << 16 |
+                                           std::uint32_t(std::lround(c[1] * 255.0f)) << 8 |
+                                           std::uint32_t(std::lround(c[2] * 255.0f));
+                std::memcpy(&row[3], &bits, 4);
+            }
+            pcd.append(reinterpret_cast<const char*>(row), sizeof row);
+        }
+    }
+    TempDir dir;
+    write_bytes(dir.file("frame.pcd"), pcd);
+    const double voxel = diag / 60.0;
+    std::ostringstream args;
+    args.precision(17);
+    args << "fuse '" << dir.file("frame.pcd") << "' -o '" << dir.file("m.ply") << "' --voxel " << voxel
+         << " -q --no-vdb";
+    const CliRun r = run_cli(args.str());
+    INFO(r.err);
+    REQUIRE(r.code == 0);
+    const Mesh m = read_mesh(dir.file("m.ply"));
+    REQUIRE(m.colors.size() == m.vertices.size());
+    REQUIRE(m.vertices.size() > 100);
+    double sum = 0.0;
+    for (std::size_t i = 0; i < m.vertices.size(); ++i) {
+        const Vec3f want = paint({m.origin[0] + m.vertices[i][0], m.origin[1] + m.vertices[i][1],
+                                  m.origin[2] + m.vertices[i][2]});
+        for (std::size_t c = 0; c < 3; ++c) sum += std::fabs(want[c] - m.colors[i][c]) / 3.0;
+    }
+    const double mean = sum / double(m.vertices.size());
+    INFO("mean colour error " << mean);
+    CHECK(mean < 0.01);
+    const CliRun g = run_cli(args.str() + " --no-color");
+    REQUIRE(g.code == 0);
+    CHECK(read_mesh(dir.file("m.ply")).colors.empty());
 }
 
 TEST_CASE("the Kinect frame: its compressed PCD is its PLY twin, and fuses as an organized cloud", "[fusion][pcd][data]") {

@@ -157,6 +157,7 @@ void color_samples(PointCloud& samples, const ColorImage& color, const Intrinsic
 struct OrganizedCloud {
     int width = 0, height = 0;
     std::vector<Vec3f> points;
+    std::vector<Vec3f> colors;  ///< per point (PCD rgb / rgba, 0..1), or empty
     Vec3d origin{0.0, 0.0, 0.0};
     Vec3d sensor{0.0, 0.0, 0.0};
 };

@@ -416,39 +416,55 @@ double grid_focal(const FramePoints& f, double max_jump) {
 
 }  // namespace
 
-void color_samples(PointCloud& samples, const ColorImage& color, const Intrinsics& K,
-                   const Pose& pose) {
+namespace {
+
+/// The colour the camera (intrinsics K, the image `color`) sees at the camera-frame point
+/// (x, y, z): bilinear, clamped at the border (pixel centres at integers).
+Vec3f seen_color(const ColorImage& color, const Intrinsics& K, double x, double y, double z) {
+    const int w = color.width, h = color.height;
+    const double u = z > 0.0 ? K.fx * x / z + K.cx : 0.0;
+    const double v = z > 0.0 ? K.fy * y / z + K.cy : 0.0;
+    const double uc = std::clamp(u, 0.0, double(w - 1)), vc = std::clamp(v, 0.0, double(h - 1));
+    const int u0 = std::min(int(uc), w - 1), v0 = std::min(int(vc), h - 1);
+    const int u1 = std::min(u0 + 1, w - 1), v1 = std::min(v0 + 1, h - 1);
+    const float fu = float(uc - u0), fv = float(vc - v0);
+    const auto at = [&](int a, int b) {
+        return color.rgb[std::size_t(b) * std::size_t(w) + std::size_t(a)];
+    };
+    const Vec3f c00 = at(u0, v0), c10 = at(u1, v0), c01 = at(u0, v1), c11 = at(u1, v1);
+    Vec3f out;
+    for (std::size_t c = 0; c < 3; ++c) {
+        out[c] = (1 - fv) * ((1 - fu) * c00[c] + fu * c10[c]) + fv * ((1 - fu) * c01[c] + fu * c11[c]);
+    }
+    return out;
+}
+
+void check_color(const ColorImage& color, const Intrinsics& K) {
     if (color.width <= 0 || color.height <= 0 ||
         color.rgb.size() != std::size_t(color.width) * std::size_t(color.height)) {
         throw InvalidArgument("colour image: its pixels do not fill width x height");
     }
     K.validate();
+}
+
+}  // namespace
+
+void color_samples(PointCloud& samples, const ColorImage& color, const Intrinsics& K,
+                   const Pose& pose) {
+    check_color(color, K);
     const std::size_t n = samples.size();
     std::vector<Vec3f> out(n);
     const Vec3d& o = samples.origin;
-    const int w = color.width, h = color.height;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             const Vec3f& p = samples.positions[i];
             // World to camera: R^T (x - t).
-            const double d[3] = {o[0] + p[0] - pose[3], o[1] + p[1] - pose[7], o[2] + p[2] - pose[11]};
-            const double x = pose[0] * d[0] + pose[4] * d[1] + pose[8] * d[2];
-            const double y = pose[1] * d[0] + pose[5] * d[1] + pose[9] * d[2];
-            const double z = pose[2] * d[0] + pose[6] * d[1] + pose[10] * d[2];
-            const double u = z > 0.0 ? K.fx * x / z + K.cx : 0.0;
-            const double v = z > 0.0 ? K.fy * y / z + K.cy : 0.0;
-            // Bilinear, clamped at the border (pixel centres at integers).
-            const double uc = std::clamp(u, 0.0, double(w - 1)), vc = std::clamp(v, 0.0, double(h - 1));
-            const int u0 = std::min(int(uc), w - 1), v0 = std::min(int(vc), h - 1);
-            const int u1 = std::min(u0 + 1, w - 1), v1 = std::min(v0 + 1, h - 1);
-            const float fu = float(uc - u0), fv = float(vc - v0);
-            const auto at = [&](int a, int b) { return color.rgb[std::size_t(b) * std::size_t(w) + std::size_t(a)]; };
-            const Vec3f c00 = at(u0, v0), c10 = at(u1, v0), c01 = at(u0, v1), c11 = at(u1, v1);
-            for (int c = 0; c < 3; ++c) {
-                out[i][std::size_t(c)] = (1 - fv) * ((1 - fu) * c00[std::size_t(c)] + fu * c10[std::size_t(c)]) +
-                                         fv * ((1 - fu) * c01[std::size_t(c)] + fu * c11[std::size_t(c)]);
-            }
+            const double d[3] = {o[0] + p[0] - pose[3], o[1] + p[1] - pose[7],
+                                 o[2] + p[2] - pose[11]};
+            out[i] = seen_color(color, K, pose[0] * d[0] + pose[4] * d[1] + pose[8] * d[2],
+                                pose[1] * d[0] + pose[5] * d[1] + pose[9] * d[2],
+                                pose[2] * d[0] + pose[6] * d[1] + pose[10] * d[2]);
         }
     });
     samples.colors = std::move(out);
@@ -675,7 +691,17 @@ std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, cons
 
 std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
                               const ColorImage& color, const Intrinsics& color_K) {
-    if (tsdf_) return integrate(depth, K, pose);
+    if (tsdf_) {  // each measured pixel's colour, seen from the same pose
+        check_frame(depth, K, pose, depth_);
+        check_color(color, color_K);
+        const FramePoints f = back_project(depth, K, depth_);
+        std::vector<Vec3f> colors(f.p.size(), Vec3f{0.0f, 0.0f, 0.0f});
+        for (std::size_t i = 0; i < f.p.size(); ++i) {
+            if (f.valid[i]) colors[i] = seen_color(color, color_K, f.p[i][0], f.p[i][1], f.p[i][2]);
+        }
+        ++frames_;
+        return tsdf_->integrate(f.p, f.valid, K, pose, &colors);
+    }
     PointCloud samples = depth_samples(depth, K, pose, depth_, accumulator_.origin());
     color_samples(samples, color, color_K, pose);
     return add_frame(samples);
@@ -821,6 +847,8 @@ struct FrameSamples {
     std::size_t count = 0;  ///< samples
     DepthImage image;       ///< tsdf rule: the frame, and its intrinsics
     Intrinsics K;
+    ColorImage color;       ///< tsdf rule: its colour image (empty: none), and its intrinsics
+    Intrinsics color_K;
     std::exception_ptr error;
 };
 
@@ -845,6 +873,10 @@ FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3
         DepthImage img = frame_depth(f);
         const Intrinsics K = frame_intrinsics(f, img);  // checked with the frame
         if (fusion.tsdf()) {
+            if (color && !f.color_path.empty()) {
+                out.color = read_color_image(f.color_path);
+                out.color_K = color_camera(f, K, out.color);
+            }
             out.image = std::move(img);
             out.K = K;
             return out;
@@ -890,7 +922,9 @@ void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::s
         try {
             const FrameSamples& s = r.second;
             if (s.error) std::rethrow_exception(s.error);
-            if (fusion.tsdf()) {
+            if (fusion.tsdf() && !s.color.rgb.empty()) {
+                fusion.integrate(s.image, s.K, frames[r.first]->pose, s.color, s.color_K);
+            } else if (fusion.tsdf()) {
                 fusion.integrate(s.image, s.K, frames[r.first]->pose);
             } else {
                 fusion.integrate_presummed(s.groups, s.count);

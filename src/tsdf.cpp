@@ -144,7 +144,7 @@ TsdfVolume::DepthTiles::DepthTiles(const std::vector<double>& z, int w, int h)
 /// (m0 p0 + m4 p1) + m8 p2, the x and y parts once per row of the leaf: the same floating-point
 /// operations as per voxel, in the same order. The leaf's arrays are written in place.
 void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<double>& z,
-                             const Intrinsics& K, const Pose& m) const {
+                             const Intrinsics& K, const Pose& m, const LeafColors& lc) const {
     const openvdb::Coord o = val.origin();
     double p[3][8];  // per axis and leaf coordinate, the voxel's position less the camera's
     for (int a = 0; a < 3; ++a) {
@@ -182,6 +182,13 @@ void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<do
                 value_on.setOn(idx);
                 weight[idx] = float(w0 + 1.0);
                 weight_on.setOn(idx);
+                if (lc.pixels && t < 1.0) {  // near the surface: its pixel's colour
+                    const Vec3f& c = (*lc.pixels)[std::size_t(v) * w + std::size_t(u)];
+                    const float cw = lc.weight->getValue(idx);
+                    const openvdb::Vec3f c0 = cw > 0.0f ? lc.color->getValue(idx) : openvdb::Vec3f(0.0f);
+                    lc.color->setValueOn(idx, (c0 * cw + openvdb::Vec3f(c[0], c[1], c[2])) / (cw + 1.0f));
+                    lc.weight->setValueOn(idx, cw + 1.0f);
+                }
             }
         }
     }
@@ -193,7 +200,7 @@ TsdfVolume::TsdfVolume(double voxel, double truncation_voxels, bool carve, const
 
 std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& points,
                                   const std::vector<char>& measured, const Intrinsics& K,
-                                  const Pose& m) {
+                                  const Pose& m, const std::vector<Vec3f>* colors) {
     const int w = K.width, h = K.height;
     // Planar depth per pixel (0: none).
     std::vector<double> z(std::size_t(w) * std::size_t(h), 0.0);
@@ -251,6 +258,17 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
     } else {
         for (const openvdb::Coord& c : leaves) todo.push_back(value_->tree().probeLeaf(c));
     }
+    if (colors && colors->size() != z.size()) colors = nullptr;
+    if (colors && !color_) {
+        color_ = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
+        color_weight_ = openvdb::FloatGrid::create(0.0f);
+    }
+    if (colors) {  // serially: the colour trees' structure changes
+        for (FloatLeaf* leaf : todo) {
+            color_->tree().touchLeaf(leaf->origin());
+            color_weight_->tree().touchLeaf(leaf->origin());
+        }
+    }
     const DepthTiles tiles(z, w, h);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, todo.size(), 8),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
@@ -258,7 +276,13 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
             FloatLeaf& val = *todo[j];
             if (!leaf_seen(val.origin(), K, m, tiles)) continue;
             FloatLeaf& wt = *weight_->tree().probeLeaf(val.origin());
-            update_leaf(val, wt, z, K, m);
+            LeafColors lc;
+            if (colors) {
+                lc.pixels = colors;
+                lc.color = color_->tree().probeLeaf(val.origin());
+                lc.weight = color_weight_->tree().probeLeaf(val.origin());
+            }
+            update_leaf(val, wt, z, K, m, lc);
         }
     });
     return valid;
@@ -269,11 +293,13 @@ SplatResult TsdfVolume::result() const {
     auto sdf = openvdb::FloatGrid::create(background);
     auto weight = openvdb::FloatGrid::create(0.0f);
     auto nearest = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
+    auto color = color_ ? openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f)) : openvdb::Vec3fGrid::Ptr();
     SplatResult r;
     for (auto it = value_->tree().cbeginLeaf(); it; ++it) {
         const FloatLeaf* wt = weight_->tree().probeConstLeaf(it->origin());
         std::unique_ptr<FloatLeaf> s, wl;
-        std::unique_ptr<openvdb::Vec3fTree::LeafNodeType> nl;
+        std::unique_ptr<openvdb::Vec3fTree::LeafNodeType> nl, cl;
+        const ColorLeaf* cs = color_ ? color_->tree().probeConstLeaf(it->origin()) : nullptr;
         for (auto v = it->cbeginValueOn(); v; ++v) {
             const openvdb::Index idx = v.pos();
             const float wv = wt->getValue(idx);
@@ -283,7 +309,9 @@ SplatResult TsdfVolume::result() const {
                 s = std::make_unique<FloatLeaf>(it->origin(), background, false);
                 wl = std::make_unique<FloatLeaf>(it->origin(), 0.0f, false);
                 nl = std::make_unique<openvdb::Vec3fTree::LeafNodeType>(it->origin(), openvdb::Vec3f(0.0f), false);
+                if (color) cl = std::make_unique<ColorLeaf>(it->origin(), openvdb::Vec3f(0.0f), false);
             }
+            if (cl) cl->setValueOn(idx, cs ? cs->getValue(idx) : openvdb::Vec3f(0.0f));
             s->setValueOn(idx, *v * background);
             wl->setValueOn(idx, wv);
             nl->setValueOn(idx, openvdb::Vec3f(0.0f));
@@ -294,11 +322,12 @@ SplatResult TsdfVolume::result() const {
         sdf->tree().addLeaf(s.release());
         weight->tree().addLeaf(wl.release());
         nearest->tree().addLeaf(nl.release());
+        if (cl) color->tree().addLeaf(cl.release());
     }
     if (r.active_voxels == 0) {
         throw NumericalError("tsdf: no voxel near a measured surface");
     }
-    r.volume = make_volume(sdf, weight, nearest, nullptr, voxel_, origin_);
+    r.volume = make_volume(sdf, weight, nearest, color, voxel_, origin_);
     Volume& vol = r.volume;
     vol.metadata["kernel"] = "truncated signed distance along the rays (Curless and Levoy 1996)";
     vol.metadata["truncation"] = std::to_string(truncation_);

@@ -353,7 +353,17 @@ TEST_CASE("fuse: the frames' colour images become the mesh's colours, in every l
         // 0.0063 and 0.031.
         CHECK(mean < 0.01);
         CHECK(p99 < 0.06);
-        if (layout == "7scenes") {  // --no-color: a grey mesh
+        if (layout == "7scenes") {
+            // The tsdf rule averages each voxel's pixel colour near the surface.
+            const CliRun t = run_cli(args.str() + " --fusion tsdf");
+            REQUIRE(t.code == 0);
+            const Mesh tm = read_mesh(out.file("m.ply"));
+            REQUIRE(tm.colors.size() == tm.vertices.size());
+            double tsdf_p99 = 0.0;
+            const double tsdf_mean = color_error(tm, tsdf_p99);
+            INFO("tsdf colour error: mean " << tsdf_mean << ", 99th percentile " << tsdf_p99);
+            CHECK(tsdf_mean < 0.02);
+            // --no-color: a grey mesh.
             const CliRun g = run_cli(args.str() + " --no-color");
             REQUIRE(g.code == 0);
             CHECK(read_mesh(out.file("m.ply")).colors.empty());

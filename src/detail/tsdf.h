@@ -10,6 +10,9 @@
 // volume already holds that the camera sees: voxels observed in front of the measured surface
 // get +1 (free), so objects that moved away are carved out as frames accumulate.
 //
+// With colours (one per pixel), a voxel within the truncation of the surface also averages the
+// colour of its pixel, with a weight of its own (free-space updates leave it alone).
+//
 // Each voxel is updated by one task from its own value, frame after frame, so the grids are
 // the same bit for bit for any thread count.
 #pragma once
@@ -32,7 +35,8 @@ class TsdfVolume {
     /// back-projection and the measurement rules of depth_samples) and whether each was
     /// measured; returns the measured pixels.
     std::size_t integrate(const std::vector<std::array<double, 3>>& points,
-                          const std::vector<char>& measured, const Intrinsics& K, const Pose& pose);
+                          const std::vector<char>& measured, const Intrinsics& K, const Pose& pose,
+                          const std::vector<Vec3f>* colors = nullptr);
     /// The volume: sdf = value x truncation (world units) on the voxels with |value| < 1,
     /// weight = frames that saw them, nearest = 0 (no sample positions: no trims).
     SplatResult result() const;
@@ -51,13 +55,22 @@ class TsdfVolume {
     };
     bool leaf_seen(const openvdb::Coord& origin, const Intrinsics& K, const Pose& pose,
                    const DepthTiles& tiles) const;
+    using ColorLeaf = openvdb::Vec3fTree::LeafNodeType;
+    /// `colors` (per pixel) with their leaves, or none.
+    struct LeafColors {
+        const std::vector<Vec3f>* pixels = nullptr;
+        ColorLeaf* color = nullptr;
+        FloatLeaf* weight = nullptr;
+    };
     void update_leaf(FloatLeaf& value, FloatLeaf& weight, const std::vector<double>& z,
-                     const Intrinsics& K, const Pose& pose) const;
+                     const Intrinsics& K, const Pose& pose, const LeafColors& colors) const;
 
     double voxel_, truncation_;
     bool carve_;
     Vec3d origin_;
     openvdb::FloatGrid::Ptr value_, weight_;
+    openvdb::Vec3fGrid::Ptr color_;          ///< averaged colour, once a frame had colours
+    openvdb::FloatGrid::Ptr color_weight_;   ///< ... and its weight
     std::size_t pixels_ = 0;
 };
 

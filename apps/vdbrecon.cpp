@@ -314,9 +314,10 @@ void help_fuse() {
         << "fuse options: SCENE is a transforms.json (NeRF/Blender: depth_file_path or\n"
         << "      file_path + _depth.exr/.png, transform_matrix in OpenGL axes), a folder of a\n"
         << "      dataset layout (TUM RGB-D, 7-Scenes/3DMatch, Redwood/Open3D, ScanNet,\n"
-        << "      Replica/NICE-SLAM; detected from its files), an organized .pcd, or a point\n"
-        << "      file of scans; depth images .exr (channel Z, depth, R, Y or a layer's .Z) or\n"
-        << "      16-bit .png. Every reconstruction option applies.\n"
+        << "      Replica/NICE-SLAM, KITTI LiDAR scans; detected from its files), an\n"
+        << "      organized .pcd, or a point file of scans; depth images .exr (channel Z,\n"
+        << "      depth, R, Y or a layer's .Z) or 16-bit .png. Every reconstruction option\n"
+        << "      applies.\n"
         << "  --scan-origins FILE    SCENE is a point file of scans (PLY 'scan' property): their\n"
         << "                         sensors, 'x y z' per scan or a Stanford .conf (directions)\n"
         << "  --depth-scale S        PNG depth units per metre [transforms.json: 1/depth_scale,\n"
@@ -339,6 +340,8 @@ void help_fuse() {
         << "  --frame-step N, --max-frames N  every N-th frame; at most N frames [1, all]\n"
         << "  --skip-bad-frames      a frame that cannot be read or fused is skipped with a\n"
            "                         warning naming it [off: the run stops with its error]\n"
+        << "  --min-range R, --max-range R  LiDAR scans: points nearer or farther than this\n"
+           "                         from the sensor are no measurement, world units [0, none]\n"
         << "  --no-color             ignore the frames' colour images (.png, .jpg): a grey mesh\n"
            "                         [colour images fused into vertex colours]\n"
         << "  the voxel defaults to 1.4 x the first frame's median pixel footprint\n";
@@ -865,6 +868,10 @@ int run_fuse(Args& args, double startup_rss_mb) {
             f.skip_bad_frames = true;
         } else if (a == "--no-color") {
             f.color = false;
+        } else if (a == "--min-range" || a == "--max-range") {
+            const double r = parse_number(a, args.value(a));
+            if (!(std::isfinite(r) && r >= 0.0)) throw UsageError(a + " must be >= 0");
+            (a == "--min-range" ? f.min_range : f.max_range) = r;
         } else if (a == "--frame-step" || a == "--max-frames") {
             const int n = parse_int(a, args.value(a));
             if (n < (a == "--frame-step" ? 1 : 0)) throw UsageError(a + ": " + std::to_string(n) + " is out of range");

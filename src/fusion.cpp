@@ -827,6 +827,63 @@ class FusionStart {
     std::unique_ptr<Fusion> fusion_;
 };
 
+/// A LiDAR scan frame's points (f.scan) in the fusion's frame (relative to `origin`): a KITTI
+/// .bin (float32 x y z intensity) or a point file, in the sensor's frame, moved by f.pose; the
+/// points nearer than fo.min_range or farther than fo.max_range from the sensor left out.
+PointCloud scan_points(const SceneFrame& f, const FuseOptions& fo, const Vec3d& origin) {
+    std::vector<std::array<double, 3>> local;
+    if (file_extension(f.depth_path) == "bin") {
+        const std::string bytes = detail::read_file(f.depth_path);
+        if (bytes.size() % 16 != 0) {
+            throw FormatError(detail::where(f.depth_path, "a KITTI scan is float32 x y z intensity "
+                                                          "(16 bytes a point); the file's " +
+                                                          std::to_string(bytes.size()) +
+                                                          " bytes are not"));
+        }
+        local.reserve(bytes.size() / 16);
+        for (std::size_t i = 0; i < bytes.size(); i += 16) {
+            float v[4];
+            std::memcpy(v, bytes.data() + i, sizeof v);
+            local.push_back({v[0], v[1], v[2]});
+        }
+    } else {
+        const ReadResult r = read_points(f.depth_path);
+        for (const Vec3f& p : r.cloud.positions) {
+            local.push_back({p[0] + r.cloud.origin[0], p[1] + r.cloud.origin[1], p[2] + r.cloud.origin[2]});
+        }
+    }
+    const Pose& m = f.pose;
+    const double far = fo.max_range > 0.0 ? fo.max_range : HUGE_VAL;
+    PointCloud c;
+    c.origin = origin;
+    std::vector<Vec3f> pos;
+    pos.reserve(local.size());
+    for (const auto& p : local) {
+        const double r = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+        if (!std::isfinite(r) || !(r > fo.min_range) || r > far) continue;
+        pos.push_back({float(m[0] * p[0] + m[1] * p[1] + m[2] * p[2] + m[3] - origin[0]),
+                       float(m[4] * p[0] + m[5] * p[1] + m[6] * p[2] + m[7] - origin[1]),
+                       float(m[8] * p[0] + m[9] * p[1] + m[10] * p[2] + m[11] - origin[2])});
+    }
+    c.positions = std::move(pos);
+    return c;
+}
+
+/// A LiDAR scan frame: its points sampled from its sensor (scan_samples) and fused.
+void integrate_scan_frame(const SceneFrame& f, const FuseOptions& fo, FusionStart& fusion) {
+    validate_pose(f.pose);
+    const Vec3d sensor{f.pose[3], f.pose[7], f.pose[11]};
+    const Vec3d origin = fusion.started() ? (*fusion).origin() : sensor;
+    const int threads = fusion.options().threads;
+    const PointCloud points = scan_points(f, fo, origin);
+    const PointCloud samples = detail::in_arena(threads, [&] {
+        return scan_samples(points, sensor, std::nullopt, fo.depth, fusion.options().normals.k);
+    });
+    if (samples.empty()) return;
+    Fusion& fu = fusion.get(samples, f.depth_path, origin);
+    detail::in_arena(threads, [&] { fu.integrate(samples); });
+}
+
 /// A scene frame's depth image, its layout's "no measurement" value cleared.
 DepthImage frame_depth(const SceneFrame& f) {
     DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
@@ -954,6 +1011,11 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
     for (std::size_t g = 0; g < frames.size();) {
         const SceneFrame& f = *frames[g];
         try {
+            if (f.scan) {
+                integrate_scan_frame(f, fo, fusion);
+                ++g;
+                continue;
+            }
             if (f.organized) {
                 OrganizedCloud c = read_organized_cloud(f.depth_path);
                 if (!fo.color) c.colors.clear();
@@ -989,7 +1051,7 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
             continue;
         }
         std::size_t end = g;
-        while (end < frames.size() && !frames[end]->organized) ++end;
+        while (end < frames.size() && !frames[end]->organized && !frames[end]->scan) ++end;
         integrate_depth_frames(frames, g, end, *fusion, threads, fo.skip_bad_frames, fo.color);
         g = end;
     }

@@ -407,10 +407,12 @@ Scene read_scene(const std::string& path, const SceneOptions& options) {
         if (layout == "redwood") return detail::read_redwood(path, log, options);
         if (layout == "scannet") return detail::read_scannet(path, options);
         if (layout == "replica") return detail::read_replica(path, options);
+        if (layout == "kitti") return detail::read_kitti(path, options);
         throw FormatError(detail::where(
             path, "not a scene folder: looked for transforms.json, depth.txt (TUM), "
                   "frame-NNNNNN.depth.png (7-Scenes/3DMatch), a .log and depth/ (Redwood/Open3D), "
-                  "pose/ depth/ intrinsic/ (ScanNet), traj.txt and results/ (Replica)"));
+                  "pose/ depth/ intrinsic/ (ScanNet), traj.txt and results/ (Replica), "
+                  "velodyne/ and poses.txt (KITTI)"));
     }
     const std::string ext = file_extension(path);
     if (ext == "json") return read_transforms(path, options);

@@ -350,8 +350,118 @@ Scene read_replica(const std::string& folder, const SceneOptions& options) {
     return scene;
 }
 
+namespace {
+
+/// Row-major 4x4 from a 3x4 of v starting at `at`.
+Pose pose34(const std::vector<double>& v, std::size_t at) {
+    Pose p{};
+    for (std::size_t i = 0; i < 12; ++i) p[i] = v[at + i];
+    p[15] = 1.0;
+    return p;
+}
+
+Pose multiply(const Pose& a, const Pose& b) {
+    Pose c{};
+    for (int r = 0; r < 4; ++r) {
+        for (int k = 0; k < 4; ++k) {
+            double s = 0.0;
+            for (int j = 0; j < 4; ++j) s += a[std::size_t(4 * r + j)] * b[std::size_t(4 * j + k)];
+            c[std::size_t(4 * r + k)] = s;
+        }
+    }
+    return c;
+}
+
+/// The inverse of a rigid transform (R^T, -R^T t).
+Pose rigid_inverse(const Pose& m) {
+    Pose r{};
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) r[std::size_t(4 * i + j)] = m[std::size_t(4 * j + i)];
+        r[std::size_t(4 * i + 3)] = -(m[std::size_t(i)] * m[3] + m[std::size_t(4 + i)] * m[7] +
+                                       m[std::size_t(8 + i)] * m[11]);
+    }
+    r[15] = 1.0;
+    return r;
+}
+
+/// calib.txt's `Tr:` (or `Tr_velo_to_cam:`) as a 4x4.
+Pose kitti_calibration(const fs::path& path) {
+    std::istringstream in(read_file(path.string()));
+    std::string line;
+    while (std::getline(in, line)) {
+        for (const std::string key : {"Tr:", "Tr_velo_to_cam:"}) {
+            if (line.compare(0, key.size(), key) != 0) continue;
+            const std::string rest = line.substr(key.size());
+            std::vector<double> v;
+            const char* p = rest.data();
+            const char* end = p + rest.size();
+            while (p < end) {
+                while (p < end && std::isspace(static_cast<unsigned char>(*p))) ++p;
+                const char* q = p;
+                while (q < end && !std::isspace(static_cast<unsigned char>(*q))) ++q;
+                double x = 0.0;
+                if (p < q && (!parse_double(p, q, x) || !std::isfinite(x))) {
+                    throw FormatError(where(path.string(), key + " '" + printable(std::string(p, q)) +
+                                                               "' is not a finite number"));
+                }
+                if (p < q) v.push_back(x);
+                p = q;
+            }
+            if (v.size() != 12) {
+                throw FormatError(where(path.string(), key + " needs 12 numbers (a 3x4 matrix), has " +
+                                                           std::to_string(v.size())));
+            }
+            return pose34(v, 0);
+        }
+    }
+    throw FormatError(where(path.string(), "no 'Tr:' line (velodyne to camera 0)"));
+}
+
+}  // namespace
+
+Scene read_kitti(const std::string& folder, const SceneOptions&) {
+    const fs::path dir(folder);
+    Scene scene;
+    scene.kind = "KITTI";
+    std::vector<fs::path> scans;
+    std::error_code ec;
+    for (const fs::directory_entry& e : fs::directory_iterator(dir / "velodyne", ec)) {
+        const std::string x = e.path().extension().string();
+        if (x == ".bin" || x == ".ply" || x == ".pcd") scans.push_back(e.path());
+    }
+    std::sort(scans.begin(), scans.end());
+    const fs::path poses_path = dir / "poses.txt";
+    const std::vector<double> v = numbers_of(poses_path);
+    if (v.size() % 12 != 0 || v.empty()) {
+        throw FormatError(where(poses_path.string(), "expected a 3x4 pose (12 numbers) a line; found " +
+                                                         std::to_string(v.size()) + " numbers"));
+    }
+    if (v.size() / 12 < scans.size()) {
+        throw FormatError(where(poses_path.string(), std::to_string(v.size() / 12) + " poses for " +
+                                                         std::to_string(scans.size()) + " scans in " +
+                                                         (dir / "velodyne").string()));
+    }
+    const bool calibrated = exists_file(dir / "calib.txt");
+    Pose tr{}, tr_inv{};
+    if (calibrated) {
+        tr = kitti_calibration(dir / "calib.txt");
+        tr_inv = rigid_inverse(tr);
+    }
+    for (std::size_t i = 0; i < scans.size(); ++i) {
+        SceneFrame f;
+        f.depth_path = scans[i].string();
+        f.scan = true;
+        const Pose p = pose34(v, 12 * i);
+        f.pose = calibrated ? multiply(tr_inv, multiply(p, tr)) : p;
+        scene.frames.push_back(std::move(f));
+    }
+    require_frames(scene, dir, "velodyne/*.bin with poses.txt");
+    return scene;
+}
+
 std::string detect_layout(const std::string& folder, std::string& log) {
     const fs::path dir(folder);
+    if (exists_dir(dir / "velodyne") && exists_file(dir / "poses.txt")) return "kitti";
     if (!numbered_files(dir, "frame-", ".depth.png").empty()) return "7scenes";
     if (exists_dir(dir / "pose") && exists_dir(dir / "depth") && exists_dir(dir / "intrinsic")) {
         return "scannet";

@@ -10,7 +10,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <random>
 #include <sstream>
+#include <unordered_map>
 
 #include "depth_scenes.h"
 #include "shapes.h"
@@ -1025,5 +1027,188 @@ TEST_CASE("tsdf fusion: a pixel beyond 2^23 voxels is one clear error, not a wra
         FAIL("no error");
     } catch (const NumericalError& e) {
         CHECK(std::string(e.what()).find("2^23 voxels") != std::string::npos);
+    }
+}
+
+namespace {
+
+/// A street for a car's LiDAR (z up): the ground, two facades along x, three poles and a parked
+/// car, as boxes; the ray cast returns the nearest hit within 80 m (0: none).
+struct Street {
+    struct Box {
+        Vec3d lo, hi;
+    };
+    std::vector<Box> boxes = {{{0, 8, 0}, {50, 14, 12}},      // left facade at y = 8
+                              {{0, -14, 0}, {50, -8, 12}},    // right facade at y = -8
+                              {{10, 5, 0}, {10.2, 5.2, 4}},   // poles
+                              {{25, -5.2, 0}, {25.2, -5, 4}},
+                              {{40, 5, 0}, {40.2, 5.2, 4}},
+                              {{20, 3, 0}, {24, 5, 1.5}}};    // a parked car
+    double cast(const Vec3d& o, const Vec3d& d) const {
+        double best = d[2] < 0.0 ? -o[2] / d[2] : HUGE_VAL;  // the ground z = 0
+        for (const Box& b : boxes) {
+            double t0 = 0.0, t1 = best;
+            for (int a = 0; a < 3; ++a) {
+                const std::size_t k = std::size_t(a);
+                if (std::fabs(d[k]) < 1e-12) {
+                    if (o[k] < b.lo[k] || o[k] > b.hi[k]) t0 = HUGE_VAL;
+                    continue;
+                }
+                double ta = (b.lo[k] - o[k]) / d[k], tb = (b.hi[k] - o[k]) / d[k];
+                if (ta > tb) std::swap(ta, tb);
+                t0 = std::max(t0, ta);
+                t1 = std::min(t1, tb);
+            }
+            if (t0 <= t1 && t0 > 0.0) best = std::min(best, t0);
+        }
+        return best <= 80.0 ? best : 0.0;
+    }
+    /// The distance from p to the nearest surface (ground or box).
+    double distance(const Vec3d& p) const {
+        double best = std::fabs(p[2]);
+        for (const Box& b : boxes) {
+            double out2 = 0.0, in = HUGE_VAL;
+            for (std::size_t a = 0; a < 3; ++a) {
+                const double e = std::max({b.lo[a] - p[a], 0.0, p[a] - b.hi[a]});
+                out2 += e * e;
+                in = std::min(in, std::min(p[a] - b.lo[a], b.hi[a] - p[a]));
+            }
+            best = std::min(best, out2 > 0.0 ? std::sqrt(out2) : std::max(0.0, in));
+        }
+        return best;
+    }
+};
+
+}  // namespace
+
+TEST_CASE("fuse: a KITTI sequence of a ray-cast street from a 64-beam LiDAR", "[fusion][kitti]") {
+    const Street street;
+    // Ten scans 4 m apart along the street, the sensor 1.73 m up, turning a little (yaw), 64
+    // beams from -24.8 to +2 degrees, 720 steps a turn, 1 cm range noise.
+    std::mt19937_64 rng(3);
+    std::normal_distribution<double> noise(0.0, 0.01);
+    std::vector<Pose> lidar;  // scan to the first scan's frame
+    std::vector<std::vector<float>> scans;
+    std::vector<Vec3d> hits;  // exact hits within 30 m, in the first scan's frame
+    const Vec3d s0{2.0, 0.0, 1.73};
+    for (int i = 0; i < 10; ++i) {
+        const double yaw = 0.05 * std::sin(i), c = std::cos(yaw), s = std::sin(yaw);
+        const Vec3d at{2.0 + 4.0 * i, 0.3 * std::sin(0.7 * i), 1.73};
+        lidar.push_back({c, -s, 0, at[0] - s0[0], s, c, 0, at[1] - s0[1], 0, 0, 1, at[2] - s0[2], 0, 0, 0, 1});
+        std::vector<float> bin;
+        for (int b = 0; b < 64; ++b) {
+            const double el = (-24.8 + 26.8 * b / 63.0) * M_PI / 180.0;
+            for (int a = 0; a < 720; ++a) {
+                const double az = 2.0 * M_PI * a / 720.0;
+                const Vec3d local{std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)};
+                const Vec3d world{c * local[0] - s * local[1], s * local[0] + c * local[1], local[2]};
+                const double t = street.cast(at, world);
+                if (t <= 0.0) continue;
+                const double r = t + noise(rng);
+                for (double v : {local[0] * r, local[1] * r, local[2] * r, 0.0}) bin.push_back(float(v));
+                if (t <= 30.0) {
+                    hits.push_back({at[0] + world[0] * t - s0[0], at[1] + world[1] * t - s0[1],
+                                    at[2] + world[2] * t - s0[2]});
+                }
+            }
+        }
+        scans.push_back(std::move(bin));
+    }
+    // KITTI writes camera 0's poses: P_i = Tr T_i Tr^-1, with Tr the LiDAR to camera 0.
+    const Pose tr{0, -1, 0, 0.02, 0, 0, -1, -0.08, 1, 0, 0, -0.27, 0, 0, 0, 1};
+    const Pose tr_inv{0, 0, 1, 0.27, -1, 0, 0, 0.02, 0, -1, 0, -0.08, 0, 0, 0, 1};
+    const auto mul = [](const Pose& a, const Pose& b) {
+        Pose c{};
+        for (int r = 0; r < 4; ++r) {
+            for (int k = 0; k < 4; ++k) {
+                for (int j = 0; j < 4; ++j) c[std::size_t(4 * r + k)] += a[std::size_t(4 * r + j)] * b[std::size_t(4 * j + k)];
+            }
+        }
+        return c;
+    };
+    TempDir dir, out;
+    ::mkdir(dir.file("velodyne").c_str(), 0755);
+    std::ostringstream poses, calib;
+    poses.precision(17);
+    calib.precision(17);
+    for (std::size_t i = 0; i < scans.size(); ++i) {
+        char name[32];
+        std::snprintf(name, sizeof name, "velodyne/%06zu.bin", i);
+        write_bytes(dir.file(name), std::string(reinterpret_cast<const char*>(scans[i].data()),
+                                                scans[i].size() * sizeof(float)));
+        const Pose p = mul(tr, mul(lidar[i], tr_inv));
+        for (int k = 0; k < 12; ++k) poses << (k ? " " : "") << p[std::size_t(k)];
+        poses << "\n";
+    }
+    calib << "P0: 718.856 0 607.1928 0 0 718.856 185.2157 0 0 0 1 0\nTr:";
+    for (int k = 0; k < 12; ++k) calib << " " << tr[std::size_t(k)];
+    calib << "\n";
+    write_bytes(dir.file("poses.txt"), poses.str());
+    write_bytes(dir.file("calib.txt"), calib.str());
+
+    const double voxel = 0.1;
+    const CliRun r = run_cli("fuse '" + dir.path() + "' -o '" + out.file("m.ply") +
+                             "' --voxel 0.1 --max-range 30 --no-vdb");
+    INFO(r.err);
+    REQUIRE(r.code == 0);
+    CHECK(r.err.find("(KITTI)") != std::string::npos);
+    const Mesh m = read_mesh(out.file("m.ply"));
+    REQUIRE(m.vertices.size() > 1000);
+    // Precision: mesh vertices within 2 voxels of the true surfaces (in the first scan's frame).
+    std::vector<Vec3d> w;
+    std::size_t near = 0;
+    for (const Vec3f& v : m.vertices) {
+        w.push_back({m.origin[0] + v[0], m.origin[1] + v[1], m.origin[2] + v[2]});
+        near += street.distance({w.back()[0] + s0[0], w.back()[1] + s0[1], w.back()[2] + s0[2]}) <= 2 * voxel;
+    }
+    const double precision = double(near) / double(w.size());
+    // Recall: exact hits with a mesh vertex within 2 voxels (a hash grid of the vertices).
+    std::unordered_map<std::int64_t, std::vector<std::size_t>> grid;
+    const auto key = [&](const Vec3d& p, int dx, int dy, int dz) {
+        return (std::int64_t(std::floor(p[0] / (2 * voxel))) + dx + 100000) * 4000000000LL +
+               (std::int64_t(std::floor(p[1] / (2 * voxel))) + dy + 10000) * 20000 +
+               (std::int64_t(std::floor(p[2] / (2 * voxel))) + dz + 5000);
+    };
+    for (std::size_t i = 0; i < w.size(); ++i) grid[key(w[i], 0, 0, 0)].push_back(i);
+    std::size_t found = 0;
+    for (const Vec3d& h : hits) {
+        bool hit = false;
+        for (int dx = -1; dx <= 1 && !hit; ++dx) {
+            for (int dy = -1; dy <= 1 && !hit; ++dy) {
+                for (int dz = -1; dz <= 1 && !hit; ++dz) {
+                    const auto it = grid.find(key(h, dx, dy, dz));
+                    if (it == grid.end()) continue;
+                    for (std::size_t j : it->second) {
+                        const double ex = w[j][0] - h[0], ey = w[j][1] - h[1], ez = w[j][2] - h[2];
+                        if (ex * ex + ey * ey + ez * ez <= 4 * voxel * voxel) {
+                            hit = true;
+                            break;
+                        }
+                    }
+                }
+            }
+        }
+        found += hit;
+    }
+    const double recall = double(found) / double(hits.size());
+    const double f = 2 * precision * recall / (precision + recall);
+    INFO("precision " << precision << ", recall " << recall << ", F@2 voxels " << f);
+    CHECK(f >= 0.95);
+    // The poles and the facades are there: vertices on each pole 1-3 m up, on each facade.
+    const auto count_near = [&](const Street::Box& b, double z0, double z1) {
+        std::size_t n = 0;
+        for (const Vec3d& v : w) {
+            const Vec3d p{v[0] + s0[0], v[1] + s0[1], v[2] + s0[2]};
+            if (p[2] < z0 || p[2] > z1) continue;
+            bool inside = true;
+            for (std::size_t a = 0; a < 2; ++a) inside = inside && p[a] > b.lo[a] - 0.2 && p[a] < b.hi[a] + 0.2;
+            n += inside;
+        }
+        return n;
+    };
+    for (std::size_t b = 0; b < street.boxes.size(); ++b) {
+        CAPTURE(b);
+        const double z0 = b == 5 ? 0.5 : 1.0, z1 = b < 2 ? 6.0 : b < 5 ? 3.0 : 1.4;
+        CHECK(count_near(street.boxes[b], z0, z1) >= 10);
     }
 }

@@ -53,6 +53,10 @@ void write_depth_image(const std::string& path, const DepthImage& depth,
 struct SceneFrame {
     std::string depth_path;  ///< a depth image, or an organized cloud's file
     bool organized = false;  ///< depth_path is an organized cloud (read_organized_cloud)
+    /// depth_path is a LiDAR scan in its sensor's frame (KITTI .bin: float32 x y z intensity;
+    /// or a point file), `pose` the sensor to world: its points are sampled by scan_samples
+    /// from the sensor at the pose's origin.
+    bool scan = false;
     Intrinsics intrinsics;  ///< width/height 0: taken from the image (cx, cy then its centre)
     Pose pose{};            ///< camera to world, OpenCV axes
     double units_per_metre = 1000.0;  ///< for PNG depth
@@ -116,6 +120,10 @@ struct FuseOptions {
     /// Fuse the frames' colour images where the scene has them (vertex colours); false skips
     /// them (--no-color).
     bool color = true;
+    /// LiDAR scans: points nearer to the sensor than this, or farther than max_range (0 =
+    /// none), are no measurement (the car's own roof, far noise); world units.
+    double min_range = 0.0;
+    double max_range = 0.0;
 };
 
 /// Reads a scene, fuses its frames one at a time (the pipeline's splat options; voxel 0 =
@@ -127,7 +135,7 @@ RunResult fuse(const std::string& scene, const std::string& output, const Pipeli
 
 /// Reads a scene: a transforms.json file, or a folder of one of the layouts, detected by the
 /// files present: transforms.json, TUM RGB-D (depth.txt), 7-Scenes / 3DMatch, Redwood /
-/// Open3D, ScanNet, Replica / NICE-SLAM (see src/detail/scene_layouts.h); a folder that is none
+/// Open3D, ScanNet, Replica / NICE-SLAM, KITTI LiDAR scans (see src/detail/scene_layouts.h); a folder that is none
 /// of them is an error listing what was looked for. The depth files are not opened. Throws
 /// IoError / FormatError / InvalidArgument naming the file.
 Scene read_scene(const std::string& path, const SceneOptions& options = {});

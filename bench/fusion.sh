@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Range-image fusion benchmark (issue 23): one rendered depth sequence of the bunny's reference
 # mesh (bench/fusion_scene: 30 poses on a sphere, 640x480, Gaussian depth noise of 0.4 voxel,
-# 16-bit PNG), fused by `vdbrecon fuse` and by Open3D's ScalableTSDFVolume (sdf_trunc 4 voxels,
-# bench/fusion_open3d.py); F-score and Chamfer against the mesh, pieces, boundary edges, wall
-# time and peak memory. Prints a markdown table for bench/RESULTS.md.
+# 16-bit PNG, and 8-bit colour images of the mesh painted with bench/paint.py's pattern), fused
+# by `vdbrecon fuse` and by Open3D's ScalableTSDFVolume with RGB8 colour (sdf_trunc 4 voxels,
+# bench/fusion_open3d.py); F-score and Chamfer against the mesh, the vertex colours' error
+# against the pattern, pieces, boundary edges, wall time and peak memory. Prints a markdown
+# table for bench/RESULTS.md.
 #   bench/fusion.sh [build-dir]   (needs ../shared/data; installs python3-open3d; run scripts/setup.sh)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -23,20 +25,22 @@ echo
 echo "Bunny reference mesh rendered from $FRAMES poses (640x480, noise 0.4 voxel), --voxel $VOXEL;"
 echo "best wall time of $REPEAT runs each; quality against the mesh (\`vdbrecon eval --tau $VOXEL\`)."
 echo
-echo "| tool | wall s | peak RSS MB | faces | pieces | boundary edges | F@1 voxel | Chamfer-L1 um |"
-echo "|---|---|---|---|---|---|---|---|"
+echo "| tool | wall s | peak RSS MB | faces | pieces | boundary edges | F@1 voxel | Chamfer-L1 um | colour error mean / p99 |"
+echo "|---|---|---|---|---|---|---|---|---|"
 run_tool() {  # name, mesh, command...
   local name=$1 mesh=$2
   shift 2
   best_of "$OUT/best.log" "$@"
   "$BUILD/vdbrecon" eval "$mesh" "$REF" --tau "$VOXEL" >"$OUT/eval.json"
-  /usr/bin/python3 - "$OUT/eval.json" "$name" "$WALL" "$RSS" <<'PY'
+  local colour
+  colour=$(/usr/bin/python3 bench/paint.py "$mesh" "$REF")
+  /usr/bin/python3 - "$OUT/eval.json" "$name" "$WALL" "$RSS" "$colour" <<'PY'
 import json, sys
 e = json.load(open(sys.argv[1]))
 r = e["recon"]
 print(f"| {sys.argv[2]} | {float(sys.argv[3]):.2f} | {int(sys.argv[4])} | {r['faces']} | "
       f"{r['components']} | {r['boundary_edges']} | {e['fscore'][0]['fscore']:.4f} | "
-      f"{e['chamfer_l1'] * 1e6:.1f} |")
+      f"{e['chamfer_l1'] * 1e6:.1f} | {sys.argv[5]} |")
 PY
 }
 run_tool "vdbrecon fuse" "$OUT/vdbrecon.ply" "$BUILD/vdbrecon" fuse "$OUT/scene/transforms.json" \

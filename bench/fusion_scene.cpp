@@ -1,19 +1,24 @@
 // Writes a rendered depth sequence of a mesh for bench/fusion.sh: `fusion_scene MESH OUTDIR
 // [frames] [width] [height] [noise]` renders MESH from `frames` poses on a sphere (Fibonacci
 // spiral, 1.6 diagonals from its centre, 50 degree field of view), adds Gaussian depth noise of
-// `noise` world units, and writes OUTDIR/transforms.json with 16-bit PNG depth (10 um units).
+// `noise` world units, and writes OUTDIR/transforms.json with 16-bit PNG depth (10 um units)
+// and 8-bit colour images rgb_i.png of the mesh painted with the pattern of bench/paint.py
+// (period `paint` world units, default a sixth of the diagonal).
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
 
 #include "depth_scenes.h"
 #include "vdbrecon/io.h"
+#include "vdbrecon/scene.h"
 
 using namespace vdbrecon;
 
 int main(int argc, char** argv) {
     if (argc < 3) {
-        std::fprintf(stderr, "usage: fusion_scene MESH OUTDIR [frames 30] [width 640] [height 480] [noise 0]\n");
+        std::fprintf(stderr, "usage: fusion_scene MESH OUTDIR [frames 30] [width 640] [height 480] "
+                             "[noise 0] [paint period: diagonal / 6]\n");
         return 2;
     }
     const Mesh mesh = read_mesh(argv[1]);
@@ -31,6 +36,17 @@ int main(int argc, char** argv) {
     for (int i = 0; i < frames; ++i) {
         depths.push_back(test::render_depth(mesh, K, poses[std::size_t(i)]));
         if (noise > 0.0) test::add_depth_noise(depths.back(), noise, std::uint64_t(i) + 1);
+    }
+    const double s = argc > 7 ? std::atof(argv[7]) : b.diagonal() / 6.0;
+    const auto paint = [s](const Vec3d& p) {  // bench/paint.py's pattern
+        return Vec3f{float(0.5 + 0.4 * std::sin(p[0] / s)), float(0.5 + 0.4 * std::cos(p[1] / s)),
+                     float(0.5 + 0.4 * std::sin(p[2] / s + 1.0))};
+    };
+    for (int i = 0; i < frames; ++i) {
+        const Pose& pose = poses[std::size_t(i)];
+        const DepthImage clean = test::render_depth(mesh, K, pose);
+        write_color_image(dir + "/rgb_" + std::to_string(i) + ".png",
+                          test::render_color(clean, K, pose, paint));
     }
     const std::string json = test::write_transforms_scene(dir, depths, K, poses, "png", 1e5);
     std::printf("%s\n", json.c_str());

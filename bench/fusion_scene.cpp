@@ -2,8 +2,8 @@
 // [frames] [width] [height] [noise]` renders MESH from `frames` poses on a sphere (Fibonacci
 // spiral, 1.6 diagonals from its centre, 50 degree field of view), adds Gaussian depth noise of
 // `noise` world units, and writes OUTDIR/transforms.json with 16-bit PNG depth (10 um units)
-// and 8-bit colour images rgb_i.png of the mesh painted with the pattern of bench/paint.py
-// (period `paint` world units, default a sixth of the diagonal).
+// and 8-bit colour images rgb_i.png of the mesh painted with test::paint_pattern (period
+// `paint` world units, default a sixth of the diagonal; bench/paint.py scores against it).
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -38,10 +38,7 @@ int main(int argc, char** argv) {
         if (noise > 0.0) test::add_depth_noise(depths.back(), noise, std::uint64_t(i) + 1);
     }
     const double s = argc > 7 ? std::atof(argv[7]) : b.diagonal() / 6.0;
-    const auto paint = [s](const Vec3d& p) {  // bench/paint.py's pattern
-        return Vec3f{float(0.5 + 0.4 * std::sin(p[0] / s)), float(0.5 + 0.4 * std::cos(p[1] / s)),
-                     float(0.5 + 0.4 * std::sin(p[2] / s + 1.0))};
-    };
+    const auto paint = [s](const Vec3d& p) { return test::paint_pattern(p, s); };
     for (int i = 0; i < frames; ++i) {
         const Pose& pose = poses[std::size_t(i)];
         const DepthImage clean = test::render_depth(mesh, K, pose);

@@ -9,6 +9,7 @@
 
 #include "detail/mesh_graph.h"
 #include "detail/release.h"
+#include "detail/select.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon {
@@ -101,12 +102,9 @@ void taubin(Mesh& m, const CleanOptions& o) {
 }
 
 
-/// The median of `values` (0 for none).
-double median_of(std::vector<float> values) {
-    if (values.empty()) return 0.0;
-    const auto mid = values.begin() + std::ptrdiff_t(values.size() / 2);
-    std::nth_element(values.begin(), mid, values.end());
-    return double(*mid);
+/// The median (rank n / 2) of non-negative `values`, without a copy of them; 0 for none.
+double median_of(const std::vector<float>& values) {
+    return values.empty() ? 0.0 : double(detail::select_rank(values.size() / 2, values));
 }
 
 /// The median edge length of the faces (each face's three edges), the unit of the evidence
@@ -123,7 +121,7 @@ double median_edge(const Mesh& m) {
             len.push_back(float(std::sqrt(dx * dx + dy * dy + dz * dz)));
         }
     }
-    return median_of(std::move(len));
+    return median_of(len);
 }
 
 /// Per component (indexed by its label, as `label` gives it per face): the samples' worth of

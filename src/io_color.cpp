@@ -1,5 +1,6 @@
-// Colour images for fusion: PNG through libpng, JPEG through libjpeg-turbo (see scene.h). Both
-// are Debian's decoders of hostile files; a claimed size is checked before any pixel buffer.
+// Colour images for fusion: PNG read through libpng, JPEG through libjpeg-turbo (see scene.h),
+// both Debian's decoders of hostile files, a claimed size checked before any pixel buffer
+// (detail/image_read.h); PNG written by the project's encoder (detail/png.h).
 #include <csetjmp>
 #include <cstddef>
 #include <cstdio>  // before jpeglib.h, which uses FILE and size_t
@@ -9,7 +10,9 @@
 #include <jpeglib.h>
 #include <png.h>
 
+#include "detail/image_read.h"
 #include "detail/io_common.h"
+#include "detail/png.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/scene.h"
@@ -17,9 +20,6 @@
 namespace vdbrecon {
 
 namespace {
-
-constexpr long kMaxSide = 1L << 16;
-constexpr long kMaxPixels = 1L << 27;  // as for depth images: a 16k x 8k image
 
 /// A file opened for reading or writing, closed on every path out.
 struct File {
@@ -31,26 +31,20 @@ struct File {
 };
 
 std::string size_problem(long w, long h) {
-    if (w > 0 && h > 0 && w <= kMaxSide && h <= kMaxSide && w * h <= kMaxPixels) return "";
+    if (w > 0 && h > 0 && w <= detail::kMaxImageSide && h <= detail::kMaxImageSide &&
+        w * h <= detail::kMaxImagePixels) {
+        return "";
+    }
     return "an image of " + std::to_string(w) + " x " + std::to_string(h) +
            " pixels, more than a colour image can have (2^27)";
 }
 
-struct PngFail {
-    char message[256] = {0};
-};
-void png_fail(png_structp png, png_const_charp msg) {
-    auto* e = static_cast<PngFail*>(png_get_error_ptr(png));
-    std::snprintf(e->message, sizeof e->message, "%s", msg);
-    png_longjmp(png, 1);
-}
-void png_quiet(png_structp, png_const_charp) {}
-
 ColorImage read_png_color(const std::string& path) {
     File file(std::fopen(path.c_str(), "rb"));
     if (!file.f) throw IoError(detail::where(path, std::string("cannot open: ") + std::strerror(errno)));
-    PngFail err;
-    png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &err, png_fail, png_quiet);
+    detail::PngError err;
+    png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &err, detail::png_error_fn,
+                                             detail::png_warning_fn);
     png_infop info = png ? png_create_info_struct(png) : nullptr;
     ColorImage img;
     std::vector<std::uint8_t> pixels;
@@ -61,7 +55,7 @@ ColorImage read_png_color(const std::string& path) {
     } else if (setjmp(png_jmpbuf(png))) {
         problem = std::string("not a readable PNG file: ") + err.message;
     } else {
-        png_set_user_limits(png, kMaxSide, kMaxSide);
+        png_set_user_limits(png, detail::kMaxImageSide, detail::kMaxImageSide);
         png_init_io(png, file.f);
         png_read_info(png, info);
         const long w = long(png_get_image_width(png, info)), h = long(png_get_image_height(png, info));
@@ -175,54 +169,35 @@ void write_color_image(const std::string& path, const ColorImage& image) {
     for (std::size_t i = 0; i < image.rgb.size(); ++i) {
         for (std::size_t c = 0; c < 3; ++c) bytes[3 * i + c] = to_byte(image.rgb[i][c]);
     }
-    detail::AtomicFile out(path);
-    std::FILE* f = out.stream();
-    const std::size_t row = std::size_t(image.width) * 3;
-    if (ext == "png") {
-        PngFail err;
-        png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, &err, png_fail, png_quiet);
-        png_infop info = png ? png_create_info_struct(png) : nullptr;
-        std::vector<png_bytep> rows(std::size_t(image.height));
-        volatile bool ok = png && info;
-        if (ok && setjmp(png_jmpbuf(png))) {
-            ok = false;
-        } else if (ok) {
-            png_init_io(png, f);
-            png_set_IHDR(png, info, png_uint_32(image.width), png_uint_32(image.height), 8,
-                         PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
-                         PNG_FILTER_TYPE_DEFAULT);
-            for (int y = 0; y < image.height; ++y) rows[std::size_t(y)] = bytes.data() + row * std::size_t(y);
-            png_write_info(png, info);
-            png_write_image(png, rows.data());
-            png_write_end(png, nullptr);
-        }
-        png_destroy_write_struct(png ? &png : nullptr, info ? &info : nullptr);
-        if (!ok) throw IoError(detail::where(path, std::string("cannot write the PNG: ") + err.message));
-    } else {
-        jpeg_compress_struct info{};
-        JpegFail err;
-        info.err = jpeg_std_error(&err.mgr);
-        err.mgr.error_exit = jpeg_fail;
-        if (setjmp(err.jump)) {
-            jpeg_destroy_compress(&info);
-            throw IoError(detail::where(path, std::string("cannot write the JPEG: ") + err.message));
-        }
-        jpeg_create_compress(&info);
-        jpeg_stdio_dest(&info, f);
-        info.image_width = JDIMENSION(image.width);
-        info.image_height = JDIMENSION(image.height);
-        info.input_components = 3;
-        info.in_color_space = JCS_RGB;
-        jpeg_set_defaults(&info);
-        jpeg_set_quality(&info, 95, TRUE);
-        jpeg_start_compress(&info, TRUE);
-        while (info.next_scanline < info.image_height) {
-            JSAMPROW r = bytes.data() + std::size_t(info.next_scanline) * row;
-            jpeg_write_scanlines(&info, &r, 1);
-        }
-        jpeg_finish_compress(&info);
-        jpeg_destroy_compress(&info);
+    if (ext == "png") {  // the project's 8-bit RGB encoder (previews, texture atlases)
+        detail::write_png_rgb8(path, image.width, image.height, bytes.data());
+        return;
     }
+    detail::AtomicFile out(path);
+    const std::size_t row = std::size_t(image.width) * 3;
+    jpeg_compress_struct info{};
+    JpegFail err;
+    info.err = jpeg_std_error(&err.mgr);
+    err.mgr.error_exit = jpeg_fail;
+    if (setjmp(err.jump)) {
+        jpeg_destroy_compress(&info);
+        throw IoError(detail::where(path, std::string("cannot write the JPEG: ") + err.message));
+    }
+    jpeg_create_compress(&info);
+    jpeg_stdio_dest(&info, out.stream());
+    info.image_width = JDIMENSION(image.width);
+    info.image_height = JDIMENSION(image.height);
+    info.input_components = 3;
+    info.in_color_space = JCS_RGB;
+    jpeg_set_defaults(&info);
+    jpeg_set_quality(&info, 95, TRUE);
+    jpeg_start_compress(&info, TRUE);
+    while (info.next_scanline < info.image_height) {
+        JSAMPROW r = bytes.data() + std::size_t(info.next_scanline) * row;
+        jpeg_write_scanlines(&info, &r, 1);
+    }
+    jpeg_finish_compress(&info);
+    jpeg_destroy_compress(&info);
     out.commit();
 }
 

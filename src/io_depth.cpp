@@ -12,6 +12,7 @@
 #include <cstring>
 #include <sstream>
 
+#include "detail/image_read.h"
 #include "detail/io_common.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
@@ -21,10 +22,11 @@ namespace vdbrecon {
 
 namespace {
 
-constexpr int kMaxSide = 1 << 16;
-/// At most this many pixels (a 16k x 8k image): a hostile header must not make us allocate
-/// gigabytes before a single row is read.
-constexpr long kMaxPixels = 1L << 27;
+using detail::PngError;
+using detail::png_error_fn;
+using detail::png_warning_fn;
+constexpr int kMaxSide = detail::kMaxImageSide;
+constexpr long kMaxPixels = detail::kMaxImagePixels;
 /// Blender marks pixels that saw nothing with 1e10 (in half: 65504, the largest half).
 constexpr float kNoHit = 65504.0f;
 
@@ -83,17 +85,6 @@ DepthImage read_exr_depth(const std::string& path) {
     }
     return img;
 }
-
-/// libpng reports errors through longjmp; the message is kept for the exception.
-struct PngError {
-    char message[256] = {0};
-};
-void png_error_fn(png_structp png, png_const_charp msg) {
-    auto* e = static_cast<PngError*>(png_get_error_ptr(png));
-    std::snprintf(e->message, sizeof e->message, "%s", msg);
-    png_longjmp(png, 1);
-}
-void png_warning_fn(png_structp, png_const_charp) {}
 
 DepthImage read_png_depth(const std::string& path, double units_per_metre) {
     std::FILE* f = std::fopen(path.c_str(), "rb");

@@ -784,8 +784,8 @@ PipelineResult reconstruct_volume(Volume volume, const PipelineOptions& options,
 
 TileJob prepare_tiles(const std::string& input, const std::string& dir,
                       const PipelineOptions& given) {
-    const PipelineOptions& options = given;
-    options.validate();
+    given.validate();
+    const PipelineOptions options = input_options(input, given, nullptr);
     if (options.tile == 0) {
         throw InvalidArgument("prepare_tiles: options.tile is 0; give a tile edge, or -1 (auto)");
     }
@@ -797,7 +797,6 @@ TileJob prepare_tiles(const std::string& input, const std::string& dir,
     job.dir = dir;
     try {
         in_arena(options.threads, [&] {
-            const PipelineOptions options = input_options(input, given, nullptr);
             if (detail::prepare_streamed(input, dir, options, job)) return;
             job.read = read_points(input, options.read);
             PointCloud cloud = std::move(job.read.cloud);

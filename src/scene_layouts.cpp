@@ -54,10 +54,10 @@ std::vector<std::pair<long, fs::path>> numbered_files(const fs::path& dir, const
     return out;
 }
 
-/// The numbers of a text file (whitespace or commas between them), checked finite unless
+/// The numbers of a text (whitespace or commas between them), checked finite unless
 /// `allow_inf` (ScanNet marks a lost pose with -inf).
-std::vector<double> numbers_of(const fs::path& path, bool allow_inf = false) {
-    const std::string text = read_file(path.string());
+std::vector<double> numbers_in(const std::string& text, const fs::path& path,
+                               bool allow_inf = false) {
     std::vector<double> v;
     const char* p = text.data();
     const char* end = p + text.size();
@@ -80,6 +80,11 @@ std::vector<double> numbers_of(const fs::path& path, bool allow_inf = false) {
         p = q;
     }
     return v;
+}
+
+/// numbers_in of a whole file.
+std::vector<double> numbers_of(const fs::path& path, bool allow_inf = false) {
+    return numbers_in(read_file(path.string()), path, allow_inf);
 }
 
 /// A 4x4 row-major camera-to-world pose from 16 numbers of `path` starting at `at`.
@@ -391,22 +396,7 @@ Pose kitti_calibration(const fs::path& path) {
     while (std::getline(in, line)) {
         for (const std::string key : {"Tr:", "Tr_velo_to_cam:"}) {
             if (line.compare(0, key.size(), key) != 0) continue;
-            const std::string rest = line.substr(key.size());
-            std::vector<double> v;
-            const char* p = rest.data();
-            const char* end = p + rest.size();
-            while (p < end) {
-                while (p < end && std::isspace(static_cast<unsigned char>(*p))) ++p;
-                const char* q = p;
-                while (q < end && !std::isspace(static_cast<unsigned char>(*q))) ++q;
-                double x = 0.0;
-                if (p < q && (!parse_double(p, q, x) || !std::isfinite(x))) {
-                    throw FormatError(where(path.string(), key + " '" + printable(std::string(p, q)) +
-                                                               "' is not a finite number"));
-                }
-                if (p < q) v.push_back(x);
-                p = q;
-            }
+            const std::vector<double> v = numbers_in(line.substr(key.size()), path);
             if (v.size() != 12) {
                 throw FormatError(where(path.string(), key + " needs 12 numbers (a 3x4 matrix), has " +
                                                            std::to_string(v.size())));

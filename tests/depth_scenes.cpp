@@ -209,6 +209,11 @@ std::string frame_number(std::size_t i, int width) {
 
 }  // namespace
 
+Vec3f paint_pattern(const Vec3d& p, double s) {
+    return Vec3f{float(0.5 + 0.4 * std::sin(p[0] / s)), float(0.5 + 0.4 * std::cos(p[1] / s)),
+                 float(0.5 + 0.4 * std::sin(p[2] / s + 1.0))};
+}
+
 ColorImage render_color(const DepthImage& depth, const Intrinsics& K, const Pose& m,
                         const std::function<Vec3f(const Vec3d&)>& paint) {
     ColorImage c;

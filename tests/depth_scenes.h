@@ -23,6 +23,11 @@ std::vector<Pose> orbit_poses(int count, const Vec3d& centre, double radius);
 /// Intrinsics of a width x height camera with horizontal field of view `fov_degrees`.
 Intrinsics camera_intrinsics(int width, int height, double fov_degrees);
 
+/// A smooth colour pattern of period `period` (world units) over space, to paint scenes whose
+/// fused colours are checked: (0.5 + 0.4 sin(x/s), 0.5 + 0.4 cos(y/s), 0.5 + 0.4 sin(z/s + 1))
+/// (bench/paint.py scores against the same).
+Vec3f paint_pattern(const Vec3d& p, double period);
+
 /// The colours `paint` gives the world points a camera sees (its depth image `depth`, planar);
 /// black where it sees nothing.
 ColorImage render_color(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,

@@ -290,10 +290,7 @@ TEST_CASE("fuse: the frames' colour images become the mesh's colours, in every l
     const Views v = views_of(shape.mesh, 20, 200, 150);
     // A smooth pattern over the part (about ten voxels a period): what the cameras see.
     const double s = diag / 6.0;
-    const auto paint = [s](const Vec3d& p) {
-        return Vec3f{float(0.5 + 0.4 * std::sin(p[0] / s)), float(0.5 + 0.4 * std::cos(p[1] / s)),
-                     float(0.5 + 0.4 * std::sin(p[2] / s + 1.0))};
-    };
+    const auto paint = [s](const Vec3d& p) { return paint_pattern(p, s); };
     std::vector<ColorImage> colors;
     for (std::size_t i = 0; i < v.poses.size(); ++i) {
         colors.push_back(render_color(v.depths[i], v.K, v.poses[i], paint));
@@ -343,10 +340,14 @@ TEST_CASE("fuse: the frames' colour images become the mesh's colours, in every l
         args.precision(17);
         args << "fuse '" << scene << "' -o '" << out.file("m.ply") << "' --voxel " << voxel << " -q"
              << extra;
-        const CliRun r = run_cli(args.str());
-        INFO(layout << ": " << r.err);
-        REQUIRE(r.code == 0);
-        const Mesh m = read_mesh(out.file("m.ply"));
+        // The mesh of `fuse` with these arguments and `more`.
+        const auto fused = [&](const std::string& more) {
+            const CliRun r = run_cli(args.str() + more);
+            INFO(layout << more << ": " << r.err);
+            REQUIRE(r.code == 0);
+            return read_mesh(out.file("m.ply"));
+        };
+        const Mesh m = fused("");
         REQUIRE(m.colors.size() == m.vertices.size());
         double p99 = 0.0;
         const double mean = color_error(m, p99);
@@ -357,18 +358,14 @@ TEST_CASE("fuse: the frames' colour images become the mesh's colours, in every l
         CHECK(p99 < 0.06);
         if (layout == "7scenes") {
             // The tsdf rule averages each voxel's pixel colour near the surface.
-            const CliRun t = run_cli(args.str() + " --fusion tsdf");
-            REQUIRE(t.code == 0);
-            const Mesh tm = read_mesh(out.file("m.ply"));
+            const Mesh tm = fused(" --fusion tsdf");
             REQUIRE(tm.colors.size() == tm.vertices.size());
             double tsdf_p99 = 0.0;
             const double tsdf_mean = color_error(tm, tsdf_p99);
             INFO("tsdf colour error: mean " << tsdf_mean << ", 99th percentile " << tsdf_p99);
             CHECK(tsdf_mean < 0.02);
             // --no-color: a grey mesh.
-            const CliRun g = run_cli(args.str() + " --no-color");
-            REQUIRE(g.code == 0);
-            CHECK(read_mesh(out.file("m.ply")).colors.empty());
+            CHECK(fused(" --no-color").colors.empty());
         }
     }
 }
@@ -593,10 +590,7 @@ TEST_CASE("fuse: an organized PCD's rgb becomes the mesh's colours", "[fusion][p
     const Shape shape = make_shape("boss");
     const Views v = views_of(shape.mesh, 1, 200, 150);
     const double diag = bounding_box(shape.mesh.vertices).diagonal(), s = diag / 6.0;
-    const auto paint = [s](const Vec3d& p) {
-        return Vec3f{float(0.5 + 0.4 * std::sin(p[0] / s)), float(0.5 + 0.4 * std::cos(p[1] / s)),
-                     float(0.5 + 0.4 * std::sin(p[2] / s + 1.0))};
-    };
+    const auto paint = [s](const Vec3d& p) { return paint_pattern(p, s); };
     const DepthImage& d = v.depths[0];
     std::string pcd = "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\n"
                       "COUNT 1 1 1 1\nWIDTH " + std::to_string(d.width) + "\nHEIGHT " +

@@ -616,6 +616,14 @@ Fusion::~Fusion() = default;
 Fusion::Fusion(Fusion&&) noexcept = default;
 Fusion& Fusion::operator=(Fusion&&) noexcept = default;
 
+std::size_t Fusion::memory_bytes() const {
+    if (tsdf_) return tsdf_->memory_bytes();
+    // The sums, and the batch waiting to be splatted into them.
+    const std::size_t per_sample = 4 * sizeof(Vec3f) + 2 * sizeof(float);
+    return accumulator_.memory_bytes() + (groups_ ? groups_->memory_bytes() : 0) +
+           pending_.size() * per_sample;
+}
+
 std::size_t Fusion::samples() const {
     return tsdf_ ? tsdf_->pixels() : samples_;
 }
@@ -762,6 +770,16 @@ std::size_t Fusion::integrate(const OrganizedCloud& cloud) {
     return add_frame(organized_samples(cloud, depth_, accumulator_.origin()));
 }
 
+std::size_t Fusion::integrate_scan(const PointCloud& scan, const Vec3d& sensor) {
+    if (!tsdf_) return integrate(scan_samples(scan, sensor, std::nullopt, depth_, options_.normals.k));
+    // The tsdf rule keeps grazing hits (their normals make their distances): a surface seen at
+    // grazing angles only would have holes without them.
+    DepthOptions all = depth_;
+    all.min_view_cos = 0.0;
+    ++frames_;
+    return tsdf_->integrate_scan(scan_samples(scan, sensor, std::nullopt, all, options_.normals.k), sensor);
+}
+
 Volume Fusion::volume() const { return splat().volume; }
 
 PipelineResult Fusion::reconstruct(const StageCallback& on_stage,
@@ -819,7 +837,22 @@ class FusionStart {
     Fusion& operator*() { return *fusion_; }
     /// Frees the fusion's sums (once its volume is made: the mesh stages need the room).
     void release() { fusion_.reset(); }
+    /// Stops the run, after `frame` (`done` of `total` frames), when the fusion holds more than
+    /// the memory budget (--max-memory): before the frames still to come grow it further, and
+    /// before the mesh stages need as much again.
+    void check_memory(const std::string& frame, std::size_t done, std::size_t total) const {
+        if (!fusion_) return;
+        const std::size_t held = fusion_->memory_bytes(), budget = memory_budget(po_.splat);
+        if (held <= budget) return;
+        std::ostringstream s;
+        s << "fuse: after " << frame << " (" << done << " of " << total << " frames) the volume "
+          << "takes " << held / 1000000 << " MB, over --max-memory " << budget / 1000000
+          << " MB. Hint: a larger --voxel, --max-depth / --max-range, --frame-step, or "
+          << "--max-memory";
+        throw NumericalError(s.str());
+    }
     const PipelineOptions& options() const { return po_; }
+    const FuseOptions& fuse_options() const { return fo_; }
 
   private:
     PipelineOptions po_;
@@ -869,19 +902,33 @@ PointCloud scan_points(const SceneFrame& f, const FuseOptions& fo, const Vec3d& 
     return c;
 }
 
-/// A LiDAR scan frame: its points sampled from its sensor (scan_samples) and fused.
+/// Starts the fusion, if it is not yet, at the first scan that has usable samples: without a
+/// voxel, their spacing chooses it (whatever the rule).
+void start_with_scan(FusionStart& fusion, const PointCloud& points, const std::optional<Vec3d>& sensor,
+                     const std::optional<Vec3d>& direction, const std::string& name) {
+    if (fusion.started()) return;
+    if (fusion.options().splat.voxel_size > 0.0) {
+        fusion.get(PointCloud{}, name, points.origin);
+        return;
+    }
+    const PointCloud samples = detail::in_arena(fusion.options().threads, [&] {
+        return scan_samples(points, sensor, direction, fusion.fuse_options().depth,
+                            fusion.options().normals.k);
+    });
+    if (!samples.empty()) fusion.get(samples, name, points.origin);
+}
+
+/// A LiDAR scan frame: fused from its sensor (Fusion::integrate_scan).
 void integrate_scan_frame(const SceneFrame& f, const FuseOptions& fo, FusionStart& fusion) {
     validate_pose(f.pose);
     const Vec3d sensor{f.pose[3], f.pose[7], f.pose[11]};
     const Vec3d origin = fusion.started() ? (*fusion).origin() : sensor;
     const int threads = fusion.options().threads;
     const PointCloud points = scan_points(f, fo, origin);
-    const PointCloud samples = detail::in_arena(threads, [&] {
-        return scan_samples(points, sensor, std::nullopt, fo.depth, fusion.options().normals.k);
-    });
-    if (samples.empty()) return;
-    Fusion& fu = fusion.get(samples, f.depth_path, origin);
-    detail::in_arena(threads, [&] { fu.integrate(samples); });
+    start_with_scan(fusion, points, sensor, std::nullopt, f.depth_path);
+    if (!fusion.started()) return;
+    Fusion& fu = *fusion;
+    detail::in_arena(threads, [&] { fu.integrate_scan(points, sensor); });
 }
 
 /// A scene frame's depth image, its layout's "no measurement" value cleared.
@@ -962,8 +1009,8 @@ void skip_frame(const std::string& path, const Error& e) {
 /// most kInFlight at once, and added to the fusion one after another in frame order as they are
 /// ready, while later frames are read (an error is the first bad frame's, whatever the threads).
 void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::size_t first,
-                            std::size_t last, Fusion& fusion, int threads, bool skip_bad,
-                            bool color) {
+                            std::size_t last, const FusionStart& start, Fusion& fusion,
+                            int threads, bool skip_bad, bool color) {
     constexpr std::size_t kInFlight = 8;  // frames in flight: a few MB of samples each
     using Ready = std::pair<std::size_t, FrameSamples>;
     const Vec3d origin = fusion.origin();
@@ -990,6 +1037,7 @@ void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::s
             if (!skip_bad) detail::rethrow_naming(frames[r.first]->depth_path, e);
             skip_frame(frames[r.first]->depth_path, e);
         }
+        start.check_memory(frames[r.first]->depth_path, r.first + 1, frames.size());
     };
     detail::in_arena(threads, [&] {
         tbb::parallel_pipeline(
@@ -999,10 +1047,46 @@ void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::s
     });
 }
 
-/// A scene's frames (depth images, organized clouds), read and integrated in order; runs of
-/// depth frames go through integrate_depth_frames.
-void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fusion) {
+/// A frame integrated on its own: a LiDAR scan, an organized cloud, or the first depth frame
+/// when its samples choose the voxel. False for a depth frame that joins a parallel run.
+bool integrate_alone(const SceneFrame& f, const FuseOptions& fo, FusionStart& fusion) {
     const int threads = fusion.options().threads;
+    if (f.scan) {
+        integrate_scan_frame(f, fo, fusion);
+        return true;
+    }
+    if (f.organized) {
+        OrganizedCloud c = read_organized_cloud(f.depth_path);
+        if (!fo.color) c.colors.clear();
+        Fusion& fu = fusion.get(organized_samples(c, fo.depth), f.depth_path, c.origin);
+        detail::in_arena(threads, [&] { fu.integrate(c); });
+        return true;
+    }
+    if (!fusion.started() && fusion.options().splat.voxel_size > 0.0) {
+        // The voxel is known: the first frame joins the parallel run.
+        fusion.get(PointCloud{}, f.depth_path, Vec3d{f.pose[3], f.pose[7], f.pose[11]});
+    }
+    if (fusion.started()) return false;
+    // The first frame: its samples choose the voxel.
+    const DepthImage img = frame_depth(f);
+    const Intrinsics K = frame_intrinsics(f, img);
+    fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
+               Vec3d{f.pose[3], f.pose[7], f.pose[11]});
+    Fusion& fu = *fusion;
+    if (fo.color && !f.color_path.empty()) {
+        const ColorImage c = read_color_image(f.color_path);
+        const Intrinsics C = color_camera(f, K, c);
+        detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose, c, C); });
+    } else {
+        detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose); });
+    }
+    return true;
+}
+
+/// A scene's frames (depth images, organized clouds, LiDAR scans), read and integrated in
+/// order; runs of depth frames go through integrate_depth_frames. The fusion's memory is
+/// checked after each frame (FusionStart::check_memory).
+void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fusion) {
     std::vector<const SceneFrame*> frames;
     for (std::size_t i = 0; i < scene.frames.size(); i += fo.frame_step) {
         if (fo.max_frames > 0 && frames.size() == fo.max_frames) break;
@@ -1010,49 +1094,21 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
     }
     for (std::size_t g = 0; g < frames.size();) {
         const SceneFrame& f = *frames[g];
+        bool alone = true;
         try {
-            if (f.scan) {
-                integrate_scan_frame(f, fo, fusion);
-                ++g;
-                continue;
-            }
-            if (f.organized) {
-                OrganizedCloud c = read_organized_cloud(f.depth_path);
-                if (!fo.color) c.colors.clear();
-                Fusion& fu = fusion.get(organized_samples(c, fo.depth), f.depth_path, c.origin);
-                detail::in_arena(threads, [&] { fu.integrate(c); });
-                ++g;
-                continue;
-            }
-            if (!fusion.started() && fusion.options().splat.voxel_size > 0.0) {
-                // The voxel is known: the first frame joins the parallel run below.
-                fusion.get(PointCloud{}, f.depth_path, Vec3d{f.pose[3], f.pose[7], f.pose[11]});
-            }
-            if (!fusion.started()) {  // the first frame: its samples choose the voxel
-                const DepthImage img = frame_depth(f);
-                const Intrinsics K = frame_intrinsics(f, img);
-                fusion.get(depth_samples(img, K, f.pose, fo.depth), f.depth_path,
-                           Vec3d{f.pose[3], f.pose[7], f.pose[11]});
-                Fusion& fu = *fusion;
-                if (fo.color && !f.color_path.empty()) {
-                    const ColorImage c = read_color_image(f.color_path);
-                    const Intrinsics C = color_camera(f, K, c);
-                    detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose, c, C); });
-                } else {
-                    detail::in_arena(threads, [&] { fu.integrate(img, K, f.pose); });
-                }
-                ++g;
-                continue;
-            }
+            alone = integrate_alone(f, fo, fusion);
         } catch (const Error& e) {
             if (!fo.skip_bad_frames) detail::rethrow_naming(f.depth_path, e);
             skip_frame(f.depth_path, e);
-            ++g;
+        }
+        if (alone) {
+            fusion.check_memory(f.depth_path, ++g, frames.size());
             continue;
         }
         std::size_t end = g;
         while (end < frames.size() && !frames[end]->organized && !frames[end]->scan) ++end;
-        integrate_depth_frames(frames, g, end, *fusion, threads, fo.skip_bad_frames, fo.color);
+        integrate_depth_frames(frames, g, end, fusion, *fusion, fusion.options().threads,
+                               fo.skip_bad_frames, fo.color);
         g = end;
     }
 }
@@ -1061,6 +1117,10 @@ void integrate_frames(const Scene& scene, const FuseOptions& fo, FusionStart& fu
 std::size_t integrate_scans(const std::string& path, const FuseOptions& fo, FusionStart& fusion,
                             const PipelineOptions& options) {
     const ScanSensors sensors = read_scan_sensors(fo.scan_sensors);
+    if (fo.depth.rule == FusionRule::tsdf && sensors.origins.empty()) {
+        throw InvalidArgument(fo.scan_sensors + ": the tsdf rule casts rays from each scan's sensor "
+                              "position; these sensors are directions. Hint: --fusion splat");
+    }
     ReadResult read = read_points(path, options.read);
     const PointCloud& cloud = read.cloud;
     std::vector<std::int32_t> scans = read.scans;
@@ -1098,12 +1158,18 @@ std::size_t integrate_scans(const std::string& path, const FuseOptions& fo, Fusi
         std::optional<Vec3d> origin, direction;
         if (!sensors.origins.empty()) origin = sensors.origins[s];
         else direction = sensors.directions[s];
-        const PointCloud samples = detail::in_arena(options.threads, [&] {
-            return scan_samples(part, origin, direction, fo.depth, options.normals.k);
-        });
-        if (samples.empty()) continue;
-        Fusion& fu = fusion.get(samples, path, cloud.origin);
-        detail::in_arena(options.threads, [&] { fu.integrate(samples); });
+        start_with_scan(fusion, part, origin, direction, path);
+        if (!fusion.started()) continue;
+        Fusion& fu = *fusion;
+        if (origin) {
+            detail::in_arena(options.threads, [&] { fu.integrate_scan(part, *origin); });
+        } else {
+            const PointCloud samples = detail::in_arena(options.threads, [&] {
+                return scan_samples(part, origin, direction, fo.depth, options.normals.k);
+            });
+            detail::in_arena(options.threads, [&] { fu.integrate(samples); });
+        }
+        fusion.check_memory(path + " scan " + std::to_string(s), s + 1, members.size());
     }
     return read.rows;
 }

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <limits>
 
+#include "detail/ray_image.h"
 #include "detail/volume_grids.h"
 #include "vdbrecon/error.h"
 
@@ -72,6 +73,44 @@ class LeafSet {
     }
     std::vector<std::uint64_t> slots_;
     std::size_t size_ = 0;
+};
+
+/// The leaves within `reach` voxels of a frame's measured points, each listed once.
+struct LeafGather {
+    LeafGather(double voxel_size, double truncation)
+        : voxel(voxel_size), reach(int(std::ceil(truncation / voxel_size))) {}
+    double voxel;
+    int reach;
+    std::vector<openvdb::Coord> leaves;
+    LeafSet seen;
+    openvdb::Coord last_lo{std::numeric_limits<int>::min()}, last_hi = last_lo;
+
+    /// Adds the leaves of the point `w` (world units, relative to the volume's origin).
+    void add(const std::array<double, 3>& w) {
+        openvdb::Coord lo, hi;
+        for (int a = 0; a < 3; ++a) {
+            const double k_real = w[std::size_t(a)] / voxel;
+            if (!(std::fabs(k_real) < kMaxVoxelIndex)) {  // leaf indices fit 21 bits
+                throw NumericalError("tsdf: a measured point lies more than 2^23 voxels from the "
+                                     "origin. Hint: a larger --voxel, --max-depth or --max-range");
+            }
+            const int k = int(round_half_away(k_real));
+            lo[a] = (k - reach) & ~7;
+            hi[a] = (k + reach) & ~7;
+        }
+        // Neighbouring points mostly reach the same leaves: a box like the last one adds
+        // nothing (the sort would only drop its leaves again).
+        if (lo == last_lo && hi == last_hi) return;
+        last_lo = lo;
+        last_hi = hi;
+        for (int a = lo[0]; a <= hi[0]; a += 8) {
+            for (int b = lo[1]; b <= hi[1]; b += 8) {
+                for (int e = lo[2]; e <= hi[2]; e += 8) {
+                    if (seen.insert(openvdb::Coord(a, b, e))) leaves.emplace_back(a, b, e);
+                }
+            }
+        }
+    }
 };
 
 }  // namespace
@@ -198,67 +237,20 @@ TsdfVolume::TsdfVolume(double voxel, double truncation_voxels, bool carve, const
     : voxel_(voxel), truncation_(truncation_voxels * voxel), carve_(carve), origin_(origin),
       value_(openvdb::FloatGrid::create(1.0f)), weight_(openvdb::FloatGrid::create(0.0f)) {}
 
-std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& points,
-                                  const std::vector<char>& measured, const Intrinsics& K,
-                                  const Pose& m, const std::vector<Vec3f>* colors) {
-    const int w = K.width, h = K.height;
-    // Planar depth per pixel (0: none).
-    std::vector<double> z(std::size_t(w) * std::size_t(h), 0.0);
-    std::vector<openvdb::Coord> leaves;
-    const int reach = int(std::ceil(truncation_ / voxel_));
-    std::size_t valid = 0;
-    openvdb::Coord last_lo(std::numeric_limits<int>::min()), last_hi = last_lo;
-    LeafSet seen;
-    for (std::size_t i = 0; i < z.size(); ++i) {
-        if (!measured[i]) continue;
-        const std::array<double, 3>& c = points[i];
-        z[i] = c[2];
-        ++valid;
-        {
-            // The leaves within the truncation of the pixel's point.
-            openvdb::Coord lo, hi;
-            for (int a = 0; a < 3; ++a) {
-                const double wpt = m[std::size_t(4 * a)] * c[0] + m[std::size_t(4 * a + 1)] * c[1] +
-                                   m[std::size_t(4 * a + 2)] * c[2] + m[std::size_t(4 * a + 3)] - origin_[std::size_t(a)];
-                const double k_real = wpt / voxel_;
-                if (!(std::fabs(k_real) < kMaxVoxelIndex)) {  // leaf indices fit 21 bits
-                    throw NumericalError("tsdf: a pixel's point lies more than 2^23 voxels from the "
-                                         "origin. Hint: a larger --voxel or --max-depth");
-                }
-                const int k = int(round_half_away(k_real));
-                lo[a] = (k - reach) & ~7;
-                hi[a] = (k + reach) & ~7;
-            }
-            // Neighbouring pixels mostly reach the same leaves: a box like the last one adds
-            // nothing (the sort below would only drop its leaves again).
-            if (lo == last_lo && hi == last_hi) continue;
-            last_lo = lo;
-            last_hi = hi;
-            for (int a = lo[0]; a <= hi[0]; a += 8) {
-                for (int b = lo[1]; b <= hi[1]; b += 8) {
-                    for (int e = lo[2]; e <= hi[2]; e += 8) {
-                        if (seen.insert(openvdb::Coord(a, b, e))) leaves.emplace_back(a, b, e);
-                    }
-                }
-            }
-        }
-    }
-    pixels_ += valid;
-    if (valid == 0) return 0;
+std::vector<FloatLeaf*> TsdfVolume::candidates(std::vector<openvdb::Coord> leaves, bool colors) {
     std::sort(leaves.begin(), leaves.end());
     for (const openvdb::Coord& c : leaves) {  // serially: the trees' structure changes
         value_->tree().touchLeaf(c);
         weight_->tree().touchLeaf(c);
     }
     // Candidates: those leaves, or with carving every leaf held (the projection skips the
-    // voxels the camera does not see).
+    // voxels the sensor does not see).
     std::vector<FloatLeaf*> todo;
     if (carve_) {
         for (auto it = value_->tree().beginLeaf(); it; ++it) todo.push_back(&*it);
     } else {
         for (const openvdb::Coord& c : leaves) todo.push_back(value_->tree().probeLeaf(c));
     }
-    if (colors && colors->size() != z.size()) colors = nullptr;
     if (colors && !color_) {
         color_ = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
         color_weight_ = openvdb::FloatGrid::create(0.0f);
@@ -269,6 +261,43 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
             color_weight_->tree().touchLeaf(leaf->origin());
         }
     }
+    return todo;
+}
+
+TsdfVolume::LeafColors TsdfVolume::leaf_colors(const std::vector<Vec3f>* colors,
+                                               const openvdb::Coord& origin) const {
+    LeafColors lc;
+    if (colors) {
+        lc.pixels = colors;
+        lc.color = color_->tree().probeLeaf(origin);
+        lc.weight = color_weight_->tree().probeLeaf(origin);
+    }
+    return lc;
+}
+
+std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& points,
+                                  const std::vector<char>& measured, const Intrinsics& K,
+                                  const Pose& m, const std::vector<Vec3f>* colors) {
+    const int w = K.width, h = K.height;
+    // Planar depth per pixel (0: none).
+    std::vector<double> z(std::size_t(w) * std::size_t(h), 0.0);
+    LeafGather gather(voxel_, truncation_);
+    std::size_t valid = 0;
+    for (std::size_t i = 0; i < z.size(); ++i) {
+        if (!measured[i]) continue;
+        const std::array<double, 3>& c = points[i];
+        z[i] = c[2];
+        ++valid;
+        std::array<double, 3> wpt;
+        for (std::size_t a = 0; a < 3; ++a) {
+            wpt[a] = m[4 * a] * c[0] + m[4 * a + 1] * c[1] + m[4 * a + 2] * c[2] + m[4 * a + 3] - origin_[a];
+        }
+        gather.add(wpt);
+    }
+    pixels_ += valid;
+    if (valid == 0) return 0;
+    if (colors && colors->size() != z.size()) colors = nullptr;
+    const std::vector<FloatLeaf*> todo = candidates(std::move(gather.leaves), colors != nullptr);
     const DepthTiles tiles(z, w, h);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, todo.size(), 8),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
@@ -276,16 +305,134 @@ std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& poin
             FloatLeaf& val = *todo[j];
             if (!leaf_seen(val.origin(), K, m, tiles)) continue;
             FloatLeaf& wt = *weight_->tree().probeLeaf(val.origin());
-            LeafColors lc;
-            if (colors) {
-                lc.pixels = colors;
-                lc.color = color_->tree().probeLeaf(val.origin());
-                lc.weight = color_weight_->tree().probeLeaf(val.origin());
-            }
-            update_leaf(val, wt, z, K, m, lc);
+            update_leaf(val, wt, z, K, m, leaf_colors(colors, val.origin()));
         }
     });
     return valid;
+}
+
+// ---- LiDAR scans ----------------------------------------------------------------------------
+
+/// A scan as the voxels read it: its rays binned by direction, its hits relative to the sensor,
+/// the samples' normals (toward the sensor), confidences (the cosine of the viewing angle) and
+/// colours (or none), by hit.
+struct TsdfVolume::Scan {
+    Vec3d sensor;
+    std::vector<std::array<double, 3>> hits;
+    RayImage rays;
+    const PointCloud& samples;
+    Scan(const PointCloud& s, const Vec3d& at)
+        : sensor(at), hits(relative(s, at)), rays(hits), samples(s) {}
+    static std::vector<std::array<double, 3>> relative(const PointCloud& s, const Vec3d& at) {
+        std::vector<std::array<double, 3>> h(s.size());
+        for (std::size_t i = 0; i < s.size(); ++i) {
+            for (std::size_t a = 0; a < 3; ++a) h[i][a] = double(s.positions[i][a]) + s.origin[a] - at[a];
+        }
+        return h;
+    }
+};
+
+/// Whether a scan may update a voxel of the leaf at `origin`: false when the rays of the leaf's
+/// cone all end more than the truncation before the leaf, or there are none.
+bool TsdfVolume::leaf_seen(const openvdb::Coord& origin, const Scan& scan) const {
+    const double half = 4.0 * voxel_;  // the leaf's centre is 3.5 voxels in; its radius below
+    std::array<double, 3> c;
+    for (std::size_t a = 0; a < 3; ++a) c[a] = (origin[int(a)] + 3.5) * voxel_ + origin_[a] - scan.sensor[a];
+    const double dist = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+    const double radius = std::sqrt(3.0) * half;
+    if (!(dist > radius)) return true;  // the sensor is (nearly) inside: not judged
+    const std::array<double, 3> d{c[0] / dist, c[1] / dist, c[2] / dist};
+    const double far = scan.rays.farthest(d, std::asin(radius / dist));
+    return far > 0.0 && dist - radius <= far + truncation_;
+}
+
+/// A scan's update of one leaf's voxels (see integrate_scan).
+void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const Scan& scan,
+                             const LeafColors& lc) const {
+    const openvdb::Coord o = val.origin();
+    const double half_diagonal = 0.5 * std::sqrt(3.0) * voxel_;
+    const double trunc = truncation_;
+    float* value = val.buffer().data();
+    float* weight = wt.buffer().data();
+    for (openvdb::Index idx = 0; idx < FloatLeaf::SIZE; ++idx) {
+        const openvdb::Coord q = o + FloatLeaf::offsetToLocalCoord(idx);
+        std::array<double, 3> p;
+        for (std::size_t a = 0; a < 3; ++a) p[a] = q[int(a)] * voxel_ + origin_[a] - scan.sensor[a];
+        // The ray nearest the voxel's centre among those that cross it, as the camera's rule
+        // takes the nearest pixel.
+        const double r2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+        double best = HUGE_VAL, along_ray = 0.0;
+        std::size_t ray = 0;
+        scan.rays.rays_near(p, half_diagonal, [&](std::size_t i, double, double along) {
+            const double off = r2 - along * along;
+            if (off < best) {
+                best = off;
+                along_ray = along;
+                ray = i;
+            }
+        });
+        if (best == HUGE_VAL) continue;  // no ray crosses the voxel
+        const std::array<double, 3>& h = scan.hits[ray];
+        const double sdf = std::sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]) - along_ray;
+        if (sdf < -trunc) continue;  // behind the surface: not seen
+        // The voxel's distance to the hit's tangent plane: along the ray it would grow as 1 / cos
+        // of the viewing angle, and at a grazing surface the hits of neighbouring voxels' rays,
+        // a voxel apart, differ by more than the truncation (E. Bylow et al., "Real-Time Camera
+        // Tracking and 3D Reconstruction Using Signed Distance Functions", RSS 2013). In front
+        // of the hit it is the distance along the ray times that cosine, so a grazing ray
+        // carves only well in front of its hit.
+        const Vec3f& n = scan.samples.normals[ray];
+        const double plane = n[0] * (p[0] - h[0]) + n[1] * (p[1] - h[1]) + n[2] * (p[2] - h[2]);
+        const double t = std::clamp(plane / trunc, -1.0, 1.0);
+        const double c = 1.0;
+        const double w0 = double(weight[idx]);
+        const double v0 = w0 > 0.0 ? double(value[idx]) : 0.0;
+        value[idx] = float((v0 * w0 + t * c) / (w0 + c));
+        val.getValueMask().setOn(idx);
+        weight[idx] = float(w0 + c);
+        wt.getValueMask().setOn(idx);
+        if (lc.pixels && t < 1.0) {  // near the surface: its ray's colour
+            const Vec3f& col = (*lc.pixels)[ray];
+            const float cw = lc.weight->getValue(idx);
+            const openvdb::Vec3f c0 = cw > 0.0f ? lc.color->getValue(idx) : openvdb::Vec3f(0.0f);
+            lc.color->setValueOn(idx, (c0 * cw + openvdb::Vec3f(col[0], col[1], col[2]) * float(c)) / (cw + float(c)));
+            lc.weight->setValueOn(idx, cw + float(c));
+        }
+    }
+}
+
+std::size_t TsdfVolume::integrate_scan(const PointCloud& samples, const Vec3d& sensor) {
+    if (!samples.has_normals() || !samples.has_confidences()) {
+        throw InvalidArgument("tsdf: a scan's samples need normals and confidences (scan_samples)");
+    }
+    LeafGather gather(voxel_, truncation_);
+    for (std::size_t i = 0; i < samples.size(); ++i) {
+        std::array<double, 3> w;
+        for (std::size_t a = 0; a < 3; ++a) w[a] = double(samples.positions[i][a]) + samples.origin[a] - origin_[a];
+        gather.add(w);
+    }
+    const Scan scan(samples, sensor);
+    pixels_ += scan.rays.rays();
+    if (scan.rays.rays() == 0) return 0;
+    std::vector<Vec3f> colors;
+    if (samples.has_colors()) colors.assign(samples.colors.begin(), samples.colors.end());
+    const std::vector<Vec3f>* pc = colors.empty() ? nullptr : &colors;
+    const std::vector<FloatLeaf*> todo = candidates(std::move(gather.leaves), pc != nullptr);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, todo.size(), 4),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t j = rg.begin(); j < rg.end(); ++j) {
+            FloatLeaf& val = *todo[j];
+            if (!leaf_seen(val.origin(), scan)) continue;
+            FloatLeaf& wt = *weight_->tree().probeLeaf(val.origin());
+            update_leaf(val, wt, scan, leaf_colors(pc, val.origin()));
+        }
+    });
+    return scan.rays.rays();
+}
+
+std::size_t TsdfVolume::memory_bytes() const {
+    return std::size_t(value_->memUsage() + weight_->memUsage() +
+                       (color_ ? color_->memUsage() + color_weight_->memUsage() : 0));
 }
 
 SplatResult TsdfVolume::result() const {

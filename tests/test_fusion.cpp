@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <functional>
 #include <random>
 #include <sstream>
 #include <unordered_map>
@@ -1073,19 +1074,22 @@ struct Street {
     }
 };
 
-}  // namespace
+/// The first scan's sensor, in the street's frame.
+const Vec3d kStreetSensor{2.0, 0.0, 1.73};
 
-TEST_CASE("fuse: a KITTI sequence of a ray-cast street from a 64-beam LiDAR", "[fusion][kitti]") {
-    const Street street;
-    // Ten scans 4 m apart along the street, the sensor 1.73 m up, turning a little (yaw), 64
-    // beams from -24.8 to +2 degrees, 720 steps a turn, 1 cm range noise.
+/// Ten scans of a street, 4 m apart along it, from a sensor 1.73 m up turning a little (yaw),
+/// 64 beams from -24.8 to +2 degrees, 720 steps a turn, 1 cm range noise, written into `dir` as
+/// KITTI writes them (velodyne/*.bin, camera 0's poses, calib.txt's Tr). `street(i)` is what
+/// scan i sees. Returns the exact hits within 30 m, in the first scan's frame.
+std::vector<Vec3d> write_kitti_street(const TempDir& dir, const std::function<Street(int)>& street_at) {
     std::mt19937_64 rng(3);
     std::normal_distribution<double> noise(0.0, 0.01);
     std::vector<Pose> lidar;  // scan to the first scan's frame
     std::vector<std::vector<float>> scans;
-    std::vector<Vec3d> hits;  // exact hits within 30 m, in the first scan's frame
-    const Vec3d s0{2.0, 0.0, 1.73};
+    std::vector<Vec3d> hits;
+    const Vec3d s0 = kStreetSensor;
     for (int i = 0; i < 10; ++i) {
+        const Street street = street_at(i);
         const double yaw = 0.05 * std::sin(i), c = std::cos(yaw), s = std::sin(yaw);
         const Vec3d at{2.0 + 4.0 * i, 0.3 * std::sin(0.7 * i), 1.73};
         lidar.push_back({c, -s, 0, at[0] - s0[0], s, c, 0, at[1] - s0[1], 0, 0, 1, at[2] - s0[2], 0, 0, 0, 1});
@@ -1120,7 +1124,6 @@ TEST_CASE("fuse: a KITTI sequence of a ray-cast street from a 64-beam LiDAR", "[
         }
         return c;
     };
-    TempDir dir, out;
     ::mkdir(dir.file("velodyne").c_str(), 0755);
     std::ostringstream poses, calib;
     poses.precision(17);
@@ -1139,29 +1142,26 @@ TEST_CASE("fuse: a KITTI sequence of a ray-cast street from a 64-beam LiDAR", "[
     calib << "\n";
     write_bytes(dir.file("poses.txt"), poses.str());
     write_bytes(dir.file("calib.txt"), calib.str());
+    return hits;
+}
 
-    const double voxel = 0.1;
-    const CliRun r = run_cli("fuse '" + dir.path() + "' -o '" + out.file("m.ply") +
-                             "' --voxel 0.1 --max-range 30 --no-vdb");
-    INFO(r.err);
-    REQUIRE(r.code == 0);
-    CHECK(r.err.find("(KITTI)") != std::string::npos);
-    const Mesh m = read_mesh(out.file("m.ply"));
-    REQUIRE(m.vertices.size() > 1000);
-    // Precision: mesh vertices within 2 voxels of the true surfaces (in the first scan's frame).
+/// F at `tol` of a mesh (in the first scan's frame) against the street's surfaces (precision:
+/// vertices within tol of a surface) and the exact hits (recall: hits with a vertex within tol).
+double street_fscore(const Mesh& m, const Street& street, const std::vector<Vec3d>& hits, double tol) {
     std::vector<Vec3d> w;
     std::size_t near = 0;
+    const Vec3d& s0 = kStreetSensor;
     for (const Vec3f& v : m.vertices) {
         w.push_back({m.origin[0] + v[0], m.origin[1] + v[1], m.origin[2] + v[2]});
-        near += street.distance({w.back()[0] + s0[0], w.back()[1] + s0[1], w.back()[2] + s0[2]}) <= 2 * voxel;
+        near += street.distance({w.back()[0] + s0[0], w.back()[1] + s0[1], w.back()[2] + s0[2]}) <= tol;
     }
     const double precision = double(near) / double(w.size());
-    // Recall: exact hits with a mesh vertex within 2 voxels (a hash grid of the vertices).
+    // Recall: exact hits with a mesh vertex within tol (a hash grid of the vertices).
     std::unordered_map<std::int64_t, std::vector<std::size_t>> grid;
     const auto key = [&](const Vec3d& p, int dx, int dy, int dz) {
-        return (std::int64_t(std::floor(p[0] / (2 * voxel))) + dx + 100000) * 4000000000LL +
-               (std::int64_t(std::floor(p[1] / (2 * voxel))) + dy + 10000) * 20000 +
-               (std::int64_t(std::floor(p[2] / (2 * voxel))) + dz + 5000);
+        return (std::int64_t(std::floor(p[0] / tol)) + dx + 100000) * 4000000000LL +
+               (std::int64_t(std::floor(p[1] / tol)) + dy + 10000) * 20000 +
+               (std::int64_t(std::floor(p[2] / tol)) + dz + 5000);
     };
     for (std::size_t i = 0; i < w.size(); ++i) grid[key(w[i], 0, 0, 0)].push_back(i);
     std::size_t found = 0;
@@ -1174,7 +1174,7 @@ TEST_CASE("fuse: a KITTI sequence of a ray-cast street from a 64-beam LiDAR", "[
                     if (it == grid.end()) continue;
                     for (std::size_t j : it->second) {
                         const double ex = w[j][0] - h[0], ey = w[j][1] - h[1], ez = w[j][2] - h[2];
-                        if (ex * ex + ey * ey + ez * ez <= 4 * voxel * voxel) {
+                        if (ex * ex + ey * ey + ez * ez <= tol * tol) {
                             hit = true;
                             break;
                         }
@@ -1185,24 +1185,168 @@ TEST_CASE("fuse: a KITTI sequence of a ray-cast street from a 64-beam LiDAR", "[
         found += hit;
     }
     const double recall = double(found) / double(hits.size());
-    const double f = 2 * precision * recall / (precision + recall);
-    INFO("precision " << precision << ", recall " << recall << ", F@2 voxels " << f);
+    INFO("precision " << precision << ", recall " << recall);
+    return 2 * precision * recall / (precision + recall);
+}
+
+/// The mesh's vertices (world, the street's frame) inside `b` grown by `margin`, between z0
+/// and z1.
+std::size_t vertices_in(const Mesh& m, const Street::Box& b, double margin, double z0, double z1) {
+    std::size_t n = 0;
+    for (const Vec3f& v : m.vertices) {
+        const Vec3d p{m.origin[0] + v[0] + kStreetSensor[0], m.origin[1] + v[1] + kStreetSensor[1],
+                      m.origin[2] + v[2] + kStreetSensor[2]};
+        if (p[2] < z0 || p[2] > z1) continue;
+        bool inside = true;
+        for (std::size_t a = 0; a < 2; ++a) inside = inside && p[a] > b.lo[a] - margin && p[a] < b.hi[a] + margin;
+        n += inside;
+    }
+    return n;
+}
+
+/// The street's mesh: F at 2 voxels >= 0.95 against the exact hits, and the poles and facades
+/// there (vertices on each pole 1-3 m up, on each facade, on the parked car).
+void check_street(const Mesh& m, const Street& street, const std::vector<Vec3d>& hits, double voxel) {
+    const double f = street_fscore(m, street, hits, 2 * voxel);
+    INFO("F@2 voxels " << f);
     CHECK(f >= 0.95);
-    // The poles and the facades are there: vertices on each pole 1-3 m up, on each facade.
-    const auto count_near = [&](const Street::Box& b, double z0, double z1) {
-        std::size_t n = 0;
-        for (const Vec3d& v : w) {
-            const Vec3d p{v[0] + s0[0], v[1] + s0[1], v[2] + s0[2]};
-            if (p[2] < z0 || p[2] > z1) continue;
-            bool inside = true;
-            for (std::size_t a = 0; a < 2; ++a) inside = inside && p[a] > b.lo[a] - 0.2 && p[a] < b.hi[a] + 0.2;
-            n += inside;
-        }
-        return n;
-    };
     for (std::size_t b = 0; b < street.boxes.size(); ++b) {
         CAPTURE(b);
         const double z0 = b == 5 ? 0.5 : 1.0, z1 = b < 2 ? 6.0 : b < 5 ? 3.0 : 1.4;
-        CHECK(count_near(street.boxes[b], z0, z1) >= 10);
+        CHECK(vertices_in(m, street.boxes[b], 0.2, z0, z1) >= 10);
+    }
+}
+
+}  // namespace
+
+TEST_CASE("fuse: a KITTI sequence of a ray-cast street from a 64-beam LiDAR", "[fusion][kitti]") {
+    const Street street;
+    TempDir dir, out;
+    const std::vector<Vec3d> hits = write_kitti_street(dir, [&](int) { return street; });
+    const double voxel = 0.1;
+    const CliRun r = run_cli("fuse '" + dir.path() + "' -o '" + out.file("m.ply") +
+                             "' --voxel 0.1 --max-range 30 --no-vdb");
+    INFO(r.err);
+    REQUIRE(r.code == 0);
+    CHECK(r.err.find("(KITTI)") != std::string::npos);
+    const Mesh m = read_mesh(out.file("m.ply"));
+    REQUIRE(m.vertices.size() > 1000);
+    check_street(m, street, hits, voxel);
+}
+
+TEST_CASE("fuse --fusion tsdf: a KITTI street's car that drove away is carved out", "[fusion][kitti][tsdf]") {
+    // A second car stands at x = 30..34 in the first three scans, then is gone; the sensor
+    // passes it at x = 10..14 and sees its place empty from the other side in the last ones.
+    const Street street;
+    const Street::Box moved{{30, -5, 0}, {34, -3, 1.5}};
+    TempDir dir, out;
+    std::vector<Vec3d> hits = write_kitti_street(dir, [&](int i) {
+        Street s = street;
+        if (i < 3) s.boxes.push_back(moved);
+        return s;
+    });
+    // The static street's hits only: the mesh is checked against it.
+    hits.erase(std::remove_if(hits.begin(), hits.end(), [&](const Vec3d& h) {
+                   const Vec3d p{h[0] + kStreetSensor[0], h[1] + kStreetSensor[1], h[2] + kStreetSensor[2]};
+                   return street.distance(p) > 0.05;
+               }), hits.end());
+    const double voxel = 0.1;
+    const std::string common = "' --voxel 0.1 --max-range 30 --no-vdb";
+    const CliRun tsdf = run_cli("fuse '" + dir.path() + "' -o '" + out.file("t.ply") + common + " --fusion tsdf --threads 2");
+    INFO(tsdf.err);
+    REQUIRE(tsdf.code == 0);
+    const CliRun splat = run_cli("fuse '" + dir.path() + "' -o '" + out.file("s.ply") + common);
+    REQUIRE(splat.code == 0);
+    // The same bytes from one thread as from two.
+    REQUIRE(run_cli("fuse '" + dir.path() + "' -o '" + out.file("t1.ply") + common +
+                    " --fusion tsdf --threads 1").code == 0);
+    CHECK(read_bytes(out.file("t1.ply")) == read_bytes(out.file("t.ply")));
+    const Mesh t = read_mesh(out.file("t.ply")), s = read_mesh(out.file("s.ply"));
+    // The splat rule keeps what any scan saw: the car is in its mesh; the rays of the later
+    // scans carve it out of the tsdf's.
+    const std::size_t car_splat = vertices_in(s, moved, 0.0, 0.5, 1.4);
+    const std::size_t car_tsdf = vertices_in(t, moved, 0.0, 0.5, 1.4);
+    INFO("car vertices: splat " << car_splat << ", tsdf " << car_tsdf);
+    CHECK(car_splat >= 50);
+    CHECK(car_tsdf == 0);
+    // The rest of the street is there: the ground under the car too.
+    check_street(t, street, hits, voxel);
+    const Street::Box under{{30.5, -4.5, 0}, {33.5, -3.5, 0}};
+    CHECK(vertices_in(t, under, 0.0, -0.2, 0.2) >= 20);
+}
+
+TEST_CASE("Fusion::integrate_scan: LiDAR scans of a sphere, by both rules", "[fusion][tsdf][kitti]") {
+    // Six sensors 3 m from a unit sphere, each casting 30000 rays uniformly into the cone that
+    // holds the sphere; the hits are exact (the sphere at the origin, the fusion's origin off it).
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    const double voxel = 0.04;
+    for (FusionRule rule : {FusionRule::tsdf, FusionRule::splat}) {
+        CAPTURE(int(rule));
+        DepthOptions d;
+        d.rule = rule;
+        Fusion f(fusion_options(voxel), d, Vec3d{0.1, 0.2, -0.3});
+        for (int s = 0; s < 6; ++s) {
+            Vec3d sensor{0.0, 0.0, 0.0};
+            sensor[std::size_t(s / 2)] = s % 2 ? -3.0 : 3.0;
+            PointCloud scan;
+            scan.origin = sensor;  // points relative to the sensor, as a scan's file has them
+            std::vector<Vec3f> pts;
+            const double cos_max = std::sqrt(1.0 - 1.0 / 9.0);  // the sphere's cone from 3 m
+            while (pts.size() < 30000) {
+                const double z = cos_max + (1.0 - cos_max) * u(rng), phi = 2.0 * M_PI * u(rng);
+                const double rxy = std::sqrt(1.0 - z * z);
+                const Vec3d local{rxy * std::cos(phi), rxy * std::sin(phi), z};
+                // The ray toward the centre is -sensor / 3: a frame with it as z.
+                const std::size_t ax = std::size_t(s / 2);
+                Vec3d dir{0.0, 0.0, 0.0};
+                dir[ax] = (s % 2 ? 1.0 : -1.0) * local[2];
+                dir[(ax + 1) % 3] = local[0];
+                dir[(ax + 2) % 3] = local[1];
+                // |sensor + t dir| = 1: t^2 + 2 t (sensor . dir) + 9 - 1 = 0
+                const double b = sensor[0] * dir[0] + sensor[1] * dir[1] + sensor[2] * dir[2];
+                const double disc = b * b - 8.0;
+                if (disc < 0.0) continue;
+                const double t = -b - std::sqrt(disc);
+                pts.push_back({float(t * dir[0]), float(t * dir[1]), float(t * dir[2])});
+            }
+            scan.positions = std::move(pts);
+            CHECK(f.integrate_scan(scan, sensor) > 25000);
+        }
+        const Mesh m = f.reconstruct().mesh;
+        REQUIRE(m.vertices.size() > 1000);
+        double worst = 0.0;
+        for (const Vec3f& v : m.vertices) {
+            const Vec3d p{v[0] + m.origin[0], v[1] + m.origin[1], v[2] + m.origin[2]};
+            worst = std::max(worst, std::fabs(std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) - 1.0));
+        }
+        INFO("farthest vertex from the sphere: " << worst / voxel << " voxels");
+        CHECK(worst < 0.5 * voxel);
+        const TopologyStats st = mesh_topology(m);
+        CHECK(st.components == 1);
+        CHECK(st.watertight());
+    }
+}
+
+TEST_CASE("vdbrecon fuse: a volume over --max-memory stops the run before the other frames", "[fusion][cli]") {
+    const Shape shape = make_shape("sphere");
+    const double voxel = bounding_box(shape.mesh.vertices).diagonal() / 150.0;
+    const Views v = views_of(shape.mesh, 12, 160, 120);
+    TempDir scene_dir, out;
+    const std::string scene = write_transforms_scene(scene_dir.path(), v.depths, v.K, v.poses, "exr");
+    for (const char* rule : {"splat", "tsdf"}) {
+        CAPTURE(rule);
+        std::ostringstream args;
+        args.precision(17);
+        args << "fuse '" << scene << "' -o '" << out.file("m.ply") << "' --voxel " << voxel
+             << " --fusion " << rule << " --max-memory 1M";
+        const CliRun r = run_cli(args.str());
+        INFO(r.err);
+        CHECK(r.code != 0);
+        CHECK(r.err.find("over --max-memory 1 MB") != std::string::npos);
+        CHECK(r.err.find(" of 12 frames") != std::string::npos);
+        CHECK(r.err.find("(12 of 12 frames)") == std::string::npos);
+        CHECK_FALSE(file_exists(out.file("m.ply")));
+        CHECK(count_files(out.path()) == 0);
     }
 }

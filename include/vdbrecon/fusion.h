@@ -208,6 +208,11 @@ class Fusion {
     std::size_t integrate_presummed(const PointCloud& groups, std::size_t samples);
     /// Adds an organized cloud (organized_samples).
     std::size_t integrate(const OrganizedCloud& cloud);
+    /// Adds a LiDAR scan: its points (relative to scan.origin, colours optional) measured from
+    /// the sensor at `sensor` (world). The splat rule samples it (scan_samples: normals from the
+    /// scan's own neighbours, toward the sensor); the tsdf rule updates the voxels its rays
+    /// cross, carving the free space in front of each hit. Returns the samples or hits used.
+    std::size_t integrate_scan(const PointCloud& scan, const Vec3d& sensor);
 
     /// The fused volume so far (NumericalError when nothing valid was integrated).
     Volume volume() const;
@@ -220,6 +225,8 @@ class Fusion {
     PipelineResult reconstruct(const StageCallback& on_stage = {},
                                const VolumeCallback& on_volume = {}) const;
 
+    /// Memory of what the fusion holds (its sums, or the tsdf rule's grids), bytes.
+    std::size_t memory_bytes() const;
     std::size_t frames() const { return frames_; }
     std::size_t samples() const;
     const PipelineOptions& options() const { return options_; }

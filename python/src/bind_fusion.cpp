@@ -17,6 +17,18 @@ DepthImage depth_image(const py::array_t<float, py::array::c_style | py::array::
     return img;
 }
 
+/// An (H, W, 3) float array (0..1) as a ColorImage (copied).
+ColorImage color_image(const py::array_t<float, py::array::c_style | py::array::forcecast>& a) {
+    if (a.ndim() != 3 || a.shape(2) != 3) throw InvalidArgument("color: expected an (H, W, 3) array");
+    ColorImage img;
+    img.height = int(a.shape(0));
+    img.width = int(a.shape(1));
+    img.rgb.resize(std::size_t(a.size() / 3));
+    const float* d = a.data();
+    for (std::size_t i = 0; i < img.rgb.size(); ++i) img.rgb[i] = {d[3 * i], d[3 * i + 1], d[3 * i + 2]};
+    return img;
+}
+
 Pose pose_of(const py::array_t<double, py::array::c_style | py::array::forcecast>& a) {
     if (a.size() != 16) throw InvalidArgument("pose: expected a (4, 4) camera-to-world matrix");
     Pose p;
@@ -79,6 +91,29 @@ void bind_fusion(py::module_& m) {
             },
             py::arg("depth"), py::arg("fx"), py::arg("fy"), py::arg("cx"), py::arg("cy"),
             py::arg("pose"))
+        .def(
+            "integrate_color",
+            [](Fusion& f, const py::array_t<float, py::array::c_style | py::array::forcecast>& depth,
+               double fx, double fy, double cx, double cy,
+               const py::array_t<double, py::array::c_style | py::array::forcecast>& pose,
+               const py::array_t<float, py::array::c_style | py::array::forcecast>& color,
+               double cfx, double cfy, double ccx, double ccy) {
+                const DepthImage img = depth_image(depth);
+                const ColorImage col = color_image(color);
+                const Intrinsics K{fx, fy, cx, cy, img.width, img.height};
+                const Intrinsics C{cfx, cfy, ccx, ccy, col.width, col.height};
+                const Pose p = pose_of(pose);
+                return without_gil([&] { return f.integrate(img, K, p, col, C); });
+            },
+            py::arg("depth"), py::arg("fx"), py::arg("fy"), py::arg("cx"), py::arg("cy"),
+            py::arg("pose"), py::arg("color"), py::arg("cfx"), py::arg("cfy"), py::arg("ccx"),
+            py::arg("ccy"))
+        .def(
+            "integrate_scan",
+            [](Fusion& f, const PointCloud& scan, const Vec3d& sensor) {
+                return without_gil([&] { return f.integrate_scan(scan, sensor); });
+            },
+            py::arg("scan"), py::arg("sensor"))
         .def(
             "integrate_cloud",
             [](Fusion& f, const PointCloud& cloud) {

@@ -115,3 +115,68 @@ def test_tsdf_rule_by_keyword():
     assert vdbrecon.mesh_topology(mesh).components == 1
     with pytest.raises(ValueError, match="rule"):
         vdbrecon.Fusion(0.02, rule="voxels")
+
+
+def paint(points):
+    """A smooth colour field over space (0..1)."""
+    p = (points - CENTRE) / RADIUS
+    return np.clip(0.5 + 0.45 * np.stack([p[:, 0], p[:, 1], np.sin(2.5 * p[:, 2])], -1), 0, 1)
+
+
+def colour_image(depth, pose, scale=1):
+    """The colour each pixel of a (scale x larger) colour camera sees on the sphere."""
+    h, w = depth.shape[0] * scale, depth.shape[1] * scale
+    f, cx, cy = F * scale, (K[0, 2] + 0.5) * scale - 0.5, (K[1, 2] + 0.5) * scale - 0.5
+    u, v = np.meshgrid(np.arange(w), np.arange(h))
+    rays = np.stack([(u - cx) / f, (v - cy) / f, np.ones_like(u, dtype=float)], -1).reshape(-1, 3)
+    d = rays @ pose[:3, :3].T
+    o = pose[:3, 3] - CENTRE
+    a, b, c = (d * d).sum(-1), 2 * (d @ o), o @ o - RADIUS ** 2
+    t = (-b - np.sqrt(np.maximum(b * b - 4 * a * c, 0))) / (2 * a)
+    return (paint(pose[:3, 3] + t[:, None] * d) * 255).round().astype(np.uint8).reshape(h, w, 3)
+
+
+@pytest.mark.parametrize("rule", ["splat", "tsdf"])
+def test_colour_images_give_vertex_colours(rule):
+    fusion = vdbrecon.Fusion(0.02, origin=CENTRE, rule=rule)
+    for i, p in enumerate(poses(12)):
+        depth = render_sphere(p)
+        if i % 2:  # a colour camera of twice the resolution, K scaled
+            fusion.integrate(depth, K, p, color=colour_image(depth, p, 2))
+        else:  # its own intrinsics, float colours
+            fusion.integrate(depth, K, p, color=colour_image(depth, p).astype(np.float32) / 255,
+                             color_K=K)
+    mesh = fusion.mesh()
+    assert mesh.colors is not None and len(mesh.colors) == len(mesh.vertices)
+    v = mesh.vertices.astype(np.float64) + np.asarray(mesh.origin)
+    err = np.abs(np.asarray(mesh.colors, dtype=np.float64) - paint(v))
+    assert err.mean() < 0.01, err.mean()
+    with pytest.raises(ValueError, match="H, W, 3"):
+        fusion.integrate(render_sphere(poses(1)[0]), K, poses(1)[0], color=np.zeros((4, 4)))
+
+
+@pytest.mark.parametrize("rule", ["splat", "tsdf"])
+def test_lidar_scans_of_a_sphere(rule):
+    rng = np.random.default_rng(5)
+    fusion = vdbrecon.Fusion(0.03, origin=CENTRE, rule=rule)
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            sensor = CENTRE.copy()
+            sensor[axis] += 3.0 * sign
+            # rays toward random points of the sphere's near side, hits by ray casting
+            target = rng.normal(size=(20000, 3))
+            target /= np.linalg.norm(target, axis=1)[:, None]
+            d = CENTRE + RADIUS * target - sensor
+            d /= np.linalg.norm(d, axis=1)[:, None]
+            o = sensor - CENTRE
+            b = d @ o
+            disc = b * b - (o @ o - RADIUS ** 2)
+            t = -b - np.sqrt(np.maximum(disc, 0))
+            hits = (sensor + t[:, None] * d)[disc > 0]
+            assert fusion.integrate_scan(hits, sensor) > 0.7 * len(hits)
+    mesh = fusion.mesh()
+    v = mesh.vertices.astype(np.float64) + np.asarray(mesh.origin)
+    assert np.abs(np.linalg.norm(v - CENTRE, axis=1) - RADIUS).max() < 0.5 * 0.03
+    assert vdbrecon.mesh_topology(mesh).components == 1
+    with pytest.raises(ValueError, match="sensor"):
+        fusion.integrate_scan(hits, (0, 0))

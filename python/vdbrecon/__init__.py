@@ -180,6 +180,8 @@ def _mesh(m, name):
 
 
 def _set_field(struct, field, value, func, name):
+    if isinstance(value, _os.PathLike) and isinstance(getattr(type(struct)(), field), str):
+        value = _os.fspath(value)  # paths (job_dir, preview_path) as pathlib paths too
     try:
         setattr(struct, field, value)
     except TypeError as e:
@@ -770,6 +772,16 @@ Returns a RunResult: .result (PipelineResult), .read (ReadResult counts), .mesh_
 _DEPTH_FIELDS = [f for f, _ in DepthOptions._fields]
 
 
+def _intrinsics(K, name):
+    """fx, fy, cx, cy from a (3, 3) matrix or 4 numbers."""
+    k = _np.asarray(K, dtype=_np.float64)
+    if k.shape == (3, 3):
+        return k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+    if k.shape == (4,):
+        return tuple(k)
+    raise ValueError(f"{name}: expected a (3, 3) matrix or (fx, fy, cx, cy)")
+
+
 class Fusion:
     """Fuses posed depth images (and oriented clouds) into one volume, one frame at a time
     (FSSR-style samples: normals from the depth neighbours, scale from the pixel footprint,
@@ -778,7 +790,7 @@ class Fusion:
     voxel: voxel edge, world units (required).
     origin: world position of the local float frame (pick one near the scene).
     depth_scale: integer depth arrays are divided by it (units per metre, as Open3D's).
-    Options: every reconstruct() option by the same name (mesher, hole_radius, ...), and the
+    Options: every reconstruct() option by the same name (method, hole_radius, ...), and the
     DepthOptions fields (kind or depth_kind, min_depth, max_depth, max_jump, min_view_cos,
     reference_depth).
     """
@@ -798,7 +810,7 @@ class Fusion:
         self._depth_scale = float(depth_scale)
         self._f = _v._Fusion(o, _fill(DepthOptions, depth, "Fusion"), tuple(float(x) for x in origin))
 
-    def integrate(self, depth, K, pose, *, convention="opencv"):
+    def integrate(self, depth, K, pose, *, convention="opencv", color=None, color_K=None):
         """Adds one depth image.
 
         depth: (H, W) array; float: world units, integer: units of 1/depth_scale; 0, NaN and
@@ -807,17 +819,16 @@ class Fusion:
         pose: (4, 4) camera-to-world transform; convention 'opencv' (x right, y down, looking
         down +z; TUM, Open3D after inverting its extrinsic) or 'opengl' (y up, looking down -z;
         Blender, NeRF transforms.json).
+        color: the frame's colour image seen from the same pose, (H', W', 3); uint8 (0..255)
+        or float (0..1). Each sample takes the colour its camera saw, weighted like its
+        distance: the mesh gets vertex colours.
+        color_K: the colour camera's intrinsics when they are not K's; by default K, scaled to
+        the colour image's size.
         Returns the number of samples the frame gave."""
         d = _np.asarray(depth)
         if d.dtype.kind in "iu":
             d = d.astype(_np.float32) / _np.float32(self._depth_scale)
-        k = _np.asarray(K, dtype=_np.float64)
-        if k.shape == (3, 3):
-            fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-        elif k.shape == (4,):
-            fx, fy, cx, cy = k
-        else:
-            raise ValueError("K: expected a (3, 3) matrix or (fx, fy, cx, cy)")
+        fx, fy, cx, cy = _intrinsics(K, "K")
         p = _np.array(pose, dtype=_np.float64)
         if p.shape != (4, 4):
             raise ValueError("pose: expected a (4, 4) camera-to-world matrix")
@@ -825,7 +836,35 @@ class Fusion:
             p[:3, 1:3] *= -1.0
         elif convention != "opencv":
             raise ValueError("convention: 'opencv' or 'opengl'")
-        return self._f.integrate_depth(d, float(fx), float(fy), float(cx), float(cy), p)
+        if color is None:
+            if color_K is not None:
+                raise ValueError("color_K: given without color")
+            return self._f.integrate_depth(d, float(fx), float(fy), float(cx), float(cy), p)
+        c = _np.asarray(color)
+        if c.ndim != 3 or c.shape[2] != 3:
+            raise ValueError("color: expected an (H, W, 3) array")
+        c = c.astype(_np.float32) / _np.float32(255.0) if c.dtype == _np.uint8 else c.astype(_np.float32)
+        if d.ndim != 2:
+            raise ValueError("depth: expected an (H, W) array")
+        if color_K is None:  # K scaled to the colour image (pixel centres at integers)
+            sx, sy = c.shape[1] / d.shape[1], c.shape[0] / d.shape[0]
+            cfx, cfy, ccx, ccy = fx * sx, fy * sy, (cx + 0.5) * sx - 0.5, (cy + 0.5) * sy - 0.5
+        else:
+            cfx, cfy, ccx, ccy = _intrinsics(color_K, "color_K")
+        return self._f.integrate_color(d, float(fx), float(fy), float(cx), float(cy), p, c,
+                                       float(cfx), float(cfy), float(ccx), float(ccy))
+
+    def integrate_scan(self, points, sensor, *, colors=None):
+        """Adds one LiDAR scan: its points (N, 3) in world coordinates (or a PointCloud),
+        measured from the sensor at `sensor` (world, 3 values). With the splat rule the
+        points become samples with normals from the scan's own neighbours, toward the sensor;
+        with rule='tsdf' the voxels each ray crosses are updated, and the free space in front
+        of each hit carved. colors: (N, 3) per point, optional.
+        Returns the number of samples (or hits) used."""
+        s = _np.asarray(sensor, dtype=_np.float64).reshape(-1)
+        if s.shape != (3,) or not _np.all(_np.isfinite(s)):
+            raise ValueError("sensor: expected 3 finite numbers")
+        return self._f.integrate_scan(_cloud(points, None, colors), tuple(float(x) for x in s))
 
     def integrate_points(self, points, normals=None):
         """Adds an oriented cloud (e.g. one scan with normals toward its sensor)."""

@@ -30,6 +30,10 @@ class CellGroups {
 
     bool empty() const { return groups_.size() == 0; }
     bool colors() const { return colors_; }
+    /// Memory of the groups and the cells' table, bytes.
+    std::size_t memory_bytes() const {
+        return groups_.size() * sizeof(Group) + slots_.capacity() * sizeof(Slot);
+    }
 
   private:
     struct Group {

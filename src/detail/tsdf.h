@@ -10,7 +10,15 @@
 // volume already holds that the camera sees: voxels observed in front of the measured surface
 // get +1 (free), so objects that moved away are carved out as frames accumulate.
 //
-// With colours (one per pixel), a voxel within the truncation of the surface also averages the
+// LiDAR scans (integrate_scan) are not pinhole images. A voxel takes the nearest of the rays
+// that cross it (their lines pass within its half diagonal; detail/ray_image.h): in front of its
+// hit by the truncation or more the voxel is free (+1); nearer, its value is its distance to the
+// hit's tangent plane (the hit's normal from the scan's own neighbours), weighted by the cosine
+// of the hit's viewing angle. Voxels no ray crosses are left alone, as VDBFusion's ray traversal
+// leaves them (I. Vizzo et al., Sensors 2022): a ray that ends on the ground far away says
+// nothing about the ground between the beams.
+//
+// With colours (one per pixel or hit), a voxel within the truncation of the surface also averages the
 // colour of its pixel, with a weight of its own (free-space updates leave it alone).
 //
 // Each voxel is updated by one task from its own value, frame after frame, so the grids are
@@ -37,10 +45,16 @@ class TsdfVolume {
     std::size_t integrate(const std::vector<std::array<double, 3>>& points,
                           const std::vector<char>& measured, const Intrinsics& K, const Pose& pose,
                           const std::vector<Vec3f>* colors = nullptr);
+    /// Adds a LiDAR scan: its samples (scan_samples: hits with normals toward the sensor,
+    /// confidences and colours or none) measured from the sensor at `sensor` (world); returns
+    /// the hits used.
+    std::size_t integrate_scan(const PointCloud& samples, const Vec3d& sensor);
     /// The volume: sdf = value x truncation (world units) on the voxels with |value| < 1,
     /// weight = frames that saw them, nearest = 0 (no sample positions: no trims).
     SplatResult result() const;
     std::size_t pixels() const { return pixels_; }
+    /// Memory of the grids, bytes.
+    std::size_t memory_bytes() const;
 
   private:
     using FloatLeaf = openvdb::FloatTree::LeafNodeType;
@@ -64,6 +78,14 @@ class TsdfVolume {
     };
     void update_leaf(FloatLeaf& value, FloatLeaf& weight, const std::vector<double>& z,
                      const Intrinsics& K, const Pose& pose, const LeafColors& colors) const;
+    struct Scan;
+    bool leaf_seen(const openvdb::Coord& origin, const Scan& scan) const;
+    void update_leaf(FloatLeaf& value, FloatLeaf& weight, const Scan& scan,
+                     const LeafColors& colors) const;
+    /// Touches `leaves` (within the truncation of a frame's points) and returns the leaves to
+    /// update: those, or with carving every leaf held; makes the colour grids' leaves too.
+    std::vector<FloatLeaf*> candidates(std::vector<openvdb::Coord> leaves, bool colors);
+    LeafColors leaf_colors(const std::vector<Vec3f>* colors, const openvdb::Coord& origin) const;
 
     double voxel_, truncation_;
     bool carve_;

@@ -278,6 +278,10 @@ void help_tiles() {
         << "                         auto: when the points would take over half of\n"
         << "                         --max-memory ["
         << choice_name(stream_mode_choices(), d.stream) << "]\n"
+        << "  --job-dir DIR          keep the tiled run's job directory in DIR: the same\n"
+        << "                         command again resumes from the tiles it finished (the\n"
+        << "                         same output); another input or options are refused\n"
+        << "                         [none]\n"
         << "  --threads N            worker threads, 0 = all cores [" << d.threads << "]\n";
 }
 
@@ -534,6 +538,8 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.normals.k = parse_int(a, args.value(a));
     } else if (a == "--stream") {
         o.stream = parse_choice(a, args.value(a), stream_mode_choices());
+    } else if (a == "--job-dir") {
+        o.job_dir = args.value(a);
     } else if (a == "--scale") {
         o.normals.scale = parse_choice(a, args.value(a), scale_mode_choices());
     } else if (a == "--knn") {

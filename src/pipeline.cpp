@@ -17,6 +17,7 @@
 #include <sstream>
 
 #include "detail/io_common.h"
+#include "detail/job_dir.h"
 #include "detail/parked.h"
 #include "detail/release.h"
 #include "detail/run.h"
@@ -686,6 +687,96 @@ bool run_streamed(const std::string& input, const PipelineOptions& options,
     return true;
 }
 
+/// Refuses options a tile job cannot run with.
+void check_tile_job(const PipelineOptions& options) {
+    if (options.tile == 0) {
+        throw InvalidArgument("prepare_tiles: options.tile is 0; give a tile edge, or -1 (auto)");
+    }
+    if (options.texture.enabled) {
+        throw InvalidArgument("texture: not with tile jobs (the tiles do not keep the points' "
+                              "colours); use --tile in one process");
+    }
+}
+
+/// A tile job of `input` in the job directory: taken as an earlier run prepared it, or
+/// prepared now (read, point stages, the samples bucketed by tile) and recorded. `options` are
+/// the run's (input_options applied).
+TileJob prepare_job(const std::string& input, const detail::JobDir& dir,
+                    const PipelineOptions& options) {
+    if (std::optional<TileJob> done = dir.prepared()) {
+        log_info(dir.path() + ": the tile job was prepared by an earlier run: " +
+                 std::to_string(done->tiles) + " tiles; resuming");
+        return std::move(*done);
+    }
+    TileJob job;
+    job.dir = dir.path();
+    in_arena(options.threads, [&] {
+        if (detail::prepare_streamed(input, dir.path(), options, job)) return;
+        job.read = read_points(input, options.read);
+        PointCloud cloud = std::move(job.read.cloud);
+        job.read.cloud = PointCloud{};
+        if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
+        const SplatOptions splat_options = point_stages(job.result, cloud, options, {});
+        job.voxel_size = splat_options.voxel_size;
+        const double spacing = sample_spacing(job.result);
+        job.tiles = detail::write_tile_job(
+            cloud, detail::tiled_options(options, splat_options, spacing), dir.path(), &job.tile);
+    });
+    dir.save_prepared(job);
+    return job;
+}
+
+/// The pieces kept in a job directory, read one at a time.
+PieceSource piece_files(const std::string& dir) {
+    return [dir](std::size_t i, std::string& buffer) {
+        const std::string path = detail::piece_path(dir, i);
+        struct stat st {};
+        if (::stat(path.c_str(), &st) != 0) {
+            throw IoError(path + ": tile " + std::to_string(i) + "'s piece is missing");
+        }
+        buffer = detail::read_file(path);
+        return std::string_view(buffer);
+    };
+}
+
+/// A tiled run in the job directory options.job_dir (detail/job_dir.h): its preparation unless
+/// an earlier run finished it, the tiles whose pieces are not there yet, each kept as it is
+/// done, then the stitch and the stages after the mesh: the bytes of an uninterrupted run.
+PipelineResult run_in_job_dir(const std::string& input, const PipelineOptions& options,
+                              const StageCallback& on_stage, const VolumeCallback& on_volume,
+                              RunResult& out, std::vector<StageTiming>& timings) {
+    check_tile_job(options);
+    const detail::JobDir dir(options.job_dir, input, options);
+    TileJob job;
+    {
+        StageClock clock(timings, on_stage, "read and point stages");
+        job = prepare_job(input, dir, options);
+    }
+    out.read = std::move(job.read);
+    PipelineResult r = std::move(job.result);
+    in_arena(options.threads, [&] {
+        const detail::TiledOptions to = detail::tiled_options(options, options.splat, 0.0);
+        std::size_t kept = 0;
+        {
+            StageClock clock(r.timings, on_stage, "tiles");
+            for (std::size_t i = 0; i < job.tiles; ++i) {
+                if (has_tile_piece(dir.path(), i)) {
+                    ++kept;
+                    continue;
+                }
+                save_tile_piece(dir.path(), i, detail::run_tile_job(dir.path(), i, to));
+            }
+            detail::trim_heap();
+        }
+        if (kept > 0) {
+            log_info(dir.path() + ": " + std::to_string(kept) + " of " + std::to_string(job.tiles) +
+                     " tiles' pieces were there from an earlier run");
+        }
+        stitch_stages(r, dir.path(), job.tiles, piece_files(dir.path()), options, on_stage, on_volume);
+    });
+    return r;
+}
+
 }  // namespace
 
 namespace {
@@ -713,6 +804,10 @@ PipelineOptions input_options(const std::string& input, const PipelineOptions& o
         log_info(input + ": a LAS file: estimated normals face up (0,0,1), as PDAL's do; "
                          "--viewpoint, --up or --orient mst to override");
     }
+    if (!o.job_dir.empty() && o.tile == 0) {
+        o.tile = detail::kAutoTile;
+        log_info(input + ": --job-dir: a tiled run (--tile auto)");
+    }
     if (auto_tiled && o.tile == 0 && o.auto_tile && o.close.solid_radius == 0) {
         const double need = detail::points_memory_estimate(input, o.normals);
         const double budget = double(memory_budget(o.splat));
@@ -738,6 +833,11 @@ RunResult run(const std::string& input, const std::string& output,
     const PipelineOptions options = input_options(input, given, &auto_tiled);
     auto compute = [&](RunResult& out, std::vector<StageTiming>& timings,
                        const VolumeCallback& write_vdb) {
+        if (!options.job_dir.empty()) {
+            PipelineResult r = run_in_job_dir(input, options, on_stage, write_vdb, out, timings);
+            r.auto_tiled = auto_tiled;
+            return r;
+        }
         PipelineResult streamed;
         if (run_streamed(input, options, on_stage, write_vdb, out, timings, streamed)) {
             streamed.auto_tiled = auto_tiled;
@@ -786,32 +886,13 @@ TileJob prepare_tiles(const std::string& input, const std::string& dir,
                       const PipelineOptions& given) {
     given.validate();
     const PipelineOptions options = input_options(input, given, nullptr);
-    if (options.tile == 0) {
-        throw InvalidArgument("prepare_tiles: options.tile is 0; give a tile edge, or -1 (auto)");
-    }
-    if (options.texture.enabled) {
-        throw InvalidArgument("texture: not with tile jobs (the tiles do not keep the points' "
-                              "colours); use --tile in one process");
-    }
-    TileJob job;
-    job.dir = dir;
+    check_tile_job(options);
     try {
-        in_arena(options.threads, [&] {
-            if (detail::prepare_streamed(input, dir, options, job)) return;
-            job.read = read_points(input, options.read);
-            PointCloud cloud = std::move(job.read.cloud);
-            job.read.cloud = PointCloud{};
-            if (cloud.empty()) throw InvalidArgument("reconstruct: the point cloud is empty");
-            const SplatOptions splat_options = point_stages(job.result, cloud, options, {});
-            job.voxel_size = splat_options.voxel_size;
-            const double spacing = sample_spacing(job.result);
-            job.tiles = detail::write_tile_job(
-                cloud, detail::tiled_options(options, splat_options, spacing), dir, &job.tile);
-        });
+        const detail::JobDir job_dir(dir, input, options);
+        return prepare_job(input, job_dir, options);
     } catch (const Error& e) {
         detail::rethrow_naming(input, e);
     }
-    return job;
 }
 
 std::string run_tile(const std::string& dir, std::size_t index, const PipelineOptions& options) {
@@ -819,6 +900,31 @@ std::string run_tile(const std::string& dir, std::size_t index, const PipelineOp
     return in_arena(options.threads, [&] {
         return detail::run_tile_job(dir, index, detail::tiled_options(options, options.splat, 0.0));
     });
+}
+
+void save_tile_piece(const std::string& dir, std::size_t index, const std::string& piece) {
+    const std::string path = detail::piece_path(dir, index);
+    detail::AtomicFile f(path);
+    // Half, then (in the resume tests) a crash, then the rest: a killed write leaves a temporary.
+    const std::size_t half = piece.size() / 2;
+    bool ok = std::fwrite(piece.data(), 1, half, f.stream()) == half && std::fflush(f.stream()) == 0;
+    detail::crash_point("piece", index);
+    ok = ok && std::fwrite(piece.data() + half, 1, piece.size() - half, f.stream()) == piece.size() - half;
+    if (!ok) throw IoError(path + ": write failed");
+    f.commit();
+}
+
+bool has_tile_piece(const std::string& dir, std::size_t index) {
+    const std::string path = detail::piece_path(dir, index);
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0) return false;
+    return detail::is_piece(detail::read_file(path), index);
+}
+
+RunResult finish_tiles(const std::string& input, const std::string& output, const std::string& dir,
+                       const PipelineOptions& options, const StageCallback& on_stage) {
+    return finish_tiles(input, output, dir, detail::tile_job_tiles(dir), piece_files(dir), options,
+                        on_stage);
 }
 
 RunResult finish_tiles(const std::string& input, const std::string& output, const std::string& dir,

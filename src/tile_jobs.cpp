@@ -314,6 +314,20 @@ PieceSizes piece_sizes(std::string_view bytes, std::size_t i, const std::string&
 
 }  // namespace
 
+bool is_piece(std::string_view bytes, std::size_t index) {
+    try {
+        Reader r(bytes, "piece");
+        r.tag(kPieceTag);
+        if (r.get<std::uint64_t>() != index) return false;
+        piece_sizes(bytes, index, "piece");
+        return true;
+    } catch (const FormatError&) {
+        return false;
+    }
+}
+
+std::size_t tile_job_tiles(const std::string& dir) { return read_plan(dir).tiles.size(); }
+
 ClassifiedSurface join_pieces(std::size_t n, const PieceSource& source, TiledResult& stats,
                               const std::string& what) {
     std::string buffer;

@@ -2,7 +2,13 @@
 // mesh -- the same faces on the same vertices -- for any tile size, mesher and thread count, on
 // generated CAD parts (creases), smooth shapes with colours, a holed sphere closed by --close,
 // and the Stanford bunny scans.
+#include <fcntl.h>
+#include <sys/file.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -809,4 +815,140 @@ TEST_CASE("streamed tiles: lists reaching past a region's halo are searched agai
         o.outliers.enabled = outliers;
         check_streamed_samples(dir.file("bare.ply"), dir.file(outliers ? "job1" : "job0"), o);
     }
+}
+
+namespace {
+
+/// Starts `vdbrecon ARGS` (split on spaces), kills it with SIGKILL after `seconds` unless it
+/// ended before; returns its exit code, or -1 when it was killed.
+int run_killed_after(const std::vector<std::string>& args, double seconds) {
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+        const int null = ::open("/dev/null", O_WRONLY);
+        ::dup2(null, 1);
+        ::dup2(null, 2);
+        std::vector<char*> argv{const_cast<char*>(VDBRECON_CLI)};
+        for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+        argv.push_back(nullptr);
+        ::execv(VDBRECON_CLI, argv.data());
+        ::_exit(127);
+    }
+    int status = 0;
+    const auto start = std::chrono::steady_clock::now();
+    while (::waitpid(pid, &status, WNOHANG) == 0) {
+        if (std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() > seconds) {
+            ::kill(pid, SIGKILL);
+            ::waitpid(pid, &status, 0);
+            break;
+        }
+        ::usleep(2000);
+    }
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+}  // namespace
+
+TEST_CASE("--job-dir: a tiled run killed at any moment resumes to the bytes of an uninterrupted one",
+          "[tiles][resume]") {
+    TempDir dir;
+    const Shape shape = make_shape("boss");
+    write_points(dir.file("in.ply"), sample_uniform(shape.mesh, 60000, 4));
+    const std::string in = dir.file("in.ply"), job = dir.file("job");
+    const std::string common = " --tile 24 --no-vdb --job-dir '" + job + "'";
+    REQUIRE(run_cli("'" + in + "' -o '" + dir.file("whole.ply") + "' --tile 24 --no-vdb -q").code == 0);
+    const std::string whole = read_bytes(dir.file("whole.ply"));
+
+    // Killed while it writes tile 3's piece: the pieces before it are kept, its own half-written
+    // temporary is removed when the run starts again.
+    const CliRun crashed = run_cli("'" + in + "' -o '" + dir.file("a.ply") + "'" + common,
+                                   "VDBRECON_CRASH_AT=piece:3");
+    CHECK(crashed.code == 128 + SIGKILL);  // as the shell reports it
+    CHECK_FALSE(file_exists(dir.file("a.ply")));
+    CHECK(file_exists(job + "/piece-2.bin"));
+    CHECK_FALSE(file_exists(job + "/piece-3.bin"));
+    CHECK(count_files(job) > 4);
+    const CliRun resumed = run_cli("'" + in + "' -o '" + dir.file("a.ply") + "'" + common);
+    INFO(resumed.err);
+    REQUIRE(resumed.code == 0);
+    CHECK(resumed.err.find("3 of ") != std::string::npos);  // pieces 0-2 were kept
+    CHECK(read_bytes(dir.file("a.ply")) == whole);
+
+    // SIGKILL at random moments, again and again, in a new directory: each run gets further.
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> after(0.05, 1.2);
+    const std::string job2 = dir.file("job2");
+    const std::vector<std::string> args{in, "-o", dir.file("b.ply"), "--tile", "24", "--no-vdb",
+                                        "-q", "--job-dir", job2};
+    int kills = 0, code = -1;
+    for (int attempt = 0; attempt < 60 && code != 0; ++attempt) {
+        code = run_killed_after(args, after(rng));
+        kills += code == -1;
+    }
+    INFO(kills << " kills");
+    REQUIRE(code == 0);
+    CHECK(kills >= 2);
+    CHECK(read_bytes(dir.file("b.ply")) == whole);
+
+    // Options after the stitch may change (the pieces are the same); the job's own may not.
+    CHECK(run_cli("'" + in + "' -o '" + dir.file("c.ply") + "'" + common + " --decimate 0.5").code == 0);
+    const CliRun other = run_cli("'" + in + "' -o '" + dir.file("d.ply") + "'" + common + " --support 2.5");
+    CHECK(other.code != 0);
+    CHECK(other.err.find("splat.support") != std::string::npos);
+    CHECK_FALSE(file_exists(dir.file("d.ply")));
+}
+
+TEST_CASE("--job-dir: a changed input, a foreign directory and a busy one are refused", "[tiles][resume]") {
+    TempDir dir;
+    const Shape shape = make_shape("boss");
+    write_points(dir.file("in.ply"), sample_uniform(shape.mesh, 8000, 5));
+    const std::string in = dir.file("in.ply"), job = dir.file("job");
+    const std::string common = " --tile 32 --no-vdb -q --job-dir '" + job + "'";
+    REQUIRE(run_cli("'" + in + "' -o '" + dir.file("a.ply") + "'" + common).code == 0);
+    // The same size, other points.
+    write_points(in, sample_uniform(shape.mesh, 8000, 6));
+    const CliRun changed = run_cli("'" + in + "' -o '" + dir.file("b.ply") + "'" + common);
+    CHECK(changed.code != 0);
+    CHECK(changed.err.find("has changed") != std::string::npos);
+    // A directory of other files is not taken for a job.
+    ::mkdir(dir.file("mine").c_str(), 0755);
+    write_bytes(dir.file("mine/notes.txt"), "keep me");
+    const CliRun foreign = run_cli("'" + in + "' -o '" + dir.file("b.ply") + "' --job-dir '" +
+                                   dir.file("mine") + "'");
+    CHECK(foreign.code != 0);
+    CHECK(foreign.err.find("not a vdbrecon job directory") != std::string::npos);
+    CHECK(read_bytes(dir.file("mine/notes.txt")) == "keep me");
+    // A directory another run holds.
+    std::remove((job + "/manifest.txt").c_str());
+    const int fd = ::open((job + "/lock").c_str(), O_RDWR);
+    REQUIRE(::flock(fd, LOCK_EX) == 0);
+    const CliRun busy = run_cli("'" + in + "' -o '" + dir.file("b.ply") + "'" + common);
+    ::close(fd);
+    CHECK(busy.code != 0);
+    CHECK(busy.err.find("in use") != std::string::npos);
+}
+
+TEST_CASE("tile jobs in a directory: prepare_tiles resumes, pieces kept there finish the run",
+          "[tiles][resume]") {
+    TempDir dir;
+    const Shape shape = make_shape("boss");
+    write_points(dir.file("in.ply"), sample_uniform(shape.mesh, 12000, 4));
+    PipelineOptions o;
+    o.tile = 32;
+    o.write_vdb = false;
+    run(dir.file("in.ply"), dir.file("run.ply"), o);
+    const TileJob job = prepare_tiles(dir.file("in.ply"), dir.file("job"), o);
+    REQUIRE(job.tiles > 4);
+    for (std::size_t i = 0; i < job.tiles; i += 2) save_tile_piece(dir.file("job"), i, run_tile(dir.file("job"), i, o));
+    // Prepared again: taken as it is; the odd pieces are missing.
+    const TileJob again = prepare_tiles(dir.file("in.ply"), dir.file("job"), o);
+    CHECK(again.tiles == job.tiles);
+    CHECK(has_tile_piece(dir.file("job"), 0));
+    CHECK_FALSE(has_tile_piece(dir.file("job"), 1));
+    CHECK_THROWS_AS(finish_tiles(dir.file("in.ply"), dir.file("x.ply"), dir.file("job"), o), IoError);
+    for (std::size_t i = 1; i < job.tiles; i += 2) save_tile_piece(dir.file("job"), i, run_tile(dir.file("job"), i, o));
+    finish_tiles(dir.file("in.ply"), dir.file("job.ply"), dir.file("job"), o);
+    CHECK(read_bytes(dir.file("job.ply")) == read_bytes(dir.file("run.ply")));
+    // Another tile's bytes under a piece's name are not a piece of it.
+    write_bytes(dir.file("job") + "/piece-1.bin", run_tile(dir.file("job"), 0, o));
+    CHECK_FALSE(has_tile_piece(dir.file("job"), 1));
 }

@@ -89,6 +89,11 @@ struct PipelineOptions {
     bool auto_tile = true;
     /// Tiled runs from a file (run(), prepare_tiles()): stream the input (see StreamMode).
     StreamMode stream = StreamMode::automatic;
+    /// run() from a file: keep the tiled run's job directory here (made when missing), so that
+    /// the same run again resumes from the tiles it finished, with the same output bytes; a
+    /// directory of another input or other options is refused. Implies tiling (tile 0 becomes
+    /// automatic). Empty: a temporary job directory, when one is needed. See detail/job_dir.h.
+    std::string job_dir;
     /// Return the splatted (and closed) volumes in the result. false frees them as soon as the
     /// mesh is made and the volume callback has returned, which lowers the peak memory of the
     /// clean stage by the grids' size; the CLI, which has written them to .vdb files by then,

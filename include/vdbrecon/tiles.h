@@ -30,16 +30,30 @@ struct TileJob {
     ReadResult read;           ///< counts of the read (no cloud)
 };
 
-/// Reads `input` and runs the point stages, then writes the job into the existing directory
-/// `dir`. options.tile: the tile edge in voxels, or -1 (auto: the first guess of the in-memory
-/// run, which there halves the edge while a tile is over --max-memory; here a tile over it
-/// fails). Throws as run() does.
+/// Reads `input` and runs the point stages, then writes the job into the directory `dir`
+/// (made when missing). options.tile: the tile edge in voxels, or -1 (auto: the first guess of
+/// the in-memory run, which there halves the edge while a tile is over --max-memory; here a
+/// tile over it fails). A directory an earlier call prepared for the same input and options is
+/// taken as it is (the job resumes); one of another input or other options is refused, and so
+/// is one that holds other files. Throws as run() does.
 TileJob prepare_tiles(const std::string& input, const std::string& dir,
                       const PipelineOptions& options);
 
 /// Tile `index`'s piece of the surface. The options must close holes as those given to
 /// prepare_tiles() did (the closing radius sets the halo).
 std::string run_tile(const std::string& dir, std::size_t index, const PipelineOptions& options);
+
+/// Keeps tile `index`'s piece in the job directory (written under a temporary name and renamed:
+/// a piece there is whole), where has_tile_piece() and finish_tiles() find it.
+void save_tile_piece(const std::string& dir, std::size_t index, const std::string& piece);
+
+/// Whether the job directory holds tile `index`'s piece (a whole one, of that tile).
+bool has_tile_piece(const std::string& dir, std::size_t index);
+
+/// finish_tiles() of the pieces kept in the job directory (save_tile_piece); a missing one is
+/// an error naming it.
+RunResult finish_tiles(const std::string& input, const std::string& output, const std::string& dir,
+                       const PipelineOptions& options, const StageCallback& on_stage = {});
 
 /// Writes the mesh of the pieces (every tile's, in tile order) as run() does, naming `input` in
 /// its header and errors.

@@ -57,6 +57,10 @@ void bind_pipeline(py::module_& m) {
                 "a chunk at a time and run the point stages a region at a time, memory bounded "
                 "by a region, the same mesh; 'auto' when the points would take over half of "
                 "splat.max_memory, 'on' whenever the file allows it, 'off' (CLI --stream).")
+        .field("job_dir", &PipelineOptions::job_dir,
+               "run() from a file: keep the tiled run's job directory here, so that the same run "
+               "again resumes from the tiles it finished (the same bytes); another input or "
+               "other options are refused; implies tiling (CLI --job-dir).")
         .field("threads", &PipelineOptions::threads,
                "Worker threads, 0 = all cores; the output does not depend on it (CLI --threads).")
         .field("write_vdb", &PipelineOptions::write_vdb,

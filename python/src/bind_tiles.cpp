@@ -49,6 +49,28 @@ void bind_tiles(py::module_& m) {
         py::arg("dir"), py::arg("index"), py::arg("options"),
         "Tile `index`'s piece of the surface, as bytes.");
     m.def(
+        "save_tile_piece",
+        [](const std::string& dir, std::size_t index, const py::bytes& piece) {
+            const std::string bytes = piece;
+            without_gil([&] { save_tile_piece(dir, index, bytes); });
+        },
+        py::arg("dir"), py::arg("index"), py::arg("piece"),
+        "Keeps tile `index`'s piece in the job directory (atomically).");
+    m.def(
+        "has_tile_piece",
+        [](const std::string& dir, std::size_t index) {
+            return without_gil([&] { return has_tile_piece(dir, index); });
+        },
+        py::arg("dir"), py::arg("index"), "Whether the job directory holds tile `index`'s piece.");
+    m.def(
+        "finish_tiles_in",
+        [](const std::string& input, const std::string& output, const std::string& dir,
+           const PipelineOptions& options) {
+            return without_gil([&] { return finish_tiles(input, output, dir, options); });
+        },
+        py::arg("input"), py::arg("output"), py::arg("dir"), py::arg("options"),
+        "Welds the pieces kept in the job directory and writes the mesh as run() does.");
+    m.def(
         "finish_tiles",
         [](const std::string& input, const std::string& output, const std::string& dir,
            const py::list& pieces, const PipelineOptions& options) {

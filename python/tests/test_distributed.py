@@ -125,3 +125,34 @@ def test_pieces_as_bytes_or_files_weld_to_the_cli_bytes(cli, tmp_path):
         vdbrecon._vdbrecon.finish_tiles(str(SRC), str(tmp_path / "bad.ply"), str(job_dir),
                                         pieces, o)
     assert not (tmp_path / "bad.ply").exists()
+
+
+def test_a_stopped_client_resumes_from_the_pieces_in_workdir(client, cli, tmp_path):
+    """The workdir is the CLI's --job-dir: a client that stopped after some tiles (here: its
+    progress callback raised) submits only the missing ones when run again; the CLI on the same
+    directory resumes too; a changed option is refused."""
+    expected = cli_tiled(cli, SRC, tmp_path / "cli.ply", "--tile", "32")
+    workdir = tmp_path / "job"
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_3(done, tiles):
+        if done == 3:
+            raise Stop()
+
+    with pytest.raises(Stop):
+        vdbrecon.distributed.run(SRC, tmp_path / "a.ply", client=client, tile=32,
+                                 workdir=workdir, progress=stop_after_3)
+    kept = len(list(workdir.glob("piece-*.bin")))
+    assert kept >= 3
+    seen = []
+    r = vdbrecon.distributed.run(SRC, tmp_path / "a.ply", client=client, tile=32,
+                                 workdir=workdir, progress=lambda d, t: seen.append(d))
+    assert (tmp_path / "a.ply").read_bytes() == expected
+    assert seen and seen[0] == kept + 1 and seen[-1] == r.result.tiles
+    assert cli_tiled(cli, SRC, tmp_path / "b.ply", "--tile", "32", "--job-dir", str(workdir)) == expected
+    with pytest.raises(ValueError, match="another run's"):
+        vdbrecon.distributed.run(SRC, tmp_path / "c.ply", client=client, tile=48, workdir=workdir)
+    assert vdbrecon.run(SRC, tmp_path / "d.ply", tile=32, job_dir=workdir).result.tiles == r.result.tiles
+    assert (tmp_path / "d.ply").read_bytes() == expected

@@ -19,6 +19,11 @@ On a real cluster the job directory must be on a file system every worker mounts
 path (NFS, Lustre, a shared volume): give it as `workdir=`; by default it is a temporary
 directory beside the output, removed afterwards. Workers need this package importable
 (`vdbrecon` on their PYTHONPATH) and the input is read by the client only.
+
+A given workdir is kept, and is the CLI's --job-dir: a client that was stopped (or the CLI
+with --job-dir on the same directory) starts again from the preparation and the pieces that
+are there, submitting only the missing tiles; a directory of another input or other options
+is refused.
 """
 import os as _os
 import shutil as _shutil
@@ -62,29 +67,23 @@ def run(input, output=None, *, client, tile=-1, workdir=None, voxel=None, progre
         workdir = _tempfile.mkdtemp(prefix=".vdbrecon-tiles-", dir=beside)
     workdir = _path(workdir, "workdir")
     try:
-        job = _v.prepare_tiles(input, workdir, o)
+        job = _v.prepare_tiles(input, workdir, o)  # an earlier run's preparation is taken
+        todo = [i for i in range(job.tiles) if not _v.has_tile_piece(workdir, i)]
         # Not pure: a second run with the same job directory and options reads new files, and
         # must not be handed the first run's pieces. A lost piece is recomputed either way.
-        futures = client.map(_run_tile, [workdir] * job.tiles, range(job.tiles),
-                             [options] * job.tiles, pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
-        # Each piece goes to a file in the job directory as it arrives, so that the client
+        futures = client.map(_run_tile, [workdir] * len(todo), todo, [options] * len(todo),
+                             pure=False)
+        index = {f.key: i for f, i in zip(futures, todo)}
+        # Each piece goes to the job directory as it arrives (atomically), so that the client
         # holds one piece at a time, not all of them (the weld reads them back one by one).
-        pieces = [_os.path.join(workdir, "piece-%d.bin" % i) for i in range(job.tiles)]
-        done = 0
+        done = job.tiles - len(todo)
         for future in as_completed(futures):
-            i = index[future.key]
-            with open(pieces[i], "wb") as f:
-                f.write(future.result())
+            _v.save_tile_piece(workdir, index[future.key], future.result())
             future.release()
             done += 1
             if progress is not None:
                 progress(done, job.tiles)
-        return _v.finish_tiles(input, output, workdir, pieces, o)
+        return _v.finish_tiles_in(input, output, workdir, o)
     finally:
         if own:
             _shutil.rmtree(workdir, ignore_errors=True)
-        else:
-            for name in _os.listdir(workdir):
-                if name.startswith("piece-") and name.endswith(".bin"):
-                    _os.remove(_os.path.join(workdir, name))

@@ -205,6 +205,12 @@ std::size_t write_tile_job(const PointCloud& cloud, const TiledOptions& options,
 /// run makes of it. The options must give the plan's halo (the same closing).
 std::string run_tile_job(const std::string& dir, std::size_t index, const TiledOptions& options);
 
+/// Whether `bytes` are a whole piece of tile `index` (its tag, index and arrays).
+bool is_piece(std::string_view bytes, std::size_t index);
+
+/// The number of tiles of the job in `dir` (its plan's).
+std::size_t tile_job_tiles(const std::string& dir);
+
 /// Tile `index`'s piece as bytes, with the tile's statistics (the answer of run_tile_job).
 std::string piece_bytes(const ClassifiedSurface& piece, std::size_t index,
                         const TiledResult& stats);

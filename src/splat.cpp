@@ -701,6 +701,167 @@ std::size_t make_state_leaves(SplatState& state, const BlockCodec& codec,
     return state.w->tree().leafCount();
 }
 
+/// The slabs of block x-columns [x0, x1] (see slab_pairs): each holds at most `limit` pairs, or
+/// one column; *largest is the pairs of the largest. `total`: all pairs.
+std::vector<std::pair<int, int>> plan_slabs(const Kernels& kernels, int x_lo, int x_hi,
+                                            std::size_t limit, std::size_t total,
+                                            std::size_t* largest) {
+    *largest = total;
+    if (total <= limit) return {{x_lo, x_hi}};
+    // Per-thread counts, added up (integers: the same for any thread count).
+    const std::size_t columns = std::size_t(x_hi - x_lo + 1);
+    tbb::enumerable_thread_specific<std::vector<std::size_t>> per_thread(
+        [columns] { return std::vector<std::size_t>(columns, 0); });
+    detail::for_each_chunk(kernels.size(), [&](std::size_t, std::size_t begin, std::size_t end) {
+        std::vector<std::size_t>& column = per_thread.local();
+        for (std::size_t i = begin; i < end; ++i) {
+            for_each_pair(kernels, i, x_lo, x_hi, [&](int bx, int, int) { ++column[std::size_t(bx - x_lo)]; });
+        }
+    });
+    std::vector<std::size_t> column(columns, 0);
+    for (const auto& local : per_thread) {
+        for (std::size_t x = 0; x < columns; ++x) column[x] += local[x];
+    }
+    std::vector<std::pair<int, int>> slabs;
+    *largest = 0;
+    std::size_t in_slab = 0;
+    for (int x = x_lo; x <= x_hi; ++x) {
+        const std::size_t c = column[std::size_t(x - x_lo)];
+        if (in_slab > 0 && in_slab + c > limit) {
+            *largest = std::max(*largest, in_slab);
+            in_slab = 0;
+        }
+        if (in_slab == 0) slabs.push_back({x, x});
+        slabs.back().second = x;
+        in_slab += c;
+    }
+    *largest = std::max(*largest, in_slab);
+    return slabs;
+}
+
+/// The pairs of each chunk of points (detail::for_each_chunk) in each slab: [chunk][slab].
+std::vector<std::size_t> pairs_per_slab(const Kernels& kernels, const std::vector<std::pair<int, int>>& slabs,
+                                        std::vector<std::size_t> chunk_pairs, int x_lo, int x_hi) {
+    if (slabs.size() == 1) return chunk_pairs;
+    std::vector<std::size_t> in_slab(chunk_pairs.size() * slabs.size(), 0);
+    detail::for_each_chunk(kernels.size(), [&](std::size_t c, std::size_t begin, std::size_t end) {
+        std::vector<std::size_t> count(slabs.size(), 0);  // stored once (see above)
+        std::size_t s = 0;  // the slab of the last column seen (columns come in order)
+        for (std::size_t i = begin; i < end; ++i) {
+            for_each_pair(kernels, i, x_lo, x_hi, [&](int bx, int, int) {
+                while (bx > slabs[s].second) ++s;
+                while (bx < slabs[s].first) --s;
+                ++count[s];
+            });
+        }
+        std::copy(count.begin(), count.end(), in_slab.begin() + std::ptrdiff_t(c * slabs.size()));
+    });
+    return in_slab;
+}
+
+/// The 8^3 leaves (of its eight) each block's kernels touch, as bit masks: for the memory
+/// estimate and the state's leaves.
+template <typename Key>
+std::vector<std::uint8_t> touched_leaf_masks(const Kernels& kernels, const BlockCodec& codec,
+                                             const std::vector<Pair<Key>>& pairs,
+                                             const std::vector<std::size_t>& block_begin) {
+    const std::size_t num_blocks = block_begin.size() - 1;
+    std::vector<std::uint8_t> touched(num_blocks, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 64),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
+            const openvdb::Coord o = codec.origin(pairs[block_begin[B]].key);
+            unsigned mask = 0;
+            for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
+                int lo[3], hi[3];
+                if (!clip_to_block(support_box(kernels(pairs[j].point, false)), o, lo, hi)) continue;
+                unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
+                for (int a = 0; a < 3; ++a) {
+                    halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
+                }
+                for (int leaf = 0; leaf < 8; ++leaf) {
+                    if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
+                        (halves[2] >> (leaf & 1) & 1u)) {
+                        mask |= 1u << leaf;
+                    }
+                }
+            }
+            touched[B] = std::uint8_t(mask);
+        }
+    });
+    return touched;
+}
+
+/// A block's sums (147 kB) per thread, not per task: allocated between the blocks' leaves, a
+/// task's sums left a hole in the one heap that the next task's did not fit, and the heap grew
+/// (bunny 10 %: its resident size varied from run to run by 10 MB).
+struct BlockScratch {
+    std::unique_ptr<BlockSums> sums;
+    std::vector<ColorSums> csums;
+};
+
+/// One slab's blocks (block x-coordinates [x0, x1]): its pairs listed in point order and
+/// sorted, the memory budget checked on its leaves (`num_leaves`: those of earlier slabs,
+/// updated), and every block summed, appended to `blocks` in key order.
+template <typename Key>
+void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::size_t>& chunk_first,
+              tbb::enumerable_thread_specific<BlockScratch>& scratch_per_thread,
+              std::size_t& num_leaves, std::vector<BlockOut>& blocks) {
+    const Kernels& kernels = setup.kernels;
+    const BlockCodec& codec = setup.codec;
+    std::vector<Pair<Key>> pairs(chunk_first.back());
+    detail::for_each_chunk(kernels.size(), [&](std::size_t c, std::size_t begin, std::size_t end) {
+        std::size_t o = chunk_first[c];
+        for (std::size_t i = begin; i < end; ++i) {
+            for_each_pair(kernels, i, x0, x1, [&](int bx, int by, int bz) {
+                pairs[o++] = {Key(codec.pack(bx, by, bz)), std::uint32_t(i)};
+            });
+        }
+    });
+    // A stable radix sort of pairs made in point order: (key, point) order.
+    detail::radix_sort(pairs, codec.total(), [](const Pair<Key>& p) { return p.key; });
+    std::vector<std::size_t> block_begin;
+    for (std::size_t i = 0; i < pairs.size(); ++i) {
+        if (i == 0 || pairs[i].key != pairs[i - 1].key) block_begin.push_back(i);
+    }
+    block_begin.push_back(pairs.size());
+    const std::size_t num_blocks = block_begin.size() - 1;
+    {
+        std::vector<std::uint8_t> touched = touched_leaf_masks(kernels, codec, pairs, block_begin);
+        for (std::uint8_t m : touched) num_leaves += std::size_t(__builtin_popcount(m));
+        if (setup.state) num_leaves = make_state_leaves(*setup.state, codec, pairs, block_begin, touched);
+        std::ostringstream what;
+        what << num_leaves << " leaves of 8^3 voxels";
+        check_memory(double(kernels.size()) * 64.0 + double(num_leaves) * double(SplatOptions::kBytesPerLeaf),
+                     setup.options, what.str().c_str());
+    }
+    const bool colors = setup.cloud.has_colors();
+    const double min_weight = setup.options.min_weight, voxel = setup.options.voxel_size;
+    // Colourless clouds only: 2 AVX-512 rows, 1 AVX2 rows, 0 the scalar loop.
+    const int vector_rows = detail::vector_loops() ? (detail::wide_vector_loops() ? 2 : 1) : 0;
+    const std::size_t first_block = blocks.size();
+    blocks.resize(first_block + num_blocks);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 1),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+        BlockScratch& scratch = scratch_per_thread.local();
+        if (!scratch.sums) scratch.sums = std::make_unique<BlockSums>();
+        for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
+            const Pair<Key>* b = pairs.data() + block_begin[B];
+            const Pair<Key>* e = pairs.data() + block_begin[B + 1];
+            BlockOut& out = blocks[first_block + B];
+            if (colors) {
+                splat_block<true>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel, min_weight,
+                                  setup.background, vector_rows, setup.state, *scratch.sums,
+                                  scratch.csums, out);
+            } else {
+                splat_block<false>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel, min_weight,
+                                   setup.background, vector_rows, setup.state, *scratch.sums,
+                                   scratch.csums, out);
+            }
+        }
+    });
+}
+
 /// Lists the (block, point) pairs, sorts them, checks the memory budget and sums every block,
 /// a slab of blocks at a time (see slab_pairs): the blocks' outputs in key order.
 /// `chunk_pairs`: the pairs of the points of each chunk (detail::for_each_chunk), `x_hi` the
@@ -708,177 +869,30 @@ std::size_t make_state_leaves(SplatState& state, const BlockCodec& codec,
 template <typename Key>
 std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_t> chunk_pairs,
                                  int x_hi) {
-    const Kernels& kernels = setup.kernels;
-    const BlockCodec& codec = setup.codec;
-    const PointCloud& cloud = setup.cloud;
-    const SplatOptions& options = setup.options;
-    const float background = setup.background;
-    const std::size_t n = kernels.size();
-    const bool colors = cloud.has_colors();
+    const std::size_t n = setup.kernels.size();
     const std::size_t total = std::accumulate(chunk_pairs.begin(), chunk_pairs.end(), std::size_t(0));
-
-    // Slabs: consecutive x-columns of blocks, from the pairs each column holds.
-    const int x_lo = codec.lo[0];
-    std::vector<std::pair<int, int>> slabs;  // [x0, x1]
-    std::size_t largest = total;
-    const std::size_t limit = slab_pairs(n, options);
-    if (total <= limit) {
-        slabs.push_back({x_lo, x_hi});
-    } else {
-        // Per-thread counts, added up (integers: the same for any thread count).
-        const std::size_t columns = std::size_t(x_hi - x_lo + 1);
-        tbb::enumerable_thread_specific<std::vector<std::size_t>> per_thread(
-            [columns] { return std::vector<std::size_t>(columns, 0); });
-        detail::for_each_chunk(n, [&](std::size_t, std::size_t begin, std::size_t end) {
-            std::vector<std::size_t>& column = per_thread.local();
-            for (std::size_t i = begin; i < end; ++i) {
-                for_each_pair(kernels, i, x_lo, x_hi,
-                              [&](int bx, int, int) { ++column[std::size_t(bx - x_lo)]; });
-            }
-        });
-        std::vector<std::size_t> column(columns, 0);
-        for (const auto& local : per_thread) {
-            for (std::size_t x = 0; x < columns; ++x) column[x] += local[x];
-        }
-        largest = 0;
-        std::size_t in_slab = 0;
-        for (int x = x_lo; x <= x_hi; ++x) {
-            const std::size_t c = column[std::size_t(x - x_lo)];
-            if (in_slab > 0 && in_slab + c > limit) {
-                largest = std::max(largest, in_slab);
-                in_slab = 0;
-            }
-            if (in_slab == 0) slabs.push_back({x, x});
-            slabs.back().second = x;
-            in_slab += c;
-        }
-        largest = std::max(largest, in_slab);
-    }
+    const int x_lo = setup.codec.lo[0];
+    std::size_t largest = 0;
+    const std::vector<std::pair<int, int>> slabs =
+        plan_slabs(setup.kernels, x_lo, x_hi, slab_pairs(n, setup.options), total, &largest);
     // Memory budget, first on the (block, point) pairs of a slab and the sort's copy of them,
-    // then (below) on the distinct leaves.
+    // then (sum_slab) on the distinct leaves.
     const double point_bytes = double(n) * 64.0;  // the cloud
-    check_memory(point_bytes + 2.0 * double(largest) * sizeof(Pair<Key>), options,
+    check_memory(point_bytes + 2.0 * double(largest) * sizeof(Pair<Key>), setup.options,
                  "for the index of the leaves its kernels touch");
-
-    std::vector<BlockOut> blocks;
-    // A block's sums (147 kB) per thread, not per task: allocated between the blocks' leaves,
-    // a task's sums left a hole in the one heap that the next task's did not fit, and the heap
-    // grew (bunny 10 %: its resident size varied from run to run by 10 MB).
-    struct Scratch {
-        std::unique_ptr<BlockSums> sums;
-        std::vector<ColorSums> csums;
-    };
-    tbb::enumerable_thread_specific<Scratch> scratch_per_thread;
-    std::size_t num_leaves = 0;
-    const double min_weight = options.min_weight, voxel = options.voxel_size;
-    // Colourless clouds only: 2 AVX-512 rows, 1 AVX2 rows, 0 the scalar loop.
-    const int vector_rows = detail::vector_loops() ? (detail::wide_vector_loops() ? 2 : 1) : 0;
-    // The pairs of each chunk in each slab (one pass for all slabs).
     const std::size_t chunks = chunk_pairs.size();
-    std::vector<std::size_t> in_slab(chunks * slabs.size(), 0);  // [chunk][slab]
-    if (slabs.size() == 1) {
-        in_slab = std::move(chunk_pairs);
-    } else {
-        detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
-            std::vector<std::size_t> count(slabs.size(), 0);  // stored once (see above)
-            std::size_t s = 0;  // the slab of the last column seen (columns come in order)
-            for (std::size_t i = begin; i < end; ++i) {
-                for_each_pair(kernels, i, x_lo, x_hi, [&](int bx, int, int) {
-                    while (bx > slabs[s].second) ++s;
-                    while (bx < slabs[s].first) --s;
-                    ++count[s];
-                });
-            }
-            std::copy(count.begin(), count.end(),
-                      in_slab.begin() + std::ptrdiff_t(c * slabs.size()));
-        });
-    }
-    detail::release(chunk_pairs);
+    const std::vector<std::size_t> in_slab =
+        pairs_per_slab(setup.kernels, slabs, std::move(chunk_pairs), x_lo, x_hi);
+    std::vector<BlockOut> blocks;
+    tbb::enumerable_thread_specific<BlockScratch> scratch_per_thread;
+    std::size_t num_leaves = 0;
     for (std::size_t slab = 0; slab < slabs.size(); ++slab) {
-        const auto [x0, x1] = slabs[slab];
         std::vector<std::size_t> chunk_first(chunks + 1, 0);
         for (std::size_t c = 0; c < chunks; ++c) {
             chunk_first[c + 1] = chunk_first[c] + in_slab[c * slabs.size() + slab];
         }
-        std::vector<Pair<Key>> pairs(chunk_first.back());
-        detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
-            std::size_t o = chunk_first[c];
-            for (std::size_t i = begin; i < end; ++i) {
-                for_each_pair(kernels, i, x0, x1, [&](int bx, int by, int bz) {
-                    pairs[o++] = {Key(codec.pack(bx, by, bz)), std::uint32_t(i)};
-                });
-            }
-        });
-        // A stable radix sort of pairs made in point order: (key, point) order.
-        detail::radix_sort(pairs, codec.total(), [](const Pair<Key>& p) { return p.key; });
-
-        // Block ranges.
-        std::vector<std::size_t> block_begin;
-        for (std::size_t i = 0; i < pairs.size(); ++i) {
-            if (i == 0 || pairs[i].key != pairs[i - 1].key) block_begin.push_back(i);
-        }
-        block_begin.push_back(pairs.size());
-        const std::size_t num_blocks = block_begin.size() - 1;
-        // The 8^3 leaves the kernels touch (of each block's eight), for the memory estimate.
-        std::vector<std::uint8_t> touched_leaves(num_blocks, 0);
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 64),
-                          [&](const tbb::blocked_range<std::size_t>& rg) {
-            for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
-                const openvdb::Coord o = codec.origin(pairs[block_begin[B]].key);
-                unsigned mask = 0;
-                for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
-                    int lo[3], hi[3];
-                    if (!clip_to_block(support_box(kernels(pairs[j].point, false)), o, lo, hi)) {
-                        continue;
-                    }
-                    unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
-                    for (int a = 0; a < 3; ++a) {
-                        halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
-                    }
-                    for (int leaf = 0; leaf < 8; ++leaf) {
-                        if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
-                            (halves[2] >> (leaf & 1) & 1u)) {
-                            mask |= 1u << leaf;
-                        }
-                    }
-                }
-                touched_leaves[B] = std::uint8_t(mask);
-            }
-        });
-        for (std::uint8_t m : touched_leaves) num_leaves += std::size_t(__builtin_popcount(m));
-        if (setup.state) num_leaves = make_state_leaves(*setup.state, codec, pairs, block_begin,
-                                                        touched_leaves);
-        detail::release(touched_leaves);
-        {
-            std::ostringstream what;
-            what << num_leaves << " leaves of 8^3 voxels";
-            check_memory(point_bytes + double(num_leaves) * double(SplatOptions::kBytesPerLeaf),
-                         options, what.str().c_str());
-        }
-
-        const std::size_t first_block = blocks.size();
-        blocks.resize(first_block + num_blocks);
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, num_blocks, 1),
-                          [&](const tbb::blocked_range<std::size_t>& rg) {
-            Scratch& scratch = scratch_per_thread.local();
-            if (!scratch.sums) scratch.sums = std::make_unique<BlockSums>();
-            BlockSums* sums = scratch.sums.get();
-            std::vector<ColorSums>& csums = scratch.csums;
-            for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
-                const Pair<Key>* b = pairs.data() + block_begin[B];
-                const Pair<Key>* e = pairs.data() + block_begin[B + 1];
-                BlockOut& out = blocks[first_block + B];
-                if (colors) {
-                    splat_block<true>(codec.origin(b->key), b, e, kernels, cloud, voxel,
-                                      min_weight, background, vector_rows, setup.state, *sums,
-                                      csums, out);
-                } else {
-                    splat_block<false>(codec.origin(b->key), b, e, kernels, cloud, voxel,
-                                       min_weight, background, vector_rows, setup.state, *sums,
-                                       csums, out);
-                }
-            }
-        });
+        sum_slab<Key>(setup, slabs[slab].first, slabs[slab].second, chunk_first, scratch_per_thread,
+                      num_leaves, blocks);
     }
     return blocks;
 }

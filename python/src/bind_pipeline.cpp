@@ -16,9 +16,8 @@ PipelineResult reconstruct_borrowed(const PointCloud& cloud, const PipelineOptio
     return reconstruct(work, options);
 }
 
-}  // namespace
-
-void bind_pipeline(py::module_& m) {
+/// PipelineOptions: every stage's options and the run's own.
+void bind_pipeline_options(py::module_& m) {
     OptionsClass<PipelineOptions> o(m, "PipelineOptions",
                                     "Every knob of the reconstruction: one nested options struct "
                                     "per stage plus the pipeline's own fields.");
@@ -75,7 +74,12 @@ void bind_pipeline(py::module_& m) {
         .field("auto_voxel_max_cells", &PipelineOptions::auto_voxel_max_cells,
                "The automatic voxel is never finer than the bounding-box diagonal / this, count.");
     o.finish();
+}
 
+}  // namespace
+
+void bind_pipeline(py::module_& m) {
+    bind_pipeline_options(m);
     py::class_<StageTiming>(m, "StageTiming", "Wall time of one stage.")
         .def_readonly("stage", &StageTiming::stage)
         .def_readonly("seconds", &StageTiming::seconds)

@@ -848,7 +848,7 @@ int run_killed_after(const std::vector<std::string>& args, double seconds) {
 
 }  // namespace
 
-TEST_CASE("--job-dir: a tiled run killed at any moment resumes to the bytes of an uninterrupted one",
+TEST_CASE("job directory (--job-dir): a tiled run killed at any moment resumes to the bytes of an uninterrupted one",
           "[tiles][resume]") {
     TempDir dir;
     const Shape shape = make_shape("boss");
@@ -897,7 +897,7 @@ TEST_CASE("--job-dir: a tiled run killed at any moment resumes to the bytes of a
     CHECK_FALSE(file_exists(dir.file("d.ply")));
 }
 
-TEST_CASE("--job-dir: a changed input, a foreign directory and a busy one are refused", "[tiles][resume]") {
+TEST_CASE("job directory (--job-dir): a changed input, a foreign directory and a busy one are refused", "[tiles][resume]") {
     TempDir dir;
     const Shape shape = make_shape("boss");
     write_points(dir.file("in.ply"), sample_uniform(shape.mesh, 8000, 5));

@@ -1,14 +1,25 @@
 #!/usr/bin/env bash
-# Fuzzes the point readers with libFuzzer (clang++-14, AddressSanitizer + UBSan):
+# Fuzzes the readers of hostile files with libFuzzer (clang++-14, AddressSanitizer + UBSan):
 #
-#   scripts/fuzz.sh [SECONDS] [ply|xyz|obj|pcd ...]   run each target for SECONDS (default 60), in turn
-#   scripts/fuzz.sh coverage [ply|xyz|obj|pcd ...]    line coverage of src/io*.cpp by the corpora
+#   scripts/fuzz.sh [SECONDS] [TARGET ...]   run each target for SECONDS (default 60), in turn
+#   scripts/fuzz.sh coverage [TARGET ...]    line coverage of the readers' sources by the corpora
+#
+# Targets (fuzz/CMakeLists.txt; all of them when none is named):
+#   ply xyz obj pcd las                       point files, read from memory
+#   depth_png depth_exr                       depth images (read_depth_image)
+#   color_png color_jpg                       colour images (read_color_image)
+#   transforms                                transforms.json (read_scene)
+#   layouts                                   dataset folders: TUM, 7-Scenes, Redwood, ScanNet,
+#                                             Replica, KITTI (with its .bin scans), scan sensors,
+#                                             organized PCD
 #
 # One fuzzer at a time, one process, one core. Everything goes to fuzz/out/ (git-ignored): the
 # build, the seeds (written by fuzz/make_seeds.cpp), each target's growing corpus, one log per
-# run, and what a run finds (crashes, leaks, timeouts, out-of-memory) in crashes/<target>/.
-# The exit status is 1 if anything was found: replay it with fuzz/out/build/fuzz_<target> FILE,
-# fix it, and add the input to tests/test_bad_input.cpp as a regression test.
+# run, and what a run finds (crashes, leaks, timeouts, out-of-memory, an allocation above
+# 256 MB) in crashes/<target>/. The exit status is 1 if anything was found: replay it with
+# fuzz/out/build/fuzz_<target> FILE, fix it, and add the input to tests/test_bad_input.cpp as a
+# regression test. A target's dictionary is fuzz/<target>.dict, else that of its format
+# (depth_png and color_png share png.dict).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -22,7 +33,8 @@ elif [ -n "${1:-}" ]; then
   shift
 fi
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(ply xyz obj pcd)
+[ ${#targets[@]} -gt 0 ] ||
+  targets=(ply xyz obj pcd las depth_png depth_exr color_png color_jpg transforms layouts)
 
 CXX=${FUZZ_CXX:-clang++-14}
 command -v "$CXX" >/dev/null || { echo "fuzz: $CXX not found (apt-get install clang-14)" >&2; exit 2; }
@@ -50,7 +62,8 @@ if [ "$mode" = coverage ]; then
   done
   llvm-profdata-14 merge -sparse "$out"/profiles/*.profraw -o "$out/profiles/all.profdata"
   llvm-cov-14 report -instr-profile="$out/profiles/all.profdata" "${objects[@]:1}" \
-    src/io.cpp src/io_ply.cpp src/io_text.cpp
+    src/io.cpp src/io_ply.cpp src/io_text.cpp src/io_pcd.cpp src/io_las.cpp src/io_depth.cpp \
+    src/io_color.cpp src/scene.cpp src/scene_layouts.cpp src/camera.cpp
   exit 0
 fi
 
@@ -59,8 +72,11 @@ for t in "${targets[@]}"; do
   mkdir -p "$out/corpus/$t" "$out/crashes/$t"
   log="$out/$t.$(date +%Y%m%d-%H%M%S).log"
   echo "fuzz: $t for ${seconds} s (log: $log)"
-  if ! "$out/build/fuzz_$t" "$out/corpus/$t" "$out/seeds/$t" -dict="fuzz/$t.dict" \
-      -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -max_len=4096 -use_value_profile=1 \
+  dict=fuzz/$t.dict
+  [ -f "$dict" ] || dict=fuzz/${t#*_}.dict
+  if ! "$out/build/fuzz_$t" "$out/corpus/$t" "$out/seeds/$t" -dict="$dict" \
+      -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -malloc_limit_mb=256 \
+      -max_len=4096 -use_value_profile=1 \
       -artifact_prefix="$out/crashes/$t/" -print_final_stats=1 >"$log" 2>&1; then
     status=1
     echo "fuzz: $t FOUND A PROBLEM:"

@@ -26,50 +26,6 @@
 
 namespace vdbrecon {
 
-void Intrinsics::validate() const {
-    auto positive = [](double v, const char* name) {
-        if (!(std::isfinite(v) && v > 0.0)) {
-            std::ostringstream s;
-            s << "intrinsics: " << name << " = " << v << ": must be a positive number";
-            throw InvalidArgument(s.str());
-        }
-    };
-    positive(fx, "fx");
-    positive(fy, "fy");
-    if (!std::isfinite(cx) || !std::isfinite(cy)) {
-        throw InvalidArgument("intrinsics: cx and cy must be finite numbers");
-    }
-    if (width <= 0 || height <= 0 || width > (1 << 16) || height > (1 << 16)) {
-        throw InvalidArgument("intrinsics: image size " + std::to_string(width) + " x " +
-                              std::to_string(height) + " is not in 1..65536");
-    }
-}
-
-void validate_pose(const Pose& m) {
-    for (double v : m) {
-        if (!std::isfinite(v)) throw InvalidArgument("pose: has a NaN or infinite entry");
-    }
-    if (m[12] != 0.0 || m[13] != 0.0 || m[14] != 0.0 || m[15] != 1.0) {
-        throw InvalidArgument("pose: the last row must be 0 0 0 1");
-    }
-    double worst = 0.0;  // |R^T R - I|, largest entry
-    for (int a = 0; a < 3; ++a) {
-        for (int b = 0; b < 3; ++b) {
-            double dot = 0.0;
-            for (int r = 0; r < 3; ++r) dot += m[std::size_t(r * 4 + a)] * m[std::size_t(r * 4 + b)];
-            worst = std::max(worst, std::fabs(dot - (a == b ? 1.0 : 0.0)));
-        }
-    }
-    const double det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) +
-                       m[2] * (m[4] * m[9] - m[5] * m[8]);
-    if (worst > 1e-3 || det < 0.0) {
-        std::ostringstream s;
-        s << "pose: the 3x3 part is not a rotation (|R^T R - I| = " << worst << ", det " << det
-          << "); poses must be rigid camera-to-world transforms";
-        throw InvalidArgument(s.str());
-    }
-}
-
 void DepthOptions::validate() const {
     if (!(std::isfinite(min_depth) && min_depth >= 0.0)) {
         throw InvalidArgument("depth.min_depth must be a non-negative number");
@@ -866,19 +822,7 @@ class FusionStart {
 PointCloud scan_points(const SceneFrame& f, const FuseOptions& fo, const Vec3d& origin) {
     std::vector<std::array<double, 3>> local;
     if (file_extension(f.depth_path) == "bin") {
-        const std::string bytes = detail::read_file(f.depth_path);
-        if (bytes.size() % 16 != 0) {
-            throw FormatError(detail::where(f.depth_path, "a KITTI scan is float32 x y z intensity "
-                                                          "(16 bytes a point); the file's " +
-                                                          std::to_string(bytes.size()) +
-                                                          " bytes are not"));
-        }
-        local.reserve(bytes.size() / 16);
-        for (std::size_t i = 0; i < bytes.size(); i += 16) {
-            float v[4];
-            std::memcpy(v, bytes.data() + i, sizeof v);
-            local.push_back({v[0], v[1], v[2]});
-        }
+        for (const Vec3f& p : read_kitti_scan(f.depth_path)) local.push_back({p[0], p[1], p[2]});
     } else {
         const ReadResult r = read_points(f.depth_path);
         for (const Vec3f& p : r.cloud.positions) {
@@ -933,7 +877,8 @@ void integrate_scan_frame(const SceneFrame& f, const FuseOptions& fo, FusionStar
 
 /// A scene frame's depth image, its layout's "no measurement" value cleared.
 DepthImage frame_depth(const SceneFrame& f) {
-    DepthImage img = read_depth_image(f.depth_path, f.units_per_metre);
+    DepthImage img = read_depth_image(f.depth_path, f.units_per_metre,
+                                      {f.intrinsics.width, f.intrinsics.height});
     if (f.invalid_value > 0) {
         // Stored values convert to depth / units exactly enough to tell the largest apart.
         const float none = float((double(f.invalid_value) - 0.5) / f.units_per_metre);

@@ -1,5 +1,6 @@
 // Colour images for fusion: PNG read through libpng, JPEG through libjpeg-turbo (see scene.h),
-// both Debian's decoders of hostile files, a claimed size checked before any pixel buffer
+// both Debian's decoders of hostile files, from the file's bytes in memory, a claimed size
+// checked against the largest image and against the file's size before any pixel buffer
 // (detail/image_read.h); PNG written by the project's encoder (detail/png.h).
 #include <csetjmp>
 #include <cstddef>
@@ -21,27 +22,26 @@ namespace vdbrecon {
 
 namespace {
 
-/// A file opened for reading or writing, closed on every path out.
-struct File {
-    std::FILE* f;
-    explicit File(std::FILE* file) : f(file) {}
-    ~File() {
-        if (f) std::fclose(f);
-    }
-};
+/// A Huffman-coded JPEG spends at least a bit on each 8 x 8 block of its fullest component (512
+/// pixels a byte); four times that leaves room for arithmetic coding of flat images. A file
+/// that claims more pixels a byte than this is cut short (libjpeg would decode the missing rows
+/// as grey) or lies about its size.
+constexpr double kMaxJpegPixelsPerByte = 2048.0;
 
-std::string size_problem(long w, long h) {
-    if (w > 0 && h > 0 && w <= detail::kMaxImageSide && h <= detail::kMaxImageSide &&
-        w * h <= detail::kMaxImagePixels) {
-        return "";
+/// The pixels of a colour image, 8-bit RGB, as 0..1.
+std::vector<Vec3f> rgb_of(const std::vector<std::uint8_t>& pixels, std::size_t n) {
+    std::vector<Vec3f> rgb(n);
+    for (std::size_t i = 0; i < n; ++i) {
+        rgb[i] = {pixels[3 * i] / 255.0f, pixels[3 * i + 1] / 255.0f, pixels[3 * i + 2] / 255.0f};
     }
-    return "an image of " + std::to_string(w) + " x " + std::to_string(h) +
-           " pixels, more than a colour image can have (2^27)";
+    return rgb;
 }
 
 ColorImage read_png_color(const std::string& path) {
-    File file(std::fopen(path.c_str(), "rb"));
-    if (!file.f) throw IoError(detail::where(path, std::string("cannot open: ") + std::strerror(errno)));
+    const std::string file = detail::read_file(path);
+    const std::string chunks = detail::png_chunk_problem(file);
+    if (!chunks.empty()) throw FormatError(detail::where(path, chunks));
+    detail::PngBytes input{file};
     detail::PngError err;
     png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &err, detail::png_error_fn,
                                              detail::png_warning_fn);
@@ -55,11 +55,15 @@ ColorImage read_png_color(const std::string& path) {
     } else if (setjmp(png_jmpbuf(png))) {
         problem = std::string("not a readable PNG file: ") + err.message;
     } else {
-        png_set_user_limits(png, detail::kMaxImageSide, detail::kMaxImageSide);
-        png_init_io(png, file.f);
+        detail::start_png_reader(png, input);
         png_read_info(png, info);
         const long w = long(png_get_image_width(png, info)), h = long(png_get_image_height(png, info));
-        problem = size_problem(w, h);
+        const int bits = png_get_bit_depth(png, info) * png_get_channels(png, info);
+        problem = detail::image_size_problem(w, h);
+        if (problem.empty()) {
+            problem = detail::file_size_problem(w, h, detail::png_least_bytes(w, h, bits),
+                                                long(file.size()));
+        }
         if (problem.empty()) {
             // Every kind to 8-bit RGB: palettes expanded, grey to RGB, alpha and 16 bits dropped.
             png_set_expand(png);
@@ -83,10 +87,7 @@ ColorImage read_png_color(const std::string& path) {
     }
     png_destroy_read_struct(png ? &png : nullptr, info ? &info : nullptr, nullptr);
     if (!problem.empty()) throw FormatError(detail::where(path, problem));
-    img.rgb.resize(std::size_t(img.width) * std::size_t(img.height));
-    for (std::size_t i = 0; i < img.rgb.size(); ++i) {
-        img.rgb[i] = {pixels[3 * i] / 255.0f, pixels[3 * i + 1] / 255.0f, pixels[3 * i + 2] / 255.0f};
-    }
+    img.rgb = rgb_of(pixels, std::size_t(img.width) * std::size_t(img.height));
     return img;
 }
 
@@ -103,8 +104,7 @@ void jpeg_fail(j_common_ptr info) {
 void jpeg_quiet(j_common_ptr, int) {}
 
 ColorImage read_jpeg_color(const std::string& path) {
-    File file(std::fopen(path.c_str(), "rb"));
-    if (!file.f) throw IoError(detail::where(path, std::string("cannot open: ") + std::strerror(errno)));
+    const std::string file = detail::read_file(path);
     jpeg_decompress_struct info{};
     JpegFail err;
     info.err = jpeg_std_error(&err.mgr);
@@ -117,29 +117,32 @@ ColorImage read_jpeg_color(const std::string& path) {
         problem = std::string("not a readable JPEG file: ") + err.message;
     } else {
         jpeg_create_decompress(&info);
-        jpeg_stdio_src(&info, file.f);
+        jpeg_mem_src(&info, reinterpret_cast<const unsigned char*>(file.data()),
+                     static_cast<unsigned long>(file.size()));
         jpeg_read_header(&info, TRUE);
-        problem = size_problem(long(info.image_width), long(info.image_height));
+        const long w = long(info.image_width), h = long(info.image_height);
+        problem = detail::image_size_problem(w, h);
+        if (problem.empty()) {
+            problem = detail::file_size_problem(w, h, double(w) * double(h) / kMaxJpegPixelsPerByte,
+                                                long(file.size()));
+        }
         if (problem.empty()) {
             info.out_color_space = JCS_RGB;
             jpeg_start_decompress(&info);
-            const std::size_t w = info.output_width, h = info.output_height;
-            pixels.resize(w * h * 3);
+            const std::size_t row = std::size_t(info.output_width) * 3;
+            pixels.resize(row * info.output_height);
             while (info.output_scanline < info.output_height) {
-                JSAMPROW row = pixels.data() + std::size_t(info.output_scanline) * w * 3;
-                jpeg_read_scanlines(&info, &row, 1);
+                JSAMPROW at = pixels.data() + std::size_t(info.output_scanline) * row;
+                jpeg_read_scanlines(&info, &at, 1);
             }
             jpeg_finish_decompress(&info);
-            img.width = int(w);
-            img.height = int(h);
+            img.width = int(info.output_width);
+            img.height = int(info.output_height);
         }
     }
     jpeg_destroy_decompress(&info);
     if (!problem.empty()) throw FormatError(detail::where(path, problem));
-    img.rgb.resize(std::size_t(img.width) * std::size_t(img.height));
-    for (std::size_t i = 0; i < img.rgb.size(); ++i) {
-        img.rgb[i] = {pixels[3 * i] / 255.0f, pixels[3 * i + 1] / 255.0f, pixels[3 * i + 2] / 255.0f};
-    }
+    img.rgb = rgb_of(pixels, std::size_t(img.width) * std::size_t(img.height));
     return img;
 }
 

@@ -182,6 +182,20 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
     const bool normals = nx && ny && nz, colors = rgb && rgb->size == 4;
     out.width = hd.width;
     out.height = hd.height;
+    // The header's point count against what the data can hold, before anything is sized by it:
+    // binary records whole; LZF expands a byte into at most ~88 (a 3-byte reference copies 264);
+    // an ASCII value takes two bytes at least (a digit and a separator).
+    const std::size_t available = content.size() - pos;
+    if (data == "binary" && available < points * record) throw fail("truncated PCD binary data");
+    if (data == "binary_compressed" && points * record / 100 > available) {
+        throw fail("PCD compressed data: " + std::to_string(points) +
+                   " points cannot come from the file's " + std::to_string(available) + " bytes");
+    }
+    if (data == "ascii" && points * elements > available / 2 + 1) {
+        throw fail("truncated PCD ascii data: " + std::to_string(points) + " points of " +
+                   std::to_string(elements) + " values need more than the file's " +
+                   std::to_string(available) + " bytes");
+    }
     out.raw.xyz.resize(points * 3);
     if (normals) out.raw.normals.resize(points * 3);
     if (colors) out.raw.colors.resize(points * 3);
@@ -189,7 +203,6 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
     // Each point's record bytes: a pointer for binary data, a field-major gather for compressed.
     std::vector<unsigned char> unpacked;
     const auto* bytes = reinterpret_cast<const unsigned char*>(content.data()) + pos;
-    const std::size_t available = content.size() - pos;
     auto value = [&](std::size_t i, const Field& f) -> const unsigned char* {
         if (data == "binary") return bytes + i * record + f.offset;
         // binary_compressed: every field's values for all points, one field after another.

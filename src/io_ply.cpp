@@ -484,7 +484,9 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
                 case Role::blue: if (colors) raw.colors[3 * row + 2] = float(v * cscale); break;
                 case Role::scale: raw.scales[row] = float(v); break;
                 case Role::confidence: raw.confidences[row] = float(v); break;
-                case Role::scan: raw.scans[row] = std::int32_t(std::clamp(v, -1.0, 2147483647.0)); break;
+                case Role::scan:  // NaN: no scan, as a negative index
+                    raw.scans[row] = std::isnan(v) ? -1 : std::int32_t(std::clamp(v, -1.0, 2147483647.0));
+                    break;
             }
         }
     };

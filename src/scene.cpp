@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <sstream>
 
 #include "detail/io_common.h"
@@ -51,20 +52,40 @@ double number(const Json& obj, const char* key, double fallback, const std::stri
     return it->get<double>();
 }
 
+/// An image size ("w", "h") in pixels, or `fallback` when the key is absent; FormatError when
+/// it is not a whole number in 1..65536.
+int image_side(const Json& obj, const char* key, int fallback, const std::string& path,
+               const std::string& where) {
+    const double v = number(obj, key, NAN, path, where);
+    if (std::isnan(v)) return fallback;
+    if (!(v >= 1.0 && v <= 65536.0 && v == std::floor(v))) {
+        throw FormatError(detail::where(path, where + "'" + key + "' is " +
+                                                  detail::format_number(v) +
+                                                  ", not a positive number of pixels (a whole "
+                                                  "number up to 65536)"));
+    }
+    return int(v);
+}
+
 /// The camera of a transforms.json object (the file's top level, or a frame overriding it).
 Intrinsics camera(const Json& obj, const Intrinsics& base, const std::string& path,
                   const std::string& where) {
     Intrinsics K = base;
-    K.width = int(number(obj, "w", K.width, path, where));
-    K.height = int(number(obj, "h", K.height, path, where));
-    for (const char* key : {"w", "h", "fl_x", "fl_y", "camera_angle_x", "camera_angle_y"}) {
-        // Given, a size, focal length or field of view must be positive (absent: from the
-        // image or another key).
+    K.width = image_side(obj, "w", K.width, path, where);
+    K.height = image_side(obj, "h", K.height, path, where);
+    for (const char* key : {"fl_x", "fl_y", "camera_angle_x", "camera_angle_y"}) {
+        // Given, a focal length or field of view must be positive (absent: from another key),
+        // and a field of view less than pi.
         const double v = number(obj, key, NAN, path, where);
         if (obj.contains(key) && !obj.at(key).is_null() && !(v > 0.0)) {
             throw FormatError(detail::where(path, where + "'" + key + "' is " +
                                                       detail::format_number(v) +
                                                       ", not a positive number"));
+        }
+        if (key[0] == 'c' && v >= M_PI) {
+            throw FormatError(detail::where(path, where + "'" + key + "' is " +
+                                                      detail::format_number(v) +
+                                                      " radians, not a field of view below pi"));
         }
     }
     const double angle_x = number(obj, "camera_angle_x", NAN, path, where);
@@ -189,8 +210,12 @@ Scene read_transforms(const std::string& path, const SceneOptions& options) {
                                 : std::isfinite(metres_per_unit) ? 1.0 / metres_per_unit
                                                                  : 1000.0;
         const Intrinsics& K = frame.intrinsics;
-        if (!std::isfinite(K.fx) || !std::isfinite(K.fy)) {
+        if (!(std::isfinite(K.fx) && K.fx > 0.0 && std::isfinite(K.fy) && K.fy > 0.0)) {
             throw FormatError(detail::where(path, where + "no focal length (fl_x or camera_angle_x)"));
+        }
+        if ((K.width == 0) != (K.height == 0)) {
+            throw FormatError(detail::where(path, where + "'w' and 'h' go together (or neither: "
+                                                          "the image's size)"));
         }
         scene.frames.push_back(std::move(frame));
     }
@@ -390,6 +415,22 @@ OrganizedCloud read_organized_cloud(const std::string& path) {
         }
     }
     return c;
+}
+
+std::vector<Vec3f> read_kitti_scan(const std::string& path) {
+    const std::string bytes = detail::read_file(path);
+    constexpr std::size_t kPoint = 4 * sizeof(float);  // x y z intensity
+    if (bytes.size() % kPoint != 0) {
+        throw FormatError(detail::where(path,
+                                        "a KITTI scan is float32 x y z intensity (16 bytes a "
+                                        "point); the file's " +
+                                            std::to_string(bytes.size()) + " bytes are not"));
+    }
+    std::vector<Vec3f> points(bytes.size() / kPoint);
+    for (std::size_t i = 0; i < points.size(); ++i) {
+        std::memcpy(points[i].data(), bytes.data() + i * kPoint, sizeof(Vec3f));
+    }
+    return points;
 }
 
 Scene read_scene(const std::string& path, const SceneOptions& options) {

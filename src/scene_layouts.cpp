@@ -73,7 +73,7 @@ std::vector<double> numbers_in(const std::string& text, const fs::path& path,
         }
         if (std::string(p, q) == "-inf") x = -INFINITY;
         if (std::string(p, q) == "inf") x = INFINITY;
-        if (!std::isfinite(x) && !allow_inf) {
+        if (std::isnan(x) || (std::isinf(x) && !allow_inf)) {
             throw FormatError(where(path.string(), "a value is not finite"));
         }
         v.push_back(x);
@@ -94,6 +94,17 @@ Pose pose_at(const std::vector<double>& v, std::size_t at) {
     return p;
 }
 
+/// `pose` when it is a rigid camera-to-world transform (validate_pose), else FormatError naming
+/// `path` (and `what`: which of its poses).
+Pose rigid(const Pose& pose, const fs::path& path, const std::string& what = "") {
+    try {
+        validate_pose(pose);
+    } catch (const InvalidArgument& e) {
+        throw FormatError(where(path.string(), what + e.what()));
+    }
+    return pose;
+}
+
 /// A pose file of exactly 16 numbers (a 4x4 matrix); false for a pose marked lost (-inf).
 bool read_pose_file(const fs::path& path, Pose& pose) {
     const std::vector<double> v = numbers_of(path, true);
@@ -104,8 +115,30 @@ bool read_pose_file(const fs::path& path, Pose& pose) {
     for (double x : v) {
         if (!std::isfinite(x)) return false;
     }
-    pose = pose_at(v, 0);
+    pose = rigid(pose_at(v, 0), path);
     return true;
+}
+
+/// `K` when its focal lengths are positive, its principal point finite and its size either
+/// 0 x 0 (the images') or in 1..65536 a side (as Intrinsics::validate), else FormatError
+/// naming `path`.
+Intrinsics usable(const Intrinsics& K, const fs::path& path) {
+    Intrinsics k = K;
+    if (k.width == 0 && k.height == 0) k.width = k.height = 1;
+    try {
+        k.validate();
+    } catch (const InvalidArgument& e) {
+        throw FormatError(where(path.string(), e.what()));
+    }
+    return K;
+}
+
+/// A JSON value that is an image size: a whole number of pixels in 0..65536 (0: the
+/// images'); -1 when it is not.
+int json_side(const nlohmann::json& v) {
+    if (!v.is_number()) return -1;
+    const double x = v.get<double>();
+    return x >= 0.0 && x <= 65536.0 && x == std::floor(x) ? int(x) : -1;
 }
 
 /// Intrinsics from a 3x3 (or 4x4, K in its top-left corner) matrix file.
@@ -124,7 +157,7 @@ Intrinsics matrix_intrinsics(const fs::path& path) {
     if (!(K.fx > 0.0 && K.fy > 0.0)) {
         throw FormatError(where(path.string(), "the focal lengths are not positive"));
     }
-    return K;
+    return usable(K, path);
 }
 
 /// The given intrinsics, else those of the first file of `candidates` that exists (read by
@@ -162,12 +195,14 @@ Intrinsics open3d_intrinsics(const fs::path& path) {
     K.fy = a[4];
     K.cx = a[6];
     K.cy = a[7];
-    if (j.contains("width") && j["width"].is_number_integer()) K.width = j["width"].get<int>();
-    if (j.contains("height") && j["height"].is_number_integer()) K.height = j["height"].get<int>();
+    if (j.contains("width")) K.width = json_side(j["width"]);
+    if (j.contains("height")) K.height = json_side(j["height"]);
     if (!(K.fx > 0.0 && K.fy > 0.0 && K.width >= 0 && K.height >= 0)) {
-        throw FormatError(where(path.string(), "the focal lengths or the size are not positive"));
+        throw FormatError(where(path.string(),
+                                "the focal lengths or the size are not positive "
+                                "(width and height: whole numbers up to 65536)"));
     }
-    return K;
+    return usable(K, path);
 }
 
 /// Replica's (NICE-SLAM's) cam_params.json: camera {w, h, fx, fy, cx, cy, scale}.
@@ -185,15 +220,24 @@ Intrinsics replica_intrinsics(const fs::path& path, double& scale) {
         }
         return it->get<double>();
     };
+    auto side = [&](const char* key) {
+        const int v = num(key) > 0.0 ? json_side(c->at(key)) : -1;
+        if (v <= 0) {
+            throw FormatError(where(
+                path.string(),
+                std::string("camera.") + key + " is not a whole number of pixels up to 65536"));
+        }
+        return v;
+    };
     Intrinsics K;
-    K.width = int(num("w"));
-    K.height = int(num("h"));
+    K.width = side("w");
+    K.height = side("h");
     K.fx = num("fx");
     K.fy = num("fy");
     K.cx = num("cx");
     K.cy = num("cy");
     scale = num("scale");
-    return K;
+    return usable(K, path);
 }
 
 /// The first of `stem` + each extension that is a file, else "".
@@ -287,7 +331,8 @@ Scene read_redwood(const std::string& folder, const std::string& log, const Scen
     std::vector<fs::path> colors = images_in(dir / "color");
     if (colors.empty()) colors = images_in(dir / "image");
     for (std::size_t i = 0; i < frames; ++i) {
-        scene.frames.push_back(frame_of(depths[i], K, pose_at(v, 19 * i + 3), 1000.0, options));
+        const Pose pose = rigid(pose_at(v, 19 * i + 3), log, "frame " + std::to_string(i) + ": ");
+        scene.frames.push_back(frame_of(depths[i], K, pose, 1000.0, options));
         if (colors.size() == depths.size()) scene.frames.back().color_path = colors[i].string();
     }
     return scene;
@@ -347,7 +392,8 @@ Scene read_replica(const std::string& folder, const SceneOptions& options) {
                                                    (dir / "results").string()));
     }
     for (std::size_t i = 0; i < depths.size(); ++i) {
-        scene.frames.push_back(frame_of(depths[i].second, K, pose_at(v, 16 * i), scale, options));
+        const Pose pose = rigid(pose_at(v, 16 * i), traj, "line " + std::to_string(i + 1) + ": ");
+        scene.frames.push_back(frame_of(depths[i].second, K, pose, scale, options));
         const std::string name = depths[i].second.filename().string();  // depthNNNNNN.png
         scene.frames.back().color_path =
             first_image(dir / "results" / ("frame" + name.substr(5, name.size() - 9)), {".jpg", ".png"});
@@ -401,7 +447,7 @@ Pose kitti_calibration(const fs::path& path) {
                 throw FormatError(where(path.string(), key + " needs 12 numbers (a 3x4 matrix), has " +
                                                            std::to_string(v.size())));
             }
-            return pose34(v, 0);
+            return rigid(pose34(v, 0), path, key + " ");
         }
     }
     throw FormatError(where(path.string(), "no 'Tr:' line (velodyne to camera 0)"));
@@ -441,7 +487,7 @@ Scene read_kitti(const std::string& folder, const SceneOptions&) {
         SceneFrame f;
         f.depth_path = scans[i].string();
         f.scan = true;
-        const Pose p = pose34(v, 12 * i);
+        const Pose p = rigid(pose34(v, 12 * i), poses_path, "line " + std::to_string(i + 1) + ": ");
         f.pose = calibrated ? multiply(tr_inv, multiply(p, tr)) : p;
         scene.frames.push_back(std::move(f));
     }

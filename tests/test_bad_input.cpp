@@ -44,6 +44,19 @@
 //   review: 1e-400 was read as inf (and its row dropped), "+-5" as -5
 //     -> numbers beyond double's range and doubled signs
 //
+// Fuzzing regressions of the scene readers (issue 47), read from files as `vdbrecon fuse` reads
+// them, with the invalid metadata and the header sizes every scene reader must refuse:
+//   fuzz_depth_png: a tEXt chunk claiming 800 MB in a 293-byte file; libpng allocated it
+//     -> a PNG chunk longer than its file is refused before libpng allocates it
+//   fuzz_depth_exr: an attribute claiming 1.6 GB; a v3f attribute of 8 bytes, after which
+//     OpenEXR read out of step with the file
+//     -> an EXR file's headers are checked against the file before OpenEXR reads them
+//   issue 47, point 2 -> a depth image of another size than its frame's camera is refused
+//     unread; an image header claiming more pixels than its file can hold is refused
+//   review: "w": 1e300 in transforms.json and cam_params.json went through int(double)
+//     -> bad metadata: transforms.json sizes, focal lengths, fields of view and poses; the
+//        layouts refuse non-rotations, NaN and unusable intrinsics
+//
 // The same reader errors are also checked at library level (exact exception text) in
 // test_io.cpp: "PLY reader errors name the file and the problem" (empty file, no end_header,
 // no x, unknown format, absurd vertex count, truncated body and list), "NaN and inf rows are
@@ -53,6 +66,7 @@
 // --voxel abc, a missing input file, -o onto the input) stay in test_cli.cpp.
 #include <dirent.h>
 #include <sys/stat.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <charconv>
@@ -65,6 +79,7 @@
 #include "support.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
+#include "vdbrecon/scene.h"
 
 using namespace vdbrecon;
 using namespace vdbrecon::test;
@@ -968,4 +983,321 @@ TEST_CASE("fuzz: reading a file and reading its bytes are one mechanism", "[io][
     REQUIRE(read_error("1 2 3\n", "scan.ply") == "scan.ply: not a PLY file (no 'ply' magic)");
     REQUIRE(read_error("1 2 3\n", "scan.stl") ==
             "scan.stl: unknown file type '.stl' (supported: .ply, .xyz/.pts/.txt, .obj, .las, .pcd)");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fuzzing regressions of the scene readers (issue 47): images, transforms.json and the dataset
+// layouts' files, read from files as fuse reads them (the fuzz targets write each input to a
+// scratch folder). Then the invalid metadata every scene reader must refuse, and the header
+// sizes no reader may allocate before the file's size confirms them.
+
+namespace {
+
+/// The message of the Error `read` throws, or "(no error)".
+template <typename Read>
+std::string error_of(Read&& read) {
+    try {
+        read();
+    } catch (const Error& e) {
+        return e.what();
+    }
+    return "(no error)";
+}
+
+std::string be32(std::uint32_t v) {
+    return {char(v >> 24), char(v >> 16 & 255u), char(v >> 8 & 255u), char(v & 255u)};
+}
+
+/// A PNG chunk with its CRC; `length` is the claimed data length (that of `data` by default).
+std::string png_chunk(const std::string& type, const std::string& data, long length = -1) {
+    const std::string body = type + data;
+    const auto crc = crc32(0L, reinterpret_cast<const Bytef*>(body.data()), uInt(body.size()));
+    return be32(std::uint32_t(length < 0 ? data.size() : std::size_t(length))) + body +
+           be32(std::uint32_t(crc));
+}
+
+/// The signature and IHDR of a PNG of w x h pixels (`bits`, colour type `type`).
+std::string png_start(std::uint32_t w, std::uint32_t h, int bits = 16, int type = 0) {
+    return std::string("\x89PNG\r\n\x1a\n", 8) +
+           png_chunk("IHDR", be32(w) + be32(h) + std::string{char(bits), char(type), 0, 0, 0});
+}
+
+/// `bytes` with the first `find` replaced by `replace` (which must be there).
+std::string patched(std::string bytes, const std::string& find, const std::string& replace) {
+    const std::size_t at = bytes.find(find);
+    REQUIRE(at != std::string::npos);
+    return bytes.replace(at, find.size(), replace);
+}
+
+/// A little-endian 32-bit word.
+std::string le32(std::uint32_t v) {
+    return {char(v & 255u), char(v >> 8 & 255u), char(v >> 16 & 255u), char(v >> 24)};
+}
+
+DepthImage ramp(int w, int h) {
+    DepthImage d{w, h, {}};
+    for (int i = 0; i < w * h; ++i) d.depth.push_back(0.5f + 0.01f * float(i));
+    return d;
+}
+
+}  // namespace
+
+namespace {
+
+/// The PNG bytes, as a depth image and as a colour image, are refused with `message` after
+/// the file's path.
+void check_png_refused(const std::string& png, const std::string& message) {
+    TempDir dir;
+    for (const char* name : {"d.png", "c.png"}) {
+        write_bytes(dir.file(name), png);
+        const std::string what = name[0] == 'd'
+                                     ? error_of([&] { read_depth_image(dir.file(name)); })
+                                     : error_of([&] { read_color_image(dir.file(name)); });
+        REQUIRE(what == dir.file(name) + message);
+    }
+}
+
+}  // namespace
+
+TEST_CASE("fuzz: a PNG chunk longer than its file is refused before libpng allocates it",
+          "[fusion][io][fuzz]") {
+    // fuzz_depth_png: a tEXt chunk claiming 838,860,808 bytes in a 293-byte file: libpng
+    // allocated 800 MB for it before finding the file short. Every chunk up to IEND must now
+    // lie within the file, and ancillary chunks are skipped unread.
+    const std::string png =
+        png_start(2, 2) + be32(838860808u) + "tEXt" + std::string("depth\0mm", 8);
+    check_png_refused(png, ": the chunk 'tEXt' at byte 33 claims 838860808 bytes, past the end "
+                           "of the file (49 bytes)");
+}
+
+TEST_CASE("fuzz: an EXR file's headers are checked against the file before OpenEXR reads them",
+          "[fusion][io][fuzz]") {
+    TempDir dir;
+    const std::string path = dir.file("d.exr");
+    write_depth_image(path, ramp(7, 5));
+    const std::string good = read_bytes(path);
+    auto error_with = [&](const std::string& bytes) {
+        write_bytes(path, bytes);
+        return error_of([&] { read_depth_image(path); });
+    };
+    // fuzz_depth_exr: an attribute claiming 1.6 GB in an 83-byte file; OpenEXR allocated it.
+    const std::string compression = std::string("compression\0compression\0", 24);
+    REQUIRE(error_with(patched(good, compression + le32(1), compression + le32(1668415488u))) ==
+            path + ": the attribute 'compression' claims 1668415488 bytes, past the end of the " +
+                "file (" + std::to_string(good.size()) + " bytes)");
+    // fuzz_depth_exr: a v3f of 8 bytes. OpenEXR reads a v3f's 12 whatever its size says, and
+    // went on out of step with the file, into the 1.6 GB "size" of what followed.
+    REQUIRE(error_with(patched(good, std::string("screenWindowCenter\0v2f", 22),
+                               std::string("screenWindowCenter\0v3f", 22))) ==
+            path + ": the attribute 'screenWindowCenter' holds 8 bytes, not the 12 of a v3f");
+    // A data window the file cannot hold: its decoded pixels, or its table of chunk offsets.
+    const std::string window =
+        std::string("dataWindow\0box2i\0", 17) + le32(16) + le32(0) + le32(0);
+    REQUIRE_THAT(
+        error_with(patched(good, window + le32(6) + le32(4), window + le32(59999) + le32(59999))),
+        Catch::StartsWith(path + ": the header claims 60000 x 60000 pixels of 4 bytes, "
+                                 "more than the file's ") &&
+            Catch::EndsWith(" bytes can hold (truncated, or a corrupt header)"));
+    REQUIRE_THAT(
+        error_with(patched(good, window + le32(6) + le32(4), window + le32(6) + le32(1999))),
+        Catch::StartsWith(path + ": the offset table of 125 chunks does not fit in the file"));
+    write_bytes(path, good);
+    REQUIRE(read_depth_image(path).depth == ramp(7, 5).depth);
+}
+
+TEST_CASE("bounded: a depth image of another size than its frame's camera is refused unread",
+          "[fusion][io][bad_input]") {
+    TempDir dir;
+    for (const char* name : {"d.exr", "d.png"}) {
+        write_depth_image(dir.file(name), ramp(7, 5));
+        auto read_as = [&](int w, int h) {
+            return read_depth_image(dir.file(name), 1000.0, ImageSize{w, h});
+        };
+        REQUIRE(error_of([&] { read_as(8, 5); }) ==
+                dir.file(name) + ": the image is 7 x 5 pixels, the frame's camera 8 x 5");
+        REQUIRE(read_as(7, 5).width == 7);
+        REQUIRE(read_as(0, 0).height == 5);
+    }
+}
+
+TEST_CASE("bounded: an image header claiming more pixels than its file can hold is refused",
+          "[fusion][io][bad_input]") {
+    // 4000 x 4000 16-bit pixels inflate from at least 31 kB of deflate data (1032-fold at
+    // most); a 4000 x 4000 JPEG has at least 7.8 kB of entropy-coded data. These files have a
+    // few hundred bytes: libpng would fail a row later, after the buffers; libjpeg would
+    // decode the missing rows as grey.
+    const std::string png =
+        png_start(4000, 4000) + png_chunk("IDAT", "\x78\x9c") + png_chunk("IEND", "");
+    check_png_refused(png, ": the header claims 4000 x 4000 pixels, which take at least 31011 "
+                           "bytes; the file has 59 (truncated, or a corrupt header)");
+    TempDir dir;
+    ColorImage small{6, 4, std::vector<Vec3f>(24, Vec3f{0.5f, 0.25f, 1.0f})};
+    write_color_image(dir.file("c.jpg"), small);
+    const std::string jpeg = read_bytes(dir.file("c.jpg"));
+    const std::size_t sof = jpeg.find("\xff\xc0");
+    REQUIRE(sof != std::string::npos);
+    std::string big = jpeg;
+    big.replace(sof + 5, 4, std::string("\x0f\xa0\x0f\xa0", 4));  // height, width 4000
+    write_bytes(dir.file("big.jpg"), big);
+    REQUIRE_THAT(
+        error_of([&] { read_color_image(dir.file("big.jpg")); }),
+        Catch::StartsWith(dir.file("big.jpg") + ": the header claims 4000 x 4000 pixels") &&
+            Catch::EndsWith("(truncated, or a corrupt header)"));
+    REQUIRE(read_color_image(dir.file("c.jpg")).width == 6);
+}
+
+TEST_CASE("bad metadata: transforms.json sizes, focal lengths, fields of view and poses",
+          "[fusion][bad_input]") {
+    TempDir dir;
+    const std::string json = dir.file("transforms.json");
+    const std::string identity = "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]";
+    auto error_with = [&](const std::string& camera, const std::string& matrix) {
+        write_bytes(json, "{" + camera +
+                              ", \"frames\": [{\"file_path\": \"a\", \"depth_file_path\": "
+                              "\"a.png\", \"transform_matrix\": " +
+                              matrix + "}]}");
+        return error_of([&] { read_scene(json); });
+    };
+    const std::string fine = "\"fl_x\": 500, \"w\": 64, \"h\": 48";
+    REQUIRE(error_with(fine, identity) == "(no error)");
+    // Review: "w": 1e300 went through int(double), undefined behaviour (UBSan's float-cast).
+    REQUIRE(error_with("\"fl_x\": 500, \"w\": 1e300, \"h\": 48", identity) ==
+            json + ": 'w' is 1e+300, not a positive number of pixels (a whole number up to 65536)");
+    REQUIRE(error_with("\"fl_x\": 500, \"w\": 64, \"h\": 47.5", identity) ==
+            json + ": 'h' is 47.5, not a positive number of pixels (a whole number up to 65536)");
+    REQUIRE(error_with("\"fl_x\": 500, \"w\": 64", identity) ==
+            json + ": frame 0: 'w' and 'h' go together (or neither: the image's size)");
+    REQUIRE(error_with("\"fl_x\": -500", identity) ==
+            json + ": 'fl_x' is -500, not a positive number");
+    // A field of view of pi or more made a negative or infinite focal length.
+    REQUIRE(error_with("\"camera_angle_x\": 3.5, \"w\": 64, \"h\": 48", identity) ==
+            json + ": 'camera_angle_x' is 3.5 radians, not a field of view below pi");
+    REQUIRE_THAT(error_with(fine, "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 3, 0], [0, 0, 0, 1]]"),
+                 Catch::StartsWith(json + ": frame 0: pose: the 3x3 part is not a rotation"));
+    REQUIRE_THAT(error_with(fine, "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]]"),
+                 Catch::StartsWith(json + ": frame 0: pose: the last row must be 0 0 0 1"));
+}
+
+TEST_CASE("bad metadata: the layouts refuse non-rotations, NaN and unusable intrinsics",
+          "[fusion][bad_input][layouts]") {
+    const std::string pose = "1 0 0 0.5\n0 1 0 0\n0 0 1 2\n0 0 0 1\n";
+    const std::string scaled = "2 0 0 0.5\n0 1 0 0\n0 0 1 2\n0 0 0 1\n";
+    const std::string rotation = ": pose: the 3x3 part is not a rotation";
+    {  // 7-Scenes: a pose file (poses used to be checked only when fused, naming the image)
+        TempDir d;
+        write_bytes(d.file("camera-intrinsics.txt"), "585 0 320\n0 585 240\n0 0 1\n");
+        write_bytes(d.file("frame-000000.depth.png"), "");
+        write_bytes(d.file("frame-000000.pose.txt"), scaled);
+        REQUIRE_THAT(error_of([&] { read_scene(d.path()); }),
+                     Catch::StartsWith(d.file("frame-000000.pose.txt") + rotation));
+    }
+    {  // ScanNet: -inf is a lost pose (skipped), NaN a broken file
+        TempDir d;
+        for (const char* sub : {"depth", "pose", "intrinsic"}) ::mkdir(d.file(sub).c_str(), 0755);
+        write_bytes(d.file("intrinsic/intrinsic_depth.txt"),
+                    "577 0 319.5 0\n0 578 239.5 0\n0 0 1 0\n0 0 0 1\n");
+        write_bytes(d.file("depth/0.png"), "");
+        write_bytes(d.file("pose/0.txt"), "nan 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+        REQUIRE(error_of([&] { read_scene(d.path()); }) ==
+                d.file("pose/0.txt") + ": a value is not finite");
+        write_bytes(d.file("intrinsic/intrinsic_depth.txt"), "577 0 319.5\n0 -578 239.5\n0 0 1\n");
+        REQUIRE(error_of([&] { read_scene(d.path()); }) ==
+                d.file("intrinsic/intrinsic_depth.txt") + ": the focal lengths are not positive");
+    }
+    {  // Redwood: a trajectory's frame; an absurd image size in camera_intrinsic.json
+        TempDir d;
+        ::mkdir(d.file("depth").c_str(), 0755);
+        for (const char* f : {"depth/0.png", "depth/1.png"}) write_bytes(d.file(f), "");
+        write_bytes(d.file("trajectory.log"), "0 0 1\n" + pose + "1 1 2\n" + scaled);
+        const std::string intrinsic =
+            "{\"width\": %, \"height\": 480, \"intrinsic_matrix\": "
+            "[525, 0, 0, 0, 525, 0, 319.5, 239.5, 1]}";
+        write_bytes(d.file("camera_intrinsic.json"), patched(intrinsic, "%", "640"));
+        REQUIRE_THAT(error_of([&] { read_scene(d.path()); }),
+                     Catch::StartsWith(d.file("trajectory.log") + ": frame 1" + rotation));
+        write_bytes(d.file("camera_intrinsic.json"), patched(intrinsic, "%", "1000000000000"));
+        REQUIRE_THAT(error_of([&] { read_scene(d.path()); }),
+                     Catch::StartsWith(d.file("camera_intrinsic.json") +
+                                       ": the focal lengths or the size are not positive"));
+    }
+    {  // Replica: camera.w of 1e300 went through int(double) (UBSan); a mirrored pose
+        TempDir d;
+        ::mkdir(d.file("results").c_str(), 0755);
+        for (const char* f : {"results/depth000000.png", "results/depth000001.png"}) {
+            write_bytes(d.file(f), "");
+        }
+        write_bytes(d.file("traj.txt"),
+                    "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n1 0 0 0 0 1 0 0 0 0 -1 0 0 0 0 1\n");
+        const std::string params =
+            "{\"camera\": {\"w\": %, \"h\": 680, \"fx\": 600, \"fy\": 600, "
+            "\"cx\": 599.5, \"cy\": 339.5, \"scale\": 6553.5}}";
+        write_bytes(d.file("cam_params.json"), patched(params, "%", "1e300"));
+        REQUIRE(error_of([&] { read_scene(d.path()); }) ==
+                d.file("cam_params.json") +
+                    ": camera.w is not a whole number of pixels up to 65536");
+        write_bytes(d.file("cam_params.json"), patched(params, "%", "1200"));
+        REQUIRE_THAT(error_of([&] { read_scene(d.path()); }),
+                     Catch::StartsWith(d.file("traj.txt") + ": line 2" + rotation));
+    }
+    {  // KITTI: calib.txt's Tr, a line of poses.txt, NaN
+        TempDir d;
+        ::mkdir(d.file("velodyne").c_str(), 0755);
+        write_bytes(d.file("velodyne/000000.bin"), "");
+        write_bytes(d.file("poses.txt"), "1 0 0 0 0 1 0 0 0 0 1 0\n");
+        write_bytes(d.file("calib.txt"), "Tr: 1 0 0 0 0 1 0 0 0 0 2 0\n");
+        REQUIRE_THAT(
+            error_of([&] { read_scene(d.path()); }),
+            Catch::StartsWith(d.file("calib.txt") + ": Tr: pose: the 3x3 part is not a rotation"));
+        std::remove(d.file("calib.txt").c_str());
+        write_bytes(d.file("poses.txt"), "1 0 0 0 0 1 0 0 0 0 1 nan\n");
+        REQUIRE(error_of([&] { read_scene(d.path()); }) ==
+                d.file("poses.txt") + ": a value is not finite");
+        write_bytes(d.file("poses.txt"), "0 1 0 0 1 0 0 0 0 0 1 0\n");
+        REQUIRE_THAT(error_of([&] { read_scene(d.path()); }),
+                     Catch::StartsWith(d.file("poses.txt") + ": line 1" + rotation));
+    }
+}
+
+TEST_CASE("KITTI scans: float32 x y z intensity a point, whole points only",
+          "[fusion][io][kitti]") {
+    TempDir d;
+    const float v[8] = {1.5f, -2.0f, 0.25f, 0.5f, 3.0f, 4.0f, -5.0f, 0.0f};
+    const std::string bytes(reinterpret_cast<const char*>(v), sizeof v);
+    write_bytes(d.file("0.bin"), bytes);
+    REQUIRE(read_kitti_scan(d.file("0.bin")) ==
+            std::vector<Vec3f>{{1.5f, -2.0f, 0.25f}, {3, 4, -5}});
+    write_bytes(d.file("1.bin"), bytes.substr(0, 20));
+    REQUIRE(error_of([&] { read_kitti_scan(d.file("1.bin")); }) ==
+            d.file("1.bin") +
+                ": a KITTI scan is float32 x y z intensity (16 bytes a point); the "
+                "file's 20 bytes are not");
+    REQUIRE_THAT(error_of([&] { read_kitti_scan(d.file("missing.bin")); }),
+                 Catch::StartsWith(d.file("missing.bin") + ": "));
+}
+
+TEST_CASE("fuzz: a PCD header's point count is checked against its data before allocating",
+          "[io][fuzz][pcd]") {
+    // fuzz_pcd (with a 256 MB allocation limit): WIDTH 333333333 in a 130-byte file made the
+    // reader size three arrays of a billion floats before it looked at the data.
+    const std::string head = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                             "WIDTH 333333333\nHEIGHT 1\nPOINTS 333333333\n";
+    const std::string compressed = head + "DATA binary_compressed\n" +
+                                   std::string("\x05\x00\x00\x00\x18\x00\x00\x00\x00\xe0\x0e\x00", 12);
+    CHECK(read_error(compressed, "f.pcd").find("points cannot come from the file's") != std::string::npos);
+    CHECK(read_error(head + "DATA binary\n" + std::string(24, '\0'), "f.pcd") ==
+          "f.pcd: truncated PCD binary data");
+    CHECK(read_error(head + "DATA ascii\n1 2 3\n", "f.pcd").find("truncated PCD ascii data") !=
+          std::string::npos);
+}
+
+TEST_CASE("fuzz: a NaN scan index is no scan, not an undefined conversion", "[io][fuzz]") {
+    // fuzz_ply under UBSan: a float `scan` of NaN was converted to int32.
+    std::string ply = ply_header("binary_little_endian", "2",
+                                 "property float x\nproperty float y\nproperty float z\n"
+                                 "property float scan\n");
+    for (float v : {0.0f, 0.0f, 0.0f, std::nanf(""), 1.0f, 0.0f, 0.0f, 2.0f}) put(ply, v, false);
+    const ReadResult r = read_points_from_memory(ply, "f.ply");
+    REQUIRE(r.scans.size() == 2);
+    CHECK(r.scans[0] == -1);
+    CHECK(r.scans[1] == 2);
 }

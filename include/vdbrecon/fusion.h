@@ -21,9 +21,8 @@
 //    structured-light and stereo depth noise grows with the square of the depth (Khoshelham
 //    and Elberink 2012), so far pixels weigh less.
 //
-// Pose convention: camera-to-world rigid transforms, 4x4 row-major, OpenCV camera axes (x
-// right, y down, looking down +z). Readers of scenes with OpenGL axes (NeRF/Blender
-// transforms.json: y up, looking down -z) convert (scene.h).
+// Cameras, poses and images are camera.h's (camera-to-world, OpenCV axes); scenes of them are
+// read by scene.h's readers; fuse() below runs the whole command.
 #pragma once
 
 #include <array>
@@ -33,44 +32,14 @@
 #include <string>
 #include <vector>
 
+#include "vdbrecon/camera.h"
 #include "vdbrecon/pipeline.h"
+#include "vdbrecon/scene.h"
 #include "vdbrecon/splat.h"
 #include "vdbrecon/types.h"
 #include "vdbrecon/volume.h"
 
 namespace vdbrecon {
-
-/// Pinhole intrinsics in pixels; pixel (u, v) has its centre at (u, v) (u right, v down).
-struct Intrinsics {
-    double fx = 0.0, fy = 0.0, cx = 0.0, cy = 0.0;
-    int width = 0, height = 0;
-
-    /// Throws InvalidArgument naming the field when not usable.
-    void validate() const;
-};
-
-/// A depth image: width x height values, row-major, top row first, in world units; 0, NaN,
-/// inf and negative values are "no measurement".
-struct DepthImage {
-    int width = 0, height = 0;
-    std::vector<float> depth;
-
-    float at(int u, int v) const { return depth[std::size_t(v) * std::size_t(width) + std::size_t(u)]; }
-};
-
-/// A colour image: width x height pixels, row-major, top row first, RGB 0..1 (the stored 8-bit
-/// values / 255, as point colours are read).
-struct ColorImage {
-    int width = 0, height = 0;
-    std::vector<Vec3f> rgb;
-};
-
-/// Camera-to-world rigid transform, row-major 4x4 (OpenCV camera axes).
-using Pose = std::array<double, 16>;
-
-/// Throws InvalidArgument when the pose is not finite, its last row not (0 0 0 1), or its 3x3
-/// part not a rotation (orthonormal within 1e-3, determinant +1).
-void validate_pose(const Pose& pose);
 
 /// What a depth value measures.
 enum class DepthKind {
@@ -150,17 +119,6 @@ PointCloud depth_samples(const DepthImage& depth, const Intrinsics& K, const Pos
 /// surface's colour is the weighted mean of the pixels that saw it.
 void color_samples(PointCloud& samples, const ColorImage& color, const Intrinsics& K,
                    const Pose& camera_to_world);
-
-/// An organized cloud (a depth camera's frame as points, PCL's organized PCD): width x height
-/// points in raster order, NaN where nothing was measured, relative to `origin`, seen from
-/// `sensor` (world).
-struct OrganizedCloud {
-    int width = 0, height = 0;
-    std::vector<Vec3f> points;
-    std::vector<Vec3f> colors;  ///< per point (PCD rgb / rgba, 0..1), or empty
-    Vec3d origin{0.0, 0.0, 0.0};
-    Vec3d sensor{0.0, 0.0, 0.0};
-};
 
 /// The oriented samples of an organized cloud, by the rules of depth_samples (neighbours in
 /// the raster, normals toward the sensor, footprint, confidence). Throws InvalidArgument when
@@ -258,5 +216,35 @@ class Fusion {
     std::unique_ptr<detail::TsdfVolume> tsdf_;  ///< rule == tsdf
     std::size_t frames_ = 0;
 };
+
+/// What `vdbrecon fuse` does besides the pipeline's options.
+struct FuseOptions {
+    /// A point-file scene (SCENE is .ply, .xyz, .las, ...): the sensors of its scans (the
+    /// points' `scan` property picks one; without it, the only sensor). Empty for depth scenes.
+    std::string scan_sensors;
+    SceneOptions scene;
+    DepthOptions depth;
+    /// Integrate every step-th frame (1 = all).
+    std::size_t frame_step = 1;
+    /// At most this many frames (0 = all).
+    std::size_t max_frames = 0;
+    /// A frame that cannot be read or fused (a corrupt or missing file, another size) is
+    /// skipped with one warning naming it, instead of stopping the run with that error.
+    bool skip_bad_frames = false;
+    /// Fuse the frames' colour images where the scene has them (vertex colours); false skips
+    /// them (--no-color).
+    bool color = true;
+    /// LiDAR scans: points nearer to the sensor than this, or farther than max_range (0 =
+    /// none), are no measurement (the car's own roof, far noise); world units.
+    double min_range = 0.0;
+    double max_range = 0.0;
+};
+
+/// Reads a scene, fuses its frames one at a time (the pipeline's splat options; voxel 0 =
+/// auto_voxel_factor x the first frame's median pixel footprint), meshes and writes the result
+/// as run() does (mesh, <out>.splat.vdb, preview; all or nothing). Errors name the scene and
+/// the depth file. The local frame's origin is the first camera's position.
+RunResult fuse(const std::string& scene, const std::string& output, const PipelineOptions& options,
+               const FuseOptions& fuse_options = {}, const StageCallback& on_stage = {});
 
 }  // namespace vdbrecon

@@ -1,5 +1,5 @@
 // Reading posed depth images: depth image files and the scene files that list them with their
-// cameras (`vdbrecon fuse`).
+// cameras (`vdbrecon fuse`; fusion.h). No OpenVDB here: the readers build on their own (fuzz/).
 //
 // Depth images:
 //  - OpenEXR: the channel "Z", else "depth" / "Depth", "R", "Y", else a layer's ".Z" / ".Depth"
@@ -27,13 +27,18 @@
 #include <string>
 #include <vector>
 
-#include "vdbrecon/fusion.h"
+#include "vdbrecon/camera.h"
+#include "vdbrecon/types.h"
 
 namespace vdbrecon {
 
 /// Reads a depth image (.exr, .png); PNG values are divided by `units_per_metre` (EXR values
-/// are taken as they are). Throws IoError / FormatError naming the file.
-DepthImage read_depth_image(const std::string& path, double units_per_metre = 1000.0);
+/// are taken as they are). The size the header claims is checked before any pixel buffer is
+/// made: against `expected` (a side of 0: any; a frame's intrinsics' size), against the largest
+/// image (2^16 a side, 2^27 pixels) and against what the file's bytes can hold. Throws IoError /
+/// FormatError naming the file.
+DepthImage read_depth_image(const std::string& path, double units_per_metre = 1000.0,
+                            const ImageSize& expected = {});
 
 /// Reads a colour image: .png (8- or 16-bit grey, RGB, RGBA or palette; libpng) or .jpg /
 /// .jpeg (libjpeg-turbo), as RGB 0..1. Throws IoError / FormatError naming the file.
@@ -79,7 +84,7 @@ struct SceneOptions {
 
 struct Scene {
     /// The layout: "transforms.json", "tum", "7-Scenes/3DMatch", "Redwood/Open3D", "ScanNet",
-    /// "Replica", "organized pcd"
+    /// "Replica", "KITTI", "organized pcd"
     std::string kind;
     std::vector<SceneFrame> frames;
 };
@@ -103,35 +108,10 @@ struct ScanSensors {
 /// file of `x y z` per scan (origins; # comments). Throws IoError / FormatError.
 ScanSensors read_scan_sensors(const std::string& path);
 
-/// What `vdbrecon fuse` does besides the pipeline's options.
-struct FuseOptions {
-    /// A point-file scene (SCENE is .ply, .xyz, .las, ...): the sensors of its scans (the
-    /// points' `scan` property picks one; without it, the only sensor). Empty for depth scenes.
-    std::string scan_sensors;
-    SceneOptions scene;
-    DepthOptions depth;
-    /// Integrate every step-th frame (1 = all).
-    std::size_t frame_step = 1;
-    /// At most this many frames (0 = all).
-    std::size_t max_frames = 0;
-    /// A frame that cannot be read or fused (a corrupt or missing file, another size) is
-    /// skipped with one warning naming it, instead of stopping the run with that error.
-    bool skip_bad_frames = false;
-    /// Fuse the frames' colour images where the scene has them (vertex colours); false skips
-    /// them (--no-color).
-    bool color = true;
-    /// LiDAR scans: points nearer to the sensor than this, or farther than max_range (0 =
-    /// none), are no measurement (the car's own roof, far noise); world units.
-    double min_range = 0.0;
-    double max_range = 0.0;
-};
-
-/// Reads a scene, fuses its frames one at a time (the pipeline's splat options; voxel 0 =
-/// auto_voxel_factor x the first frame's median pixel footprint), meshes and writes the result
-/// as run() does (mesh, <out>.splat.vdb, preview; all or nothing). Errors name the scene and
-/// the depth file. The local frame's origin is the first camera's position.
-RunResult fuse(const std::string& scene, const std::string& output, const PipelineOptions& options,
-               const FuseOptions& fuse_options = {}, const StageCallback& on_stage = {});
+/// Reads a KITTI velodyne scan (.bin: float32 x y z intensity a point, little-endian) as its
+/// points in the sensor's frame, in file order; points with NaN or inf coordinates are kept
+/// (what uses them leaves them out). Throws IoError / FormatError naming the file.
+std::vector<Vec3f> read_kitti_scan(const std::string& path);
 
 /// Reads a scene: a transforms.json file, or a folder of one of the layouts, detected by the
 /// files present: transforms.json, TUM RGB-D (depth.txt), 7-Scenes / 3DMatch, Redwood /

@@ -1,0 +1,7 @@
+// libFuzzer target: read_color_image of a PNG colour image (every colour type and depth; libpng)
+// (scripts/fuzz.sh).
+#include "fuzz_scene.h"
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+    return vdbrecon::fuzz::read_color(data, size, "png");
+}

@@ -1,0 +1,7 @@
+// libFuzzer target: read_depth_image of a PNG depth image (8- or 16-bit greyscale; libpng)
+// (scripts/fuzz.sh).
+#include "fuzz_scene.h"
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+    return vdbrecon::fuzz::read_depth(data, size, "png");
+}

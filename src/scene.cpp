@@ -197,6 +197,7 @@ Scene read_transforms(const std::string& path, const SceneOptions& options) {
     Scene scene;
     scene.kind = "transforms.json";
     const std::string dir = dir_of(path);
+    ImageSize sized;  // the first image's, for a field of view without a size
     for (std::size_t i = 0; i < frames->size(); ++i) {
         const Json& f = (*frames)[i];
         const std::string where = "frame " + std::to_string(i) + ": ";
@@ -209,6 +210,17 @@ Scene read_transforms(const std::string& path, const SceneOptions& options) {
         frame.units_per_metre = options.units_per_metre > 0.0 ? options.units_per_metre
                                 : std::isfinite(metres_per_unit) ? 1.0 / metres_per_unit
                                                                  : 1000.0;
+        if (!options.intrinsics && frame.intrinsics.width == 0 && !(frame.intrinsics.fx > 0.0) &&
+            (f.contains("camera_angle_x") || doc.contains("camera_angle_x"))) {
+            // NeRF's synthetic scenes give the field of view and no size: the focal length
+            // comes from the size of the first frame's image (read once).
+            if (sized.width == 0) {
+                const DepthImage img = read_depth_image(frame.depth_path, frame.units_per_metre);
+                sized = ImageSize{img.width, img.height};
+            }
+            const Intrinsics size_only{NAN, NAN, NAN, NAN, sized.width, sized.height};
+            frame.intrinsics = camera(f, camera(doc, size_only, path, ""), path, where);
+        }
         const Intrinsics& K = frame.intrinsics;
         if (!(std::isfinite(K.fx) && K.fx > 0.0 && std::isfinite(K.fy) && K.fy > 0.0)) {
             throw FormatError(detail::where(path, where + "no focal length (fl_x or camera_angle_x)"));

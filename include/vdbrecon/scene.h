@@ -115,9 +115,11 @@ std::vector<Vec3f> read_kitti_scan(const std::string& path);
 
 /// Reads a scene: a transforms.json file, or a folder of one of the layouts, detected by the
 /// files present: transforms.json, TUM RGB-D (depth.txt), 7-Scenes / 3DMatch, Redwood /
-/// Open3D, ScanNet, Replica / NICE-SLAM, KITTI LiDAR scans (see src/detail/scene_layouts.h); a folder that is none
-/// of them is an error listing what was looked for. The depth files are not opened. Throws
-/// IoError / FormatError / InvalidArgument naming the file.
+/// Open3D, ScanNet, Replica / NICE-SLAM, KITTI LiDAR scans (see src/detail/scene_layouts.h); a
+/// folder that is none of them is an error listing what was looked for. The depth files are not
+/// opened, except the first of a transforms.json that gives a field of view and no image size
+/// (NeRF's synthetic scenes), for its size. Throws IoError / FormatError / InvalidArgument
+/// naming the file.
 Scene read_scene(const std::string& path, const SceneOptions& options = {});
 
 }  // namespace vdbrecon

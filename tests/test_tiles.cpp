@@ -881,7 +881,8 @@ TEST_CASE("job directory (--job-dir): a tiled run killed at any moment resumes t
                                         "-q", "--job-dir", job2};
     int kills = 0, code = -1;
     for (int attempt = 0; attempt < 60 && code != 0; ++attempt) {
-        code = run_killed_after(args, after(rng));
+        // Later attempts wait longer, so that a slow machine still gets past the preparation.
+        code = run_killed_after(args, after(rng) * (1.0 + 0.1 * attempt));
         kills += code == -1;
     }
     INFO(kills << " kills");

@@ -186,6 +186,9 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
     // binary records whole; LZF expands a byte into at most ~88 (a 3-byte reference copies 264);
     // an ASCII value takes two bytes at least (a digit and a separator).
     const std::size_t available = content.size() - pos;
+    if (data != "binary" && data != "binary_compressed" && data != "ascii") {
+        throw fail("unknown PCD DATA '" + printable(data) + "' (ascii, binary, binary_compressed)");
+    }
     if (data == "binary" && available < points * record) throw fail("truncated PCD binary data");
     if (data == "binary_compressed" && points * record / 100 > available) {
         throw fail("PCD compressed data: " + std::to_string(points) +
@@ -208,9 +211,7 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
         // binary_compressed: every field's values for all points, one field after another.
         return unpacked.data() + f.offset * points + i * std::size_t(f.size) * std::size_t(f.count);
     };
-    if (data == "binary") {
-        if (available < points * record) throw fail("truncated PCD binary data");
-    } else if (data == "binary_compressed") {
+    if (data == "binary_compressed") {
         std::uint32_t packed = 0, size = 0;
         if (available < 8) throw fail("truncated PCD compressed data");
         std::memcpy(&packed, bytes, 4);
@@ -250,8 +251,6 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
             }
         }
         return out;
-    } else {
-        throw fail("unknown PCD DATA '" + printable(data) + "' (ascii, binary, binary_compressed)");
     }
     for (std::size_t i = 0; i < points; ++i) {
         out.raw.xyz[3 * i] = read_value(value(i, *fx), *fx);

@@ -60,6 +60,15 @@ PipelineOptions fusion_options(double voxel) {
     return o;
 }
 
+/// `vdbrecon fuse SCENE -o MESH --voxel VOXEL OPTIONS` (the voxel with every digit).
+CliRun run_fuse(const std::string& scene, const std::string& mesh, double voxel,
+                const std::string& options = "") {
+    std::ostringstream args;
+    args.precision(17);
+    args << "fuse '" << scene << "' -o '" << mesh << "' --voxel " << voxel << " " << options;
+    return run_cli(args.str());
+}
+
 EvalResult compare(const Mesh& recon, const Mesh& ref, double tau) {
     EvalOptions e;
     e.taus = {tau};
@@ -268,10 +277,7 @@ TEST_CASE("vdbrecon fuse detects the RGB-D dataset layouts of a folder", "[fusio
     for (const auto& c : cases) {
         TempDir dir, out;
         write_layout_scene(c.layout, dir.path(), v.depths, v.K, v.poses);
-        std::ostringstream args;
-        args.precision(17);
-        args << "fuse '" << dir.path() << "' -o '" << out.file("m.ply") << "' --voxel " << voxel;
-        const CliRun r = run_cli(args.str());
+        const CliRun r = run_fuse(dir.path(), out.file("m.ply"), voxel);
         INFO(c.layout << ": " << r.err);
         REQUIRE(r.code == 0);
         CHECK(r.err.find(std::string("(") + c.logged + ")") != std::string::npos);
@@ -617,11 +623,7 @@ TEST_CASE("fuse: an organized PCD's rgb becomes the mesh's colours", "[fusion][p
     TempDir dir;
     write_bytes(dir.file("frame.pcd"), pcd);
     const double voxel = diag / 60.0;
-    std::ostringstream args;
-    args.precision(17);
-    args << "fuse '" << dir.file("frame.pcd") << "' -o '" << dir.file("m.ply") << "' --voxel " << voxel
-         << " -q --no-vdb";
-    const CliRun r = run_cli(args.str());
+    const CliRun r = run_fuse(dir.file("frame.pcd"), dir.file("m.ply"), voxel, "-q --no-vdb");
     INFO(r.err);
     REQUIRE(r.code == 0);
     const Mesh m = read_mesh(dir.file("m.ply"));
@@ -636,7 +638,7 @@ TEST_CASE("fuse: an organized PCD's rgb becomes the mesh's colours", "[fusion][p
     const double mean = sum / double(m.vertices.size());
     INFO("mean colour error " << mean);
     CHECK(mean < 0.01);
-    const CliRun g = run_cli(args.str() + " --no-color");
+    const CliRun g = run_fuse(dir.file("frame.pcd"), dir.file("m.ply"), voxel, "-q --no-vdb --no-color");
     REQUIRE(g.code == 0);
     CHECK(read_mesh(dir.file("m.ply")).colors.empty());
 }
@@ -968,11 +970,8 @@ TEST_CASE("vdbrecon fuse --fusion tsdf: frames read in parallel, the library's v
     std::string bytes[2];
     for (int threads : {1, 2}) {
         const std::string mesh = out.file("t" + std::to_string(threads) + ".ply");
-        std::ostringstream args;
-        args.precision(17);
-        args << "fuse '" << scene << "' -o '" << mesh << "' --voxel " << voxel
-             << " -q --no-vdb --fusion tsdf --threads " << threads;
-        const CliRun r = run_cli(args.str());
+        const CliRun r =
+            run_fuse(scene, mesh, voxel, "-q --no-vdb --fusion tsdf --threads " + std::to_string(threads));
         INFO(r.err);
         REQUIRE(r.code == 0);
         bytes[threads - 1] = read_bytes(mesh);
@@ -1336,11 +1335,8 @@ TEST_CASE("vdbrecon fuse: a volume over --max-memory stops the run before the ot
     const std::string scene = write_transforms_scene(scene_dir.path(), v.depths, v.K, v.poses, "exr");
     for (const char* rule : {"splat", "tsdf"}) {
         CAPTURE(rule);
-        std::ostringstream args;
-        args.precision(17);
-        args << "fuse '" << scene << "' -o '" << out.file("m.ply") << "' --voxel " << voxel
-             << " --fusion " << rule << " --max-memory 1M";
-        const CliRun r = run_cli(args.str());
+        const CliRun r = run_fuse(scene, out.file("m.ply"), voxel,
+                                  std::string("--fusion ") + rule + " --max-memory 1M");
         INFO(r.err);
         CHECK(r.code != 0);
         CHECK(r.err.find("over --max-memory 1 MB") != std::string::npos);
@@ -1354,7 +1350,7 @@ TEST_CASE("vdbrecon fuse: a volume over --max-memory stops the run before the ot
 TEST_CASE("transforms.json with a field of view and no image size (NeRF synthetic)", "[fusion][scene]") {
     // Blender's NeRF-synthetic scenes give camera_angle_x and no w, h or fl_x: the focal
     // length comes from the first image's width. The same frames with fl_x, cx, w, h fuse to
-    // the same bytes.
+    // the same mesh.
     const Shape shape = make_shape("sphere");
     const double voxel = bounding_box(shape.mesh.vertices).diagonal() / 60.0;
     const Views v = views_of(shape.mesh, 6, 96, 72);
@@ -1378,11 +1374,7 @@ TEST_CASE("transforms.json with a field of view and no image size (NeRF syntheti
     CHECK(s.frames[5].intrinsics.fy == Approx(v.K.fy).epsilon(1e-12));
     Mesh mesh[2];
     for (int k = 0; k < 2; ++k) {
-        std::ostringstream args;
-        args.precision(17);
-        args << "fuse '" << (k ? fov : scene) << "' -o '" << out.file("m.ply") << "' --voxel " << voxel
-             << " -q --no-vdb";
-        const CliRun r = run_cli(args.str());
+        const CliRun r = run_fuse(k ? fov : scene, out.file("m.ply"), voxel, "-q --no-vdb");
         INFO(r.err);
         REQUIRE(r.code == 0);
         mesh[k] = read_mesh(out.file("m.ply"));

@@ -4,13 +4,16 @@
 // holds about kPerCell points on average. The points are sorted by the Morton code of their
 // cell (ties in input order), so that the points of any cell of any coarser level (a prefix of
 // the code) are one contiguous run, and kept in that order as separate x, y, z arrays; the runs
-// of the level-L cells are listed once (cell code and first point).
+// of the level-L cells are listed once (cell code and first point), and found by a hash table
+// of their codes.
 //
 // Queries go cell by cell: the candidates of all queries in a cell are the points of its 3x3x3
 // block of cells, gathered once into contiguous arrays; each query measures them all (an AVX2
-// loop where the CPU has one, else one the compiler vectorises) and keeps its k smallest,
-// ordered by (distance, point index) so that the answer does not depend on the gathering
-// order. The answer is exact when the k-th distance is
+// loop where the CPU has one, else one the compiler vectorises), keeps those within a bound
+// from the previous query's answer, and inserts them into its list of the k smallest, ordered
+// by (distance, point index) so that the answer does not depend on the gathering order (with
+// AVX2, a list of up to 16 lives in registers and takes a key without a branch on its place).
+// The answer is exact when the k-th distance is
 // smaller than the distance from the query to the outside of the block, which no point outside
 // the block can beat; otherwise (sparse regions, stray points, queries outside the cube) the
 // query is repeated on the block of its cell at the next coarser level, down to level 0, where
@@ -90,28 +93,102 @@ std::uint64_t pair_key(float d, int id) {
     return std::uint64_t(bits) << 32 | std::uint32_t(id);
 }
 
-/// The k smallest pair keys seen so far, ascending; a fixed-size insertion list.
+/// Marks an empty place of Best: above every key of a distance (the float bits of a NaN), and
+/// positive as a signed integer, as the vector comparison needs.
+constexpr std::uint64_t kNoKey = 0x7fffffffffffffffULL;
+
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+/// Best::offer_all for lists of 4 R keys (R <= 4, so k <= 16, the sizes the pipeline asks for),
+/// held in registers. A candidate below the k-th kept key enters without a branch on its
+/// place: every place takes its own key, the new one or its left neighbour's, as Best::offer
+/// does. `last` = k - 1 is the place of the k-th key. The same lists as the scalar path.
+template <int R>
+__attribute__((target("avx2"))) void offer_avx2(int last, std::uint64_t* keys, const float* d,
+                                                const int* ids, const std::uint32_t* keep,
+                                                std::size_t kept, int self) {
+    __m256i a[R];
+    for (int r = 0; r < R; ++r) {
+        a[r] = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(keys + 4 * r));
+    }
+    // The k-th key is read back from its register, not from memory, which would wait for the
+    // store of the whole register.
+    const int l = last % 4;
+    const __m256i pick = _mm256_setr_epi32(2 * l, 2 * l + 1, 0, 0, 0, 0, 0, 0);
+    std::uint64_t limit = keys[last];
+    for (std::size_t i = 0; i < kept; ++i) {
+        const std::uint32_t j = keep[i];
+        const std::uint64_t key = pair_key(d[j], ids[j]);
+        if (key >= limit || ids[j] == self) continue;
+        const __m256i x = _mm256_set1_epi64x(std::int64_t(key));
+        __m256i carry = x, carry_gt = _mm256_setzero_si256();
+        for (int r = 0; r < R; ++r) {
+            const __m256i gt = _mm256_cmpgt_epi64(a[r], x);
+            // Each place's left neighbour, [carry, a0, a1, a2], and whether it is above the key.
+            const __m256i left =
+                _mm256_blend_epi32(_mm256_permute4x64_epi64(a[r], 0x90), carry, 0x03);
+            const __m256i left_gt =
+                _mm256_blend_epi32(_mm256_permute4x64_epi64(gt, 0x90), carry_gt, 0x03);
+            carry = _mm256_permute4x64_epi64(a[r], 0xff);
+            carry_gt = _mm256_permute4x64_epi64(gt, 0xff);
+            a[r] = _mm256_blendv_epi8(a[r], _mm256_blendv_epi8(x, left, left_gt), gt);
+        }
+        limit = std::uint64_t(
+            _mm_cvtsi128_si64(_mm256_castsi256_si128(_mm256_permutevar8x32_epi32(a[R - 1], pick))));
+    }
+    for (int r = 0; r < R; ++r) {
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(keys + 4 * r), a[r]);
+    }
+}
+#endif
+
+/// The k smallest pair keys seen so far, ascending, in a list whose empty places hold kNoKey
+/// (k rounded up to a multiple of 4 places; those past the k-th are never read).
 class Best {
 public:
-    explicit Best(int k) : k_(k), key_(std::size_t(k)) {}
-    void clear() { n_ = 0; }
-    bool full() const { return n_ == k_; }
+    explicit Best(int k)
+        : k_(k), key_(std::size_t((k + 3) / 4 * 4)), vector_(detail::vector_loops()) {
+        clear();
+    }
+    void clear() { std::fill(key_.begin(), key_.end(), kNoKey); }
+    bool full() const { return key_[std::size_t(k_ - 1)] != kNoKey; }
     /// Keys from this one up cannot enter: the last kept key once full, else none.
-    std::uint64_t limit() const {
-        return full() && n_ > 0 ? key_[std::size_t(n_ - 1)] : ~std::uint64_t(0);
-    }
+    std::uint64_t limit() const { return full() ? key_[std::size_t(k_ - 1)] : ~std::uint64_t(0); }
     /// The k-th squared distance once full, else infinity.
-    float worst() const {
-        return full() && n_ > 0 ? dist(n_ - 1) : std::numeric_limits<float>::infinity();
-    }
+    float worst() const { return full() ? dist(k_ - 1) : std::numeric_limits<float>::infinity(); }
+    /// Inserts `key` in order; the largest key falls off the end.
     void offer(std::uint64_t key) {
         std::uint64_t* k = key_.data();
-        int j = n_ < k_ ? n_++ : n_ - 1;
+        int j = int(key_.size()) - 1;
         while (j > 0 && k[j - 1] > key) {
             k[j] = k[j - 1];
             --j;
         }
         k[j] = key;
+    }
+    /// Offers the candidates keep[0 .. kept) of a block (squared distances d, indices ids),
+    /// except the point `self`.
+    void offer_all(const float* d, const int* ids, const std::uint32_t* keep, std::size_t kept,
+                   int self) {
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+        if (vector_) {
+            std::uint64_t* k = key_.data();
+            switch (key_.size()) {
+            case 4: return offer_avx2<1>(k_ - 1, k, d, ids, keep, kept, self);
+            case 8: return offer_avx2<2>(k_ - 1, k, d, ids, keep, kept, self);
+            case 12: return offer_avx2<3>(k_ - 1, k, d, ids, keep, kept, self);
+            case 16: return offer_avx2<4>(k_ - 1, k, d, ids, keep, kept, self);
+            default: break;
+            }
+        }
+#endif
+        std::uint64_t lim = limit();
+        for (std::size_t i = 0; i < kept; ++i) {
+            const std::uint32_t j = keep[i];
+            const std::uint64_t key = pair_key(d[j], ids[j]);
+            if (key >= lim || ids[j] == self) continue;
+            offer(key);
+            lim = limit();
+        }
     }
     float dist(int j) const {
         const std::uint32_t bits = std::uint32_t(key_[std::size_t(j)] >> 32);
@@ -122,8 +199,9 @@ public:
     int id(int j) const { return int(std::uint32_t(key_[std::size_t(j)])); }
 
 private:
-    int k_, n_ = 0;
+    int k_;
     std::vector<std::uint64_t> key_;
+    bool vector_;  ///< offer_all() by AVX2
 };
 
 /// One answer into its row; dist may be null (distances not kept).
@@ -197,6 +275,43 @@ struct KnnIndex::Impl {
     std::vector<int> id;                 ///< their indices in the input
     std::vector<std::uint64_t> cell_key;   ///< occupied level-`level` cells, ascending prefixes
     std::vector<std::uint32_t> cell_first;  ///< first point of each (size = cells + 1)
+    /// Open-addressing hash table of the occupied cells (slot -> cell number, or kNoCell), so
+    /// that a block's 27 cells are found without searching cell_key.
+    std::vector<std::uint32_t> cell_slot;
+    int slot_bits = 0;
+    static constexpr std::uint32_t kNoCell = ~std::uint32_t(0);
+
+    std::size_t slot_of(std::uint64_t key) const {  // Fibonacci hashing
+        return std::size_t((key * 0x9E3779B97F4A7C15ULL) >> (64 - slot_bits));
+    }
+
+    /// Fills cell_slot from cell_key, at most half full.
+    void index_cells() {
+        slot_bits = 1;
+        while ((std::size_t(1) << slot_bits) < 2 * cell_key.size()) ++slot_bits;
+        cell_slot.assign(std::size_t(1) << slot_bits, kNoCell);
+        const std::size_t mask = cell_slot.size() - 1;
+        for (std::size_t g = 0; g < cell_key.size(); ++g) {
+            std::size_t s = slot_of(cell_key[g]);
+            while (cell_slot[s] != kNoCell) s = (s + 1) & mask;
+            cell_slot[s] = std::uint32_t(g);
+        }
+    }
+
+    /// Points [begin, end) of the level-`level` cell `key` (empty if it is not occupied).
+    void finest_range(std::uint64_t key, std::uint32_t& begin, std::uint32_t& end) const {
+        const std::size_t mask = cell_slot.size() - 1;
+        for (std::size_t s = slot_of(key);; s = (s + 1) & mask) {
+            const std::uint32_t g = cell_slot[s];
+            if (g == kNoCell) break;
+            if (cell_key[g] == key) {
+                begin = cell_first[g];
+                end = cell_first[g + 1];
+                return;
+            }
+        }
+        begin = end = 0;
+    }
 
     /// Quantised finest-level coordinate of a world coordinate on axis a (clamped to the grid).
     std::uint32_t quantise(double v, int a) const {
@@ -255,8 +370,13 @@ struct KnnIndex::Impl {
             }
             if (!inside) continue;
             std::uint32_t begin, end;
-            cell_range(l, morton(std::uint32_t(cc[0]), std::uint32_t(cc[1]), std::uint32_t(cc[2])),
-                       begin, end);
+            const std::uint64_t key =
+                morton(std::uint32_t(cc[0]), std::uint32_t(cc[1]), std::uint32_t(cc[2]));
+            if (l == level) {
+                finest_range(key, begin, end);
+            } else {
+                cell_range(l, key, begin, end);
+            }
             b.x.insert(b.x.end(), x.begin() + begin, x.begin() + end);
             b.y.insert(b.y.end(), y.begin() + begin, y.begin() + end);
             b.z.insert(b.z.end(), z.begin() + begin, z.begin() + end);
@@ -320,15 +440,7 @@ struct KnnIndex::Impl {
         const float* d = b.d.data();
         const std::uint32_t* keep = b.keep.data();
         best.clear();
-        const int* ids = b.id.data();
-        std::uint64_t limit = best.limit();
-        for (std::size_t i = 0; i < kept; ++i) {
-            const std::uint32_t j = keep[i];
-            const std::uint64_t key = pair_key(d[j], ids[j]);
-            if (key >= limit || ids[j] == self) continue;
-            best.offer(key);
-            limit = best.limit();
-        }
+        best.offer_all(d, b.id.data(), keep, kept, self);
     }
 
     /// Whether `best` holds the exact answer for a query at q with the block of level-l cell c.
@@ -481,6 +593,7 @@ KnnIndex::KnnIndex(Span<Vec3f> points, const KnnOptions& options) : impl_(std::m
         }
     }
     m.cell_first.push_back(std::uint32_t(n));
+    m.index_cells();
 }
 
 KnnIndex::~KnnIndex() = default;
@@ -497,14 +610,15 @@ void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
                       [&](const tbb::blocked_range<std::size_t>& r) {
         Block block, alone;
         Best best(k);
+        // The previous query's k-th distance plus the distance between the two bounds this
+        // one's (triangle inequality; the margin covers float rounding), also from the last
+        // query of the cell before: only speed depends on the bound, never the answer.
+        const float* prev = nullptr;
+        float prev_worst = 0.0f;
         for (std::size_t g = r.begin(); g < r.end(); ++g) {
             const std::uint32_t c[3] = {compact(keys[g] >> 2), compact(keys[g] >> 1),
                                         compact(keys[g])};
             gather(level, c, block);
-            // The previous query's k-th distance plus the distance between the two bounds this
-            // one's (triangle inequality; the margin covers float rounding).
-            const float* prev = nullptr;
-            float prev_worst = 0.0f;
             for (std::uint32_t j = first[g]; j < first[g + 1]; ++j) {
                 const std::size_t i = std::size_t(order[j]);
                 const float* p = q[i].data();

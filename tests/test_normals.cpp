@@ -66,7 +66,11 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
     for (int i = 0; i < 50; ++i) pts.push_back(pts[std::size_t(i) * 7]);
     pts.push_back({1000.0f, -2000.0f, 50.0f});
     pts.push_back({-3000.0f, 0.0f, 0.0f});
-    const int k = 12;
+    std::vector<Vec3f> queries = {{0.0f, 0.0f, 0.0f}, {50.0f, 50.0f, 50.0f}, {-1e4f, 3.0f, 0.0f},
+                                  {0.05f, -0.02f, 0.3f}};
+  // Every list length of the AVX2 path's registers (4, 8, 12, 16 keys) and one beyond them.
+  for (const int k : {1, 6, 12, 16, 23}) {
+    INFO("k " << k);
     // Brute force: (squared distance, index) ascending, the point itself excluded.
     auto brute = [&](const Vec3f& q, long self) {
         std::vector<std::pair<float, int>> all;
@@ -79,8 +83,6 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
         all.resize(std::size_t(k));
         return all;
     };
-    std::vector<Vec3f> queries = {{0.0f, 0.0f, 0.0f}, {50.0f, 50.0f, 50.0f}, {-1e4f, 3.0f, 0.0f},
-                                  {0.05f, -0.02f, 0.3f}};
   for (KnnBackend b : {KnnBackend::grid, KnnBackend::flann}) {
     INFO("backend " << int(b));
     KnnResult one, two;
@@ -115,6 +117,7 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
             REQUIRE(q.sq_dists(i)[j] == expect[std::size_t(j)].first);
         }
     }
+  }
   }
 }
 

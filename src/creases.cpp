@@ -167,23 +167,38 @@ class SampleCells {
 
     SampleCells(const Kernels& kernels, std::size_t n, double cos_group)
         : index_(std::make_shared<openvdb::Int32Tree>(-1)) {
-        std::vector<std::pair<openvdb::Coord, std::uint32_t>> keyed;
-        keyed.reserve(n);
+        // Each sample's cell in parallel (a kernel costs an evaluation), then those with a
+        // support, in order.
+        std::vector<std::pair<openvdb::Coord, std::uint32_t>> keyed(n);
+        std::vector<char> used(n);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                const Kernel k = kernels(i, false);
+                used[i] = k.r > 0.0f;
+                keyed[i] = {cell({k.cx, k.cy, k.cz}), std::uint32_t(i)};
+            }
+        });
+        std::size_t m = 0;
         for (std::size_t i = 0; i < n; ++i) {
-            const Kernel k = kernels(i, false);
-            if (!(k.r > 0.0f)) continue;
-            keyed.push_back({cell({k.cx, k.cy, k.cz}), std::uint32_t(i)});
+            if (used[i]) keyed[m++] = keyed[i];
         }
+        keyed.resize(m);
         // (cell, index) pairs are distinct, so the sorted order is unique.
         tbb::parallel_sort(keyed.begin(), keyed.end(), [](const auto& a, const auto& b) {
             return a.first < b.first || (a.first == b.first && a.second < b.second);
         });
         order_.resize(keyed.size());
         where_.resize(keyed.size());
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, keyed.size(), 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t j = r.begin(); j < r.end(); ++j) {
+                order_[j] = keyed[j].second;
+                const Kernel k = kernels(order_[j], false);
+                where_[j] = {float(k.cx), float(k.cy), float(k.cz), k.r};
+            }
+        });
         for (std::size_t j = 0; j < keyed.size(); ++j) {
-            order_[j] = keyed[j].second;
-            const Kernel k = kernels(order_[j], false);
-            where_[j] = {float(k.cx), float(k.cy), float(k.cz), k.r};
             if (j == 0 || keyed[j].first != keyed[j - 1].first) {
                 index_->setValueOn(keyed[j].first, int(cells_.size()));
                 cells_.push_back({std::uint32_t(j), std::uint32_t(j)});
@@ -779,7 +794,10 @@ CreaseReach crease_reach(const Kernels& kernels, std::size_t points) {
     CreaseReach reach;
     if (points == 0) return reach;
     std::vector<float> radius(points);
-    for (std::size_t i = 0; i < points; ++i) radius[i] = kernels(i, false).r;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, points, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) radius[i] = kernels(i, false).r;
+    });
     reach.r_max = *std::max_element(radius.begin(), radius.end());
     // The crease test looks as far as most kernels reach (95 %): a crease only the widest
     // kernels see from a leaf leaves the splat's value there.

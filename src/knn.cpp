@@ -27,9 +27,11 @@
 // parallel and shares each cell's candidates among its queries.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 #include <tbb/parallel_sort.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -495,15 +497,28 @@ KnnIndex::KnnIndex(Span<Vec3f> points, const KnnOptions& options) : impl_(std::m
     }
     m.points = points;
     m.n = n;
-    double lo[3] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
-                    std::numeric_limits<double>::infinity()};
-    double hi[3] = {-lo[0], -lo[1], -lo[2]};
-    for (const Vec3f& p : points) {
-        for (int a = 0; a < 3; ++a) {
-            lo[a] = std::min(lo[a], double(p[a]));
-            hi[a] = std::max(hi[a], double(p[a]));
-        }
-    }
+    // The bounding box (min and max do not depend on the order, so neither on the threads).
+    using Box = std::array<float, 6>;
+    const float inf = std::numeric_limits<float>::infinity();
+    const Box box = tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, n, 16384), Box{inf, inf, inf, -inf, -inf, -inf},
+        [&](const tbb::blocked_range<std::size_t>& r, Box b) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                for (int a = 0; a < 3; ++a) {
+                    b[std::size_t(a)] = std::min(b[std::size_t(a)], points[i][a]);
+                    b[std::size_t(a) + 3] = std::max(b[std::size_t(a) + 3], points[i][a]);
+                }
+            }
+            return b;
+        },
+        [](Box a, const Box& b) {
+            for (std::size_t j = 0; j < 3; ++j) {
+                a[j] = std::min(a[j], b[j]);
+                a[j + 3] = std::max(a[j + 3], b[j + 3]);
+            }
+            return a;
+        });
+    const double lo[3] = {box[0], box[1], box[2]}, hi[3] = {box[3], box[4], box[5]};
     double extent = 0.0;
     for (int a = 0; a < 3; ++a) {
         if (!std::isfinite(lo[a]) || !std::isfinite(hi[a])) {
@@ -528,11 +543,13 @@ KnnIndex::KnnIndex(Span<Vec3f> points, const KnnOptions& options) : impl_(std::m
     // depends on this choice, never the answers.
     {
         const std::size_t stride = n > 65536 ? 4 : 1;
-        std::vector<std::uint64_t> codes;
-        codes.reserve(n / stride + 1);
-        for (std::size_t i = 0; i < n; i += stride) {
-            codes.push_back(m.code_of(points[i].data(), kBits));
-        }
+        std::vector<std::uint64_t> codes((n + stride - 1) / stride);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, codes.size(), 8192),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t j = r.begin(); j < r.end(); ++j) {
+                codes[j] = m.code_of(points[j * stride].data(), kBits);
+            }
+        });
         tbb::parallel_sort(codes.begin(), codes.end());
         std::size_t first_diff[kBits + 1] = {};
         for (std::size_t i = 1; i < codes.size(); ++i) {

@@ -452,29 +452,33 @@ MeshResult finish_surface(ClassifiedSurface&& surface, double voxel, const Vec3d
     mesh.origin = origin;
     std::vector<Vec3f>& vertices = mesh.vertices.edit();
     vertices.resize(kept_points);  // sized first: growth by doubling would raise the peak
-    for (std::size_t i = 0; i < npoints; ++i) {
-        if (remap[i] < 0) continue;
+    // Each kept point to its place (remap is one to one: any thread order writes the same).
+    auto scatter = [&](auto&& put) {
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 16384),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                if (remap[i] >= 0) put(std::size_t(remap[i]), i);
+            }
+        });
+    };
+    scatter([&](std::size_t to, std::size_t i) {
         const openvdb::Vec3f& p = surface.points[i];
-        vertices[std::size_t(remap[i])] = {float(p[0] * voxel), float(p[1] * voxel),
-                                           float(p[2] * voxel)};
-    }
+        vertices[to] = {float(p[0] * voxel), float(p[1] * voxel), float(p[2] * voxel)};
+    });
     mesh.faces = std::move(tris);
     release(surface.points);  // not needed from here on: less to hold while the normals are made
     if (!surface.colors.empty() && !mesh.vertices.empty()) {
         std::vector<Vec3f>& colors = mesh.colors.edit();
         colors.resize(mesh.vertices.size());
-        for (std::size_t i = 0; i < npoints; ++i) {
-            if (remap[i] < 0) continue;
+        scatter([&](std::size_t to, std::size_t i) {
             const openvdb::Vec3f& c = surface.colors[i];
-            colors[std::size_t(remap[i])] = {c[0], c[1], c[2]};
-        }
+            colors[to] = {c[0], c[1], c[2]};
+        });
     }
     release(surface.colors);
     if (!surface.weight.empty() && !mesh.vertices.empty()) {
         result.support.resize(mesh.vertices.size());
-        for (std::size_t i = 0; i < npoints; ++i) {
-            if (remap[i] >= 0) result.support[std::size_t(remap[i])] = surface.weight[i];
-        }
+        scatter([&](std::size_t to, std::size_t i) { result.support[to] = surface.weight[i]; });
     }
     release(surface.weight);
     release(surface.status);

@@ -1,6 +1,8 @@
 // Mesh connectivity helpers (see detail/mesh_graph.h).
 #include "detail/mesh_graph.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
 
 #include <algorithm>
@@ -126,20 +128,34 @@ std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh, std::size_
                                                     std::size_t last) {
     std::vector<std::array<double, 3>> sum(last - first, {0.0, 0.0, 0.0});
     const auto in = [&](std::int32_t i) { return std::size_t(i) >= first && std::size_t(i) < last; };
-    for (const Triangle& t : mesh.faces) {
-        if (!in(t[0]) && !in(t[1]) && !in(t[2])) continue;
-        const Vec3f &pa = mesh.vertices[std::size_t(t[0])], &pb = mesh.vertices[std::size_t(t[1])],
-                    &pc = mesh.vertices[std::size_t(t[2])];
-        double u[3], v[3];
-        for (int k = 0; k < 3; ++k) {
-            u[k] = double(pb[k]) - double(pa[k]);
-            v[k] = double(pc[k]) - double(pa[k]);
-        }
-        const double n[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+    // The faces' normals in parallel, a chunk at a time; then added to their vertices in face
+    // order, so that every sum is the same bits for any thread count.
+    const Span<Triangle> faces = mesh.faces;
+    constexpr std::size_t kChunk = std::size_t(1) << 16;
+    std::vector<std::array<double, 3>> n(std::min(faces.size(), kChunk));
+    for (std::size_t c0 = 0; c0 < faces.size(); c0 += kChunk) {
+        const std::size_t c1 = std::min(faces.size(), c0 + kChunk);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(c0, c1, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+            for (std::size_t f = r.begin(); f < r.end(); ++f) {
+                const Triangle& t = faces[f];
+                const Vec3f &pa = mesh.vertices[std::size_t(t[0])],
+                            &pb = mesh.vertices[std::size_t(t[1])],
+                            &pc = mesh.vertices[std::size_t(t[2])];
+                double u[3], v[3];
+                for (int k = 0; k < 3; ++k) {
+                    u[k] = double(pb[k]) - double(pa[k]);
+                    v[k] = double(pc[k]) - double(pa[k]);
+                }
+                n[f - c0] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
                              u[0] * v[1] - u[1] * v[0]};
-        for (std::int32_t i : t) {
-            if (!in(i)) continue;
-            for (int k = 0; k < 3; ++k) sum[std::size_t(i) - first][std::size_t(k)] += n[k];
+            }
+        });
+        for (std::size_t f = c0; f < c1; ++f) {
+            for (std::int32_t i : faces[f]) {
+                if (!in(i)) continue;
+                for (std::size_t k = 0; k < 3; ++k) sum[std::size_t(i) - first][k] += n[f - c0][k];
+            }
         }
     }
     return sum;

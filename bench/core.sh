@@ -12,13 +12,13 @@ machine_line
 echo
 echo "Wall time and stages: best of $REPEAT runs (seconds); the run writes the mesh and the .vdb."
 echo
-echo "| run | threads | wall s | peak RSS MB | read | outliers | normals | splat | mesh | clean | write | vdb (during mesh) | faces | comps | F@0.5mm | F@1mm | Chamfer-L1 um | acc um | comp um |"
+echo "| run | threads | wall s | peak RSS MB | read | outliers | normals | splat | mesh | clean | write | vdb (in the background) | faces | comps | F@0.5mm | F@1mm | Chamfer-L1 um | acc um | comp um |"
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 row() {  # label threads args...
   local label=$1 threads=$2
   run "$@"
   /usr/bin/python3 - "$OUT/$label.json" "$label" "$threads" "$WALL" "$RSS" \
-    "$(stage_times "$OUT/$label.$threads.log" read outliers normals splat mesh clean write "vdb (during mesh)")" <<'PY'
+    "$(stage_times "$OUT/$label.$threads.log" read outliers normals splat mesh clean write "vdb (in the background)")" <<'PY'
 import json, sys
 d = json.load(open(sys.argv[1])); f = d["fscore"]
 print("| %s | %s | %s | %s | %s | %d | %d | %.4f | %.4f | %.1f | %.1f | %.1f |" % (

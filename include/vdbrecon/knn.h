@@ -47,9 +47,9 @@ struct KnnResult {
 };
 
 /// The search behind KnnIndex. FLANN is the library the design first named; bench/knn.sh
-/// measures it 1.3-6.8x slower than the grid on every cloud tried (k = 16, 2 threads), exact
-/// copies included (the room scan, half its points doubled: 0.115 vs 0.225 s; 20 copies of
-/// every point: 0.053 vs 0.070 s; a 20M-point terrain: 10.3 vs 69.8 s), so the grid is the
+/// measures it 1.1-5.6x slower than the grid on every cloud tried (k = 16, 2 threads), exact
+/// copies included (the room scan, half its points doubled: 0.117 vs 0.247 s; 20 copies of
+/// every point: 0.066 vs 0.074 s; a 20M-point terrain: 12.0 vs 66.9 s), so the grid is the
 /// default everywhere.
 enum class KnnBackend {
     grid,   ///< our exact search on a Morton-ordered cell grid (knn.cpp)

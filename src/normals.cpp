@@ -245,27 +245,64 @@ struct Neighbourhood {
         }
         return score;
     }
-    /// The plane through the point and two of its 10 nearest neighbours that scores highest
-    /// (inlier count, or MSAC), by a deterministic RANSAC over all those pairs.
-    template <typename Score>
-    Eigen::Vector3d best_plane(Score score) const {
-        Eigen::Vector3d best = Eigen::Vector3d::Zero();
-        double top = 0.0;
+    /// The planes through the point and two of its 10 nearest neighbours (not nearly
+    /// collinear), in pair order: the candidates of best_plane. Returns their count (<= 45).
+    int candidate_planes(Eigen::Vector3d (&u)[45]) const {
+        int count = 0;
         const int pairs = std::min(patch.m, 10);
         for (int a = 0; a < pairs; ++a) {
             for (int b = a + 1; b < pairs; ++b) {
-                Eigen::Vector3d u = q[a].cross(q[b]);
-                const double len = u.norm();
+                Eigen::Vector3d v = q[a].cross(q[b]);
+                const double len = v.norm();
                 if (!(len > 0.3 * q[a].norm() * q[b].norm())) continue;  // nearly collinear
-                u /= len;
-                const double s = score(u);
-                if (s > top) {
-                    top = s;
-                    best = u;
-                }
+                u[count++] = v / len;
+            }
+        }
+        return count;
+    }
+    /// The candidate scoring highest (the first of equals; zero when none scores above 0).
+    static Eigen::Vector3d top_plane(const Eigen::Vector3d* u, const double* score, int count) {
+        Eigen::Vector3d best = Eigen::Vector3d::Zero();
+        double top = 0.0;
+        for (int c = 0; c < count; ++c) {
+            if (score[c] > top) {
+                top = score[c];
+                best = u[c];
             }
         }
         return best;
+    }
+    /// The plane through the point and two of its 10 nearest neighbours that scores highest
+    /// (inlier count), by a deterministic RANSAC over all those pairs.
+    template <typename Score>
+    Eigen::Vector3d best_plane(Score score) const {
+        Eigen::Vector3d u[45];
+        double s[45];
+        const int count = candidate_planes(u);
+        for (int c = 0; c < count; ++c) s[c] = score(u[c]);
+        return top_plane(u, s, count);
+    }
+    /// best_plane by the MSAC score within `band`: msac() of every candidate at once, a
+    /// candidate per vector lane (the compiler's SSE2 loop over them), the neighbours in the
+    /// same order and with the same operations as msac(), so the same scores to the bit.
+    Eigen::Vector3d best_msac_plane(double band) const {
+        Eigen::Vector3d u[45];
+        const int count = candidate_planes(u);
+        double ux[48], uy[48], uz[48], score[48] = {};
+        for (int c = 0; c < count; ++c) {
+            ux[c] = u[c][0];
+            uy[c] = u[c][1];
+            uz[c] = u[c][2];
+        }
+        for (int j = 0; j < patch.m; ++j) {
+            const double qx = q[j][0], qy = q[j][1], qz = q[j][2];
+            for (int c = 0; c < count; ++c) {
+                const double r = (ux[c] * qx + uy[c] * qy + uz[c] * qz) / band;  // as dot()
+                const double t = 1.0 - r * r;
+                score[c] += t > 0.0 ? t : 0.0;
+            }
+        }
+        return top_plane(u, score, count);
     }
 };
 
@@ -333,7 +370,7 @@ bool crisp_face(const Neighbourhood& h, const Eigen::Vector3d& pca, Eigen::Vecto
     const Patch& p = h.patch;
     const double band = p.crisp_band();
     const Eigen::Vector3d u =
-        h.best_plane([&](const Eigen::Vector3d& v) { return h.msac(v, band); });
+        h.best_msac_plane(band);
     if (h.msac(u, band) < h.msac(pca, band)) return false;
     // Its own points: those within the band (points of a neighbouring face near the edge can
     // be within the tolerance), four or more (three at a corner), and a plane to within a
@@ -717,18 +754,24 @@ std::vector<std::pair<std::int32_t, std::int32_t>> coplanar_bridges(
                     }
                 }
             }
-            std::sort(cand.begin(), cand.end());
-            cand.erase(std::unique(cand.begin(), cand.end()), cand.end());
+            // The kBridges nearest distinct candidates, by (distance, index), that are not an
+            // edge already: one pass keeping them in order (a point reached twice is the same
+            // pair twice), not a sort of them all.
+            std::pair<float, std::int32_t> best[kBridges];
             int taken = 0;
-            for (std::size_t c = 0; c < cand.size() && taken < kBridges; ++c) {
-                const std::int32_t j = cand[c].second;
+            for (const auto& c : cand) {
+                if (taken == kBridges && !(c < best[kBridges - 1])) continue;
+                if (std::find(best, best + taken, c) != best + taken) continue;
                 if (std::find(adj.begin() + std::ptrdiff_t(start[i]),
-                              adj.begin() + std::ptrdiff_t(start[i + 1]), j) !=
+                              adj.begin() + std::ptrdiff_t(start[i + 1]), c.second) !=
                     adj.begin() + std::ptrdiff_t(start[i + 1])) {
                     continue;  // an edge already
                 }
-                found[i * kBridges + std::size_t(taken++)] = j;
+                int at = taken < kBridges ? taken++ : kBridges - 1;
+                for (; at > 0 && c < best[at - 1]; --at) best[at] = best[at - 1];
+                best[at] = c;
             }
+            for (int t = 0; t < taken; ++t) found[i * kBridges + std::size_t(t)] = best[t].second;
         }
     });
     std::vector<std::pair<std::int32_t, std::int32_t>> bridges;

@@ -9,8 +9,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${1:-build}/vdbrecon
 OUT=bench/out/speed
-source bench/common.sh
-source bench/harness.sh
+source bench/harness.sh  # and bench/common.sh
 ensure_packages time python3-open3d
 POISSON_REPEAT=${POISSON_REPEAT:-2}
 

@@ -334,8 +334,10 @@ struct KnnIndex::Impl {
         return morton(c[0], c[1], c[2]);
     }
 
-    /// Points [begin, end) of the level-l cell with prefix `prefix` (l <= level).
+    /// Points [begin, end) of the level-l cell with prefix `prefix` (l <= level): at the finest
+    /// level from the hash table, at coarser ones by searching cell_key.
     void cell_range(int l, std::uint64_t prefix, std::uint32_t& begin, std::uint32_t& end) const {
+        if (l == level) return finest_range(prefix, begin, end);
         const int shift = 3 * (level - l);
         const std::uint64_t a = prefix << shift, b = (prefix + 1) << shift;
         const auto first = std::lower_bound(cell_key.begin(), cell_key.end(), a);
@@ -372,13 +374,8 @@ struct KnnIndex::Impl {
             }
             if (!inside) continue;
             std::uint32_t begin, end;
-            const std::uint64_t key =
-                morton(std::uint32_t(cc[0]), std::uint32_t(cc[1]), std::uint32_t(cc[2]));
-            if (l == level) {
-                finest_range(key, begin, end);
-            } else {
-                cell_range(l, key, begin, end);
-            }
+            cell_range(l, morton(std::uint32_t(cc[0]), std::uint32_t(cc[1]), std::uint32_t(cc[2])),
+                       begin, end);
             b.x.insert(b.x.end(), x.begin() + begin, x.begin() + end);
             b.y.insert(b.y.end(), y.begin() + begin, y.begin() + end);
             b.z.insert(b.z.end(), z.begin() + begin, z.begin() + end);

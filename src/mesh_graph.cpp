@@ -139,6 +139,7 @@ std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh, std::size_
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t f = r.begin(); f < r.end(); ++f) {
                 const Triangle& t = faces[f];
+                if (!in(t[0]) && !in(t[1]) && !in(t[2])) continue;  // not added below either
                 const Vec3f &pa = mesh.vertices[std::size_t(t[0])],
                             &pb = mesh.vertices[std::size_t(t[1])],
                             &pc = mesh.vertices[std::size_t(t[2])];

@@ -239,11 +239,13 @@ struct Neighbourhood {
     /// of both faces along an edge.
     double msac(const Eigen::Vector3d& u, double band) const {
         double score = 0.0;
-        for (int j = 0; j < patch.m; ++j) {
-            const double r = u.dot(q[j]) / band;
-            score += std::max(0.0, 1.0 - r * r);
-        }
+        for (int j = 0; j < patch.m; ++j) score += msac_term(u.dot(q[j]), band);
         return score;
+    }
+    /// One neighbour's MSAC score at signed distance `d` from the plane.
+    static double msac_term(double d, double band) {
+        const double r = d / band;
+        return std::max(0.0, 1.0 - r * r);
     }
     /// The planes through the point and two of its 10 nearest neighbours (not nearly
     /// collinear), in pair order: the candidates of best_plane. Returns their count (<= 45).
@@ -297,9 +299,7 @@ struct Neighbourhood {
         for (int j = 0; j < patch.m; ++j) {
             const double qx = q[j][0], qy = q[j][1], qz = q[j][2];
             for (int c = 0; c < count; ++c) {
-                const double r = (ux[c] * qx + uy[c] * qy + uz[c] * qz) / band;  // as dot()
-                const double t = 1.0 - r * r;
-                score[c] += t > 0.0 ? t : 0.0;
+                score[c] += msac_term(ux[c] * qx + uy[c] * qy + uz[c] * qz, band);  // as dot()
             }
         }
         return top_plane(u, score, count);
@@ -369,8 +369,7 @@ bool crisp_face(const Neighbourhood& h, const Eigen::Vector3d& pca, Eigen::Vecto
                 bool* puzzled = nullptr) {
     const Patch& p = h.patch;
     const double band = p.crisp_band();
-    const Eigen::Vector3d u =
-        h.best_msac_plane(band);
+    const Eigen::Vector3d u = h.best_msac_plane(band);
     if (h.msac(u, band) < h.msac(pca, band)) return false;
     // Its own points: those within the band (points of a neighbouring face near the edge can
     // be within the tolerance), four or more (three at a corner), and a plane to within a

@@ -1,51 +1,95 @@
 #!/usr/bin/env bash
-# Range-image fusion benchmark (issue 23): one rendered depth sequence of the bunny's reference
-# mesh (bench/fusion_scene: 30 poses on a sphere, 640x480, Gaussian depth noise of 0.4 voxel,
-# 16-bit PNG, and 8-bit colour images of the mesh painted with bench/paint.py's pattern), fused
-# by `vdbrecon fuse` and by Open3D's ScalableTSDFVolume with RGB8 colour (sdf_trunc 4 voxels,
-# bench/fusion_open3d.py); F-score and Chamfer against the mesh, the vertex colours' error
-# against the pattern, pieces, boundary edges, wall time and peak memory. Prints a markdown
+# Range-image fusion benchmark (issues 23 and 48): `vdbrecon fuse` (splat and --fusion tsdf) and
+# Open3D's ScalableTSDFVolume (sdf_trunc 4 voxels, RGB8 colour where there is colour;
+# bench/fusion_open3d.py) on the same 16-bit PNG files (transforms.json scenes written by
+# bench/fusion_scene), side by side in one run:
+#   bunny   the bunny's reference mesh from 30 poses on a sphere (0.4 m), noise 0.4 voxel,
+#           colour painted with bench/paint.py's pattern, --voxel 1 mm (voxel > pixel footprint);
+#   dragon  the dragon's reference mesh scaled to 1.6 m, 30 poses at 2.6 m, noise 2 mm, colour,
+#           --voxel 5 mm: the voxel about the pixel footprint (3.8 mm), many kernels;
+#   kinect  PCL's real Kinect frame capture0001 (0.9-3.9 m) as 30 frames of a static camera,
+#           --voxel 1 cm;
+#   table   PCL's real textured-stereo frame (colour) as 30 frames, --voxel 1 cm.
+# Best wall time of $REPEAT rounds (the three tools run in turn each round); "x Open3D" is
+# Open3D's best over the tool's best. Quality against the reference mesh where there is one
+# (`vdbrecon eval --tau VOXEL`), the colour error against the painted pattern. Prints a markdown
 # table for bench/RESULTS.md.
-#   bench/fusion.sh [build-dir]   (needs ../shared/data; installs python3-open3d; run scripts/setup.sh)
+#   bench/fusion.sh [build-dir] [scene...]   (needs ../shared/data; installs python3-open3d)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD=${1:-build}
+shift || true
+SCENES=${*:-bunny dragon kinect table}
 OUT=bench/out/fusion
-VOXEL=${VOXEL:-0.001}
 FRAMES=${FRAMES:-30}
-REF=../shared/data/stanford_bunny/bun_zipper_gt.ply
 source bench/harness.sh   # common.sh, ensure_packages
 ensure_packages time python3-open3d
-mkdir -p "$OUT/scene"
-rm -f "$OUT"/scene/*
-"$BUILD/tests/fusion_scene" "$REF" "$OUT/scene" "$FRAMES" 640 480 "$(/usr/bin/python3 -c "print(0.4 * $VOXEL)")" >/dev/null
+
+# scene NAME: writes $OUT/NAME/transforms.json; sets VOXEL and REF (empty: no reference).
+scene() {
+  local dir=$OUT/$1 gen=("$BUILD/tests/fusion_scene")
+  mkdir -p "$dir"
+  rm -f "$dir"/*
+  case $1 in
+    bunny) VOXEL=0.001 REF=$DATA/stanford_bunny/bun_zipper_gt.ply
+      gen+=("$REF" "$dir" --noise 0.0004) ;;
+    dragon) VOXEL=0.005 REF=$dir/reference.ply
+      gen+=("$DATA/stanford_dragon/dragon_vrip_res3_gt.ply" "$dir" --scale 6.12 --noise 0.002) ;;
+    kinect) VOXEL=0.01 REF="" gen+=(--pcd "$DATA/pcl_kinect/capture0001.pcd" "$dir") ;;
+    table) VOXEL=0.01 REF="" gen+=(--pcd "$DATA/pcl_kinect/table_scene_mug_stereo_textured.pcd" "$dir") ;;
+    *) echo "bench/fusion.sh: unknown scene '$1'" >&2; exit 2 ;;
+  esac
+  "${gen[@]}" --frames "$FRAMES" >/dev/null 2>"$dir/scene.log"
+}
+
+# tool_command NAME SCENE_DIR: the command of one tool on the scene (mesh SCENE_DIR/NAME.ply).
+tool_command() {
+  local json=$2/transforms.json
+  case $1 in
+    splat) echo "$BUILD/vdbrecon fuse $json -o $2/splat.ply --voxel $VOXEL --no-vdb" ;;
+    tsdf) echo "$BUILD/vdbrecon fuse $json -o $2/tsdf.ply --voxel $VOXEL --no-vdb --fusion tsdf" ;;
+    open3d) echo "/usr/bin/python3 bench/fusion_open3d.py $json $2/open3d.ply $VOXEL" ;;
+  esac
+}
 
 machine_line
 echo
-echo "Bunny reference mesh rendered from $FRAMES poses (640x480, noise 0.4 voxel), --voxel $VOXEL;"
-echo "best wall time of $REPEAT runs each; quality against the mesh (\`vdbrecon eval --tau $VOXEL\`)."
+echo "$FRAMES frames of 640x480 per scene; best wall time of $REPEAT rounds; quality against the"
+echo "reference mesh (\`vdbrecon eval --tau VOXEL\`, F at one voxel)."
 echo
-echo "| tool | wall s | peak RSS MB | faces | pieces | boundary edges | F@1 voxel | Chamfer-L1 um | colour error mean / p99 |"
-echo "|---|---|---|---|---|---|---|---|---|"
-run_tool() {  # name, mesh, command...
-  local name=$1 mesh=$2
-  shift 2
-  best_of "$OUT/best.log" "$@"
-  "$BUILD/vdbrecon" eval "$mesh" "$REF" --tau "$VOXEL" >"$OUT/eval.json"
-  local colour
-  colour=$(/usr/bin/python3 bench/paint.py "$mesh" "$REF")
-  /usr/bin/python3 - "$OUT/eval.json" "$name" "$WALL" "$RSS" "$colour" <<'PY'
+echo "| scene | tool | wall s | x Open3D | peak MB | faces | pieces | F@1 voxel | Chamfer um | colour error mean / p99 |"
+echo "|---|---|---|---|---|---|---|---|---|---|"
+TOOLS=(splat tsdf open3d)
+for s in $SCENES; do
+  scene "$s"
+  dir=$OUT/$s
+  declare -A BEST=() PEAK=()
+  for ((k = 0; k < REPEAT; ++k)); do
+    for t in "${TOOLS[@]}"; do
+      # shellcheck disable=SC2046
+      /usr/bin/time -f "%e %M" -o "$OUT/time.txt" $(tool_command "$t" "$dir") >/dev/null 2>"$dir/$t.log"
+      read -r w r <"$OUT/time.txt"
+      if better "$w" "${BEST[$t]:-}"; then BEST[$t]=$w; PEAK[$t]=$((r / 1024)); fi
+    done
+  done
+  for t in "${TOOLS[@]}"; do
+    if [ -n "$REF" ]; then
+      "$BUILD/vdbrecon" eval "$dir/$t.ply" "$REF" --tau "$VOXEL" >"$dir/$t.json"
+    else
+      "$BUILD/vdbrecon" eval "$dir/$t.ply" "$dir/$t.ply" --samples 1000 >"$dir/$t.json"
+    fi
+    colour="-"
+    if [ "$s" = bunny ] || [ "$s" = dragon ]; then colour=$(/usr/bin/python3 bench/paint.py "$dir/$t.ply" "$REF"); fi
+    /usr/bin/python3 - "$dir/$t.json" "$s" "$t" "${BEST[$t]}" "${BEST[open3d]}" "${PEAK[$t]}" "$colour" "$REF" <<'PY'
 import json, sys
 e = json.load(open(sys.argv[1]))
 r = e["recon"]
-print(f"| {sys.argv[2]} | {float(sys.argv[3]):.2f} | {int(sys.argv[4])} | {r['faces']} | "
-      f"{r['components']} | {r['boundary_edges']} | {e['fscore'][0]['fscore']:.4f} | "
-      f"{e['chamfer_l1'] * 1e6:.1f} | {sys.argv[5]} |")
+name = {"splat": "vdbrecon fuse", "tsdf": "vdbrecon fuse --fusion tsdf", "open3d": "Open3D ScalableTSDFVolume"}
+quality = (f"{e['fscore'][0]['fscore']:.4f} | {e['chamfer_l1'] * 1e6:.0f}" if sys.argv[8] else "- | -")
+print(f"| {sys.argv[2]} | {name[sys.argv[3]]} | {float(sys.argv[4]):.2f} | "
+      f"{float(sys.argv[5]) / float(sys.argv[4]):.2f} | {sys.argv[6]} | {r['faces']} | {r['components']} | "
+      f"{quality} | {sys.argv[7]} |")
 PY
-}
-run_tool "vdbrecon fuse" "$OUT/vdbrecon.ply" "$BUILD/vdbrecon" fuse "$OUT/scene/transforms.json" \
-  -o "$OUT/vdbrecon.ply" --voxel "$VOXEL" --no-vdb
-run_tool "vdbrecon fuse --fusion tsdf" "$OUT/vdbrecon-tsdf.ply" "$BUILD/vdbrecon" fuse \
-  "$OUT/scene/transforms.json" -o "$OUT/vdbrecon-tsdf.ply" --voxel "$VOXEL" --no-vdb --fusion tsdf
-run_tool "Open3D ScalableTSDFVolume" "$OUT/open3d.ply" /usr/bin/python3 bench/fusion_open3d.py \
-  "$OUT/scene/transforms.json" "$OUT/open3d.ply" "$VOXEL"
+  done
+  unset BEST PEAK
+done

@@ -588,13 +588,6 @@ PointCloud Fusion::presum(PointCloud samples) const {
     return aggregate_samples(std::move(samples), options_.splat, depth_.aggregate);
 }
 
-std::size_t Fusion::integrate_presummed(const PointCloud& groups, std::size_t samples) {
-    if (tsdf_) throw InvalidArgument("fusion: the tsdf rule integrates depth images, not clouds");
-    ++frames_;
-    add(groups, samples);
-    return samples;
-}
-
 // A frame's samples are presummed on their own (they fit the caches), the batch's groups once
 // more as they are added (the frames' groups of one cell become one).
 void Fusion::add(const PointCloud& samples, std::size_t count) {
@@ -643,32 +636,57 @@ void Fusion::flush() const {
     batched_ = 0;
 }
 
-std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose) {
-    if (tsdf_) {
-        check_frame(depth, K, pose, depth_);
-        const FramePoints f = back_project(depth, K, depth_);
-        ++frames_;
-        return tsdf_->integrate(f.p, f.valid, K, pose);
+PreparedFrame Fusion::prepare(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
+                              const ColorImage* color, const Intrinsics* color_K) const {
+    PreparedFrame out;
+    if (!tsdf_) {
+        PointCloud samples = depth_samples(depth, K, pose, depth_, accumulator_.origin());
+        if (color) color_samples(samples, *color, *color_K, pose);
+        out.samples = samples.size();
+        out.groups = presum(std::move(samples));  // owned: the samples die here
+        return out;
     }
-    return add_frame(depth_samples(depth, K, pose, depth_, accumulator_.origin()));
+    check_frame(depth, K, pose, depth_);
+    if (color) check_color(*color, *color_K);
+    const DepthRows rows(depth, K, depth_);
+    std::vector<Vec3f> colors;  // each measured pixel's colour, seen from the same pose
+    if (color) colors.assign(std::size_t(rows.w) * std::size_t(rows.h), Vec3f{0.0f, 0.0f, 0.0f});
+    auto row = [&](int v, const V3*& points, const char*& measured) {
+        const GridRow r = rows.row(v);
+        points = r.p;
+        measured = r.valid;
+        if (!color) return;
+        for (int u = 0; u < rows.w; ++u) {
+            const V3& x = r.p[u];
+            if (r.valid[u]) colors[std::size_t(v) * std::size_t(rows.w) + std::size_t(u)] = seen_color(*color, *color_K, x[0], x[1], x[2]);
+        }
+    };
+    auto f = std::make_shared<detail::TsdfFrame>(tsdf_->prepare(row, K, pose));
+    f->colors = std::move(colors);
+    out.samples = f->measured;
+    out.tsdf = std::move(f);
+    return out;
+}
+
+std::size_t Fusion::integrate(const PreparedFrame& frame) {
+    if (tsdf_) {
+        if (!frame.tsdf) throw InvalidArgument("fusion: a frame prepared for the splat rule given to the tsdf rule");
+        ++frames_;
+        return tsdf_->integrate(*frame.tsdf);
+    }
+    if (frame.tsdf) throw InvalidArgument("fusion: a frame prepared for the tsdf rule given to the splat rule");
+    ++frames_;
+    add(frame.groups, frame.samples);
+    return frame.samples;
+}
+
+std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose) {
+    return integrate(prepare(depth, K, pose));
 }
 
 std::size_t Fusion::integrate(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
                               const ColorImage& color, const Intrinsics& color_K) {
-    if (tsdf_) {  // each measured pixel's colour, seen from the same pose
-        check_frame(depth, K, pose, depth_);
-        check_color(color, color_K);
-        const FramePoints f = back_project(depth, K, depth_);
-        std::vector<Vec3f> colors(f.p.size(), Vec3f{0.0f, 0.0f, 0.0f});
-        for (std::size_t i = 0; i < f.p.size(); ++i) {
-            if (f.valid[i]) colors[i] = seen_color(color, color_K, f.p[i][0], f.p[i][1], f.p[i][2]);
-        }
-        ++frames_;
-        return tsdf_->integrate(f.p, f.valid, K, pose, &colors);
-    }
-    PointCloud samples = depth_samples(depth, K, pose, depth_, accumulator_.origin());
-    color_samples(samples, color, color_K, pose);
-    return add_frame(samples);
+    return integrate(prepare(depth, K, pose, &color, &color_K));
 }
 
 std::size_t Fusion::add_frame(const PointCloud& samples) {
@@ -889,15 +907,9 @@ DepthImage frame_depth(const SceneFrame& f) {
     return img;
 }
 
-/// One depth frame read and, with the splat rule, turned into samples and presummed (or its
-/// error). The tsdf rule integrates the image itself.
+/// One depth frame read and prepared for the fusion (Fusion::prepare), or its error.
 struct FrameSamples {
-    PointCloud groups;
-    std::size_t count = 0;  ///< samples
-    DepthImage image;       ///< tsdf rule: the frame, and its intrinsics
-    Intrinsics K;
-    ColorImage color;       ///< tsdf rule: its colour image (empty: none), and its intrinsics
-    Intrinsics color_K;
+    PreparedFrame frame;
     std::exception_ptr error;
 };
 
@@ -915,28 +927,18 @@ Intrinsics color_camera(const SceneFrame& f, const Intrinsics& K, const ColorIma
                       c.width, c.height};
 }
 
-FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, const Vec3d& origin,
-                           bool color) {
+FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, bool color) {
     FrameSamples out;
     try {
-        DepthImage img = frame_depth(f);
+        const DepthImage img = frame_depth(f);
         const Intrinsics K = frame_intrinsics(f, img);  // checked with the frame
-        if (fusion.tsdf()) {
-            if (color && !f.color_path.empty()) {
-                out.color = read_color_image(f.color_path);
-                out.color_K = color_camera(f, K, out.color);
-            }
-            out.image = std::move(img);
-            out.K = K;
-            return out;
-        }
-        PointCloud samples = depth_samples(img, K, f.pose, fusion.depth_options(), origin);
         if (color && !f.color_path.empty()) {
             const ColorImage c = read_color_image(f.color_path);
-            color_samples(samples, c, color_camera(f, K, c), f.pose);
+            const Intrinsics C = color_camera(f, K, c);
+            out.frame = fusion.prepare(img, K, f.pose, &c, &C);
+        } else {
+            out.frame = fusion.prepare(img, K, f.pose);
         }
-        out.count = samples.size();
-        out.groups = fusion.presum(std::move(samples));  // owned: the samples die here
     } catch (...) {
         out.error = std::current_exception();
     }
@@ -958,26 +960,19 @@ void integrate_depth_frames(const std::vector<const SceneFrame*>& frames, std::s
                             int threads, bool skip_bad, bool color) {
     constexpr std::size_t kInFlight = 8;  // frames in flight: a few MB of samples each
     using Ready = std::pair<std::size_t, FrameSamples>;
-    const Vec3d origin = fusion.origin();
     std::size_t next = first;
     auto read = [&](tbb::flow_control& fc) {
         if (next == last) fc.stop();
         return next++;
     };
     auto prepare = [&](std::size_t i) {
-        return Ready(i, frame_samples(*frames[i], fusion, origin, color));
+        return Ready(i, frame_samples(*frames[i], fusion, color));
     };
     auto add = [&](Ready r) {
         try {
             const FrameSamples& s = r.second;
             if (s.error) std::rethrow_exception(s.error);
-            if (fusion.tsdf() && !s.color.rgb.empty()) {
-                fusion.integrate(s.image, s.K, frames[r.first]->pose, s.color, s.color_K);
-            } else if (fusion.tsdf()) {
-                fusion.integrate(s.image, s.K, frames[r.first]->pose);
-            } else {
-                fusion.integrate_presummed(s.groups, s.count);
-            }
+            fusion.integrate(s.frame);
         } catch (const Error& e) {
             if (!skip_bad) detail::rethrow_naming(frames[r.first]->depth_path, e);
             skip_frame(frames[r.first]->depth_path, e);

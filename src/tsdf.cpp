@@ -9,7 +9,12 @@
 #include <cstdint>
 #include <limits>
 
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+#include <immintrin.h>
+#endif
+
 #include "detail/ray_image.h"
+#include "detail/simd.h"
 #include "detail/volume_grids.h"
 #include "vdbrecon/error.h"
 
@@ -25,12 +30,6 @@ long round_half_away(double x) {
     const long t = long(x);
     const double r = x - double(t);
     return t + (r >= 0.5 ? 1 : (r <= -0.5 ? -1 : 0));
-}
-
-/// std::lround(x) where it lies in [0, size) (the pixel a projection falls in), else -1.
-long pixel_of(double x, int size) {
-    if (!(x > -0.5 && x < double(size) - 0.5)) return -1;
-    return round_half_away(x);
 }
 
 /// A set of leaf origins (open addressing on their packed indices): the leaves a frame's pixels
@@ -158,7 +157,7 @@ bool TsdfVolume::leaf_seen(const openvdb::Coord& origin, const Intrinsics& K, co
     return zmin - deepest <= truncation_ + eps;  // else every voxel lies behind the surface
 }
 
-double TsdfVolume::DepthTiles::deepest(int u0, int v0, int u1, int v1) const {
+double DepthTiles::deepest(int u0, int v0, int u1, int v1) const {
     double d = 0.0;
     for (int tv = v0 >> kLog; tv <= v1 >> kLog; ++tv) {
         for (int tu = u0 >> kLog; tu <= u1 >> kLog; ++tu) d = std::max(d, max[std::size_t(tv * columns + tu)]);
@@ -166,24 +165,123 @@ double TsdfVolume::DepthTiles::deepest(int u0, int v0, int u1, int v1) const {
     return d;
 }
 
-TsdfVolume::DepthTiles::DepthTiles(const std::vector<double>& z, int w, int h)
+DepthTiles::DepthTiles(const std::vector<float>& z, int w, int h)
     : columns((w + (1 << kLog) - 1) >> kLog),
       max(std::size_t(columns) * std::size_t((h + (1 << kLog) - 1) >> kLog), 0.0) {
     for (int v = 0; v < h; ++v) {
         double* row = max.data() + std::size_t((v >> kLog) * columns);
         for (int u = 0; u < w; ++u) {
             double& m = row[u >> kLog];
-            m = std::max(m, z[std::size_t(v) * std::size_t(w) + std::size_t(u)]);
+            m = std::max(m, double(z[std::size_t(v) * std::size_t(w) + std::size_t(u)]));
         }
     }
 }
 
-/// A frame's update of one leaf's voxels (see integrate): each voxel projected to its nearest
-/// pixel, and its running average updated. The camera-frame coordinates are summed as
-/// (m0 p0 + m4 p1) + m8 p2, the x and y parts once per row of the leaf: the same floating-point
-/// operations as per voxel, in the same order. The leaf's arrays are written in place.
-void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<double>& z,
-                             const Intrinsics& K, const Pose& m, const LeafColors& lc) const {
+namespace {
+
+/// A frame as one row of a leaf reads it: planar depth per pixel (0: none), the camera, the
+/// truncation, all in float (the rows' arithmetic).
+struct RowCamera {
+    const float* z;
+    int w, h;
+    float fx, fy, cx, cy, trunc;
+};
+
+/// The camera-frame coordinates of a leaf row's 8 voxels: (s + a[k]) per axis.
+struct RowVoxels {
+    float sx, sy, sz;
+    const float *ax, *ay, *az;
+};
+
+/// A frame's update of the 8 voxels of one leaf row (value[k], weight[k]): each voxel
+/// projected to its nearest pixel (u = floor(fx x / z + cx + 1/2), in the image), and where
+/// that pixel measured a depth d with sdf = d - z >= -truncation, its running average moves
+/// toward t = min(1, sdf / truncation) with weight 1. Returns the updated lanes (bit k); their
+/// pixels and t go to pixel[] and t[]. update_row_avx2 does the same float operations in the
+/// same order, so both give the same bits.
+std::uint32_t update_row(const RowCamera& c, const RowVoxels& r, float* value, float* weight,
+                         std::int32_t* pixel, float* t) {
+    std::uint32_t updated = 0;
+    for (int k = 0; k < 8; ++k) {
+        const float cz = r.sz + r.az[k], cx = r.sx + r.ax[k], cy = r.sy + r.ay[k];
+        if (!(cz > 0.0f)) continue;
+        const float inv = 1.0f / cz;
+        const float fu = c.fx * cx * inv + c.cx, fv = c.fy * cy * inv + c.cy;
+        if (!(fu > -0.5f && fu < float(c.w) - 0.5f && fv > -0.5f && fv < float(c.h) - 0.5f)) continue;
+        const int u = std::min(int(std::floor(fu + 0.5f)), c.w - 1);
+        const int v = std::min(int(std::floor(fv + 0.5f)), c.h - 1);
+        const std::int32_t i = v * c.w + u;
+        const float d = c.z[i];
+        if (!(d > 0.0f)) continue;
+        const float sdf = d - cz;
+        if (sdf < -c.trunc) continue;  // behind the surface: not seen
+        const float w0 = weight[k];
+        const float v0 = w0 > 0.0f ? value[k] : 0.0f;
+        const float q = sdf / c.trunc;
+        t[k] = q < 1.0f ? q : 1.0f;  // as _mm256_min_ps(q, 1)
+        value[k] = (v0 * w0 + t[k]) / (w0 + 1.0f);
+        weight[k] = w0 + 1.0f;
+        pixel[k] = i;
+        updated |= 1u << k;
+    }
+    return updated;
+}
+
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+/// update_row, the 8 lanes at once (AVX2; no FMA: it would round differently).
+__attribute__((target("avx2"))) std::uint32_t update_row_avx2(const RowCamera& c, const RowVoxels& r,
+                                                              float* value, float* weight,
+                                                              std::int32_t* pixel, float* t) {
+    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f), half = _mm256_set1_ps(0.5f);
+    const __m256 cz = _mm256_add_ps(_mm256_set1_ps(r.sz), _mm256_loadu_ps(r.az));
+    const __m256 cx = _mm256_add_ps(_mm256_set1_ps(r.sx), _mm256_loadu_ps(r.ax));
+    const __m256 cy = _mm256_add_ps(_mm256_set1_ps(r.sy), _mm256_loadu_ps(r.ay));
+    __m256 ok = _mm256_cmp_ps(cz, zero, _CMP_GT_OQ);
+    if (!_mm256_movemask_ps(ok)) return 0;
+    const __m256 inv = _mm256_div_ps(one, cz);
+    const __m256 fu = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(c.fx), cx), inv),
+                                    _mm256_set1_ps(c.cx));
+    const __m256 fv = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(c.fy), cy), inv),
+                                    _mm256_set1_ps(c.cy));
+    const __m256 lo = _mm256_set1_ps(-0.5f);
+    ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(fu, lo, _CMP_GT_OQ),
+                                         _mm256_cmp_ps(fu, _mm256_set1_ps(float(c.w) - 0.5f), _CMP_LT_OQ)));
+    ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(fv, lo, _CMP_GT_OQ),
+                                         _mm256_cmp_ps(fv, _mm256_set1_ps(float(c.h) - 0.5f), _CMP_LT_OQ)));
+    if (!_mm256_movemask_ps(ok)) return 0;
+    const __m256i u = _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(fu, half))),
+                                       _mm256_set1_epi32(c.w - 1));
+    const __m256i v = _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(fv, half))),
+                                       _mm256_set1_epi32(c.h - 1));
+    const __m256i i = _mm256_and_si256(_mm256_add_epi32(_mm256_mullo_epi32(v, _mm256_set1_epi32(c.w)), u),
+                                       _mm256_castps_si256(ok));  // lanes off read pixel 0
+    const __m256 d = _mm256_mask_i32gather_ps(zero, c.z, i, ok, 4);
+    const __m256 sdf = _mm256_sub_ps(d, cz);
+    ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(d, zero, _CMP_GT_OQ),
+                                         _mm256_cmp_ps(sdf, _mm256_set1_ps(-c.trunc), _CMP_NLT_UQ)));
+    const std::uint32_t updated = std::uint32_t(_mm256_movemask_ps(ok));
+    if (!updated) return 0;
+    const __m256 w0 = _mm256_loadu_ps(weight);
+    const __m256 v0 = _mm256_and_ps(_mm256_loadu_ps(value), _mm256_cmp_ps(w0, zero, _CMP_GT_OQ));
+    const __m256 tt = _mm256_min_ps(_mm256_div_ps(sdf, _mm256_set1_ps(c.trunc)), one);
+    const __m256 w1 = _mm256_add_ps(w0, one);
+    const __m256 nv = _mm256_div_ps(_mm256_add_ps(_mm256_mul_ps(v0, w0), tt), w1);
+    _mm256_storeu_ps(value, _mm256_blendv_ps(_mm256_loadu_ps(value), nv, ok));
+    _mm256_storeu_ps(weight, _mm256_blendv_ps(w0, w1, ok));
+    _mm256_storeu_ps(t, tt);
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(pixel), i);
+    return updated;
+}
+#endif
+
+}  // namespace
+
+/// A frame's update of one leaf's voxels (see integrate), a row of 8 voxels at a time
+/// (update_row). The camera-frame coordinates are (m0 p0 + m4 p1) + m8 p2 per axis, the first
+/// part once per row in double, then in float. The leaf's arrays are written in place.
+void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<float>& z,
+                             const Intrinsics& K, const Pose& m, const LeafColors& lc,
+                             bool vector) const {
     const openvdb::Coord o = val.origin();
     double p[3][8];  // per axis and leaf coordinate, the voxel's position less the camera's
     for (int a = 0; a < 3; ++a) {
@@ -191,45 +289,49 @@ void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<do
             p[a][k] = (o[a] + k) * voxel_ + origin_[std::size_t(a)] - m[std::size_t(4 * a + 3)];
         }
     }
-    const std::size_t w = std::size_t(K.width);
-    const double trunc = truncation_;
+    float a[3][8];  // the z coordinate's part of each camera axis
+    for (int k = 0; k < 8; ++k) {
+        for (int b = 0; b < 3; ++b) a[b][k] = float(m[std::size_t(8 + b)] * p[2][k]);
+    }
+    const RowCamera cam{z.data(), K.width, K.height, float(K.fx), float(K.fy), float(K.cx),
+                        float(K.cy), float(truncation_)};
     float* value = val.buffer().data();
     float* weight = wt.buffer().data();
     auto& value_on = val.getValueMask();
     auto& weight_on = wt.getValueMask();
+    std::int32_t pixel[8];
+    float t[8];
     for (int x = 0; x < 8; ++x) {
         for (int y = 0; y < 8; ++y) {
-            const double sx = m[0] * p[0][x] + m[4] * p[1][y];
-            const double sy = m[1] * p[0][x] + m[5] * p[1][y];
-            const double sz = m[2] * p[0][x] + m[6] * p[1][y];
-            for (int k = 0; k < 8; ++k) {
-                const double cx = sx + m[8] * p[2][k], cy = sy + m[9] * p[2][k];
-                const double cz = sz + m[10] * p[2][k];
-                if (!(cz > 0.0)) continue;
-                const long u = pixel_of(K.fx * cx / cz + K.cx, K.width);
-                const long v = pixel_of(K.fy * cy / cz + K.cy, K.height);
-                if (u < 0 || v < 0) continue;
-                const double d = z[std::size_t(v) * w + std::size_t(u)];
-                if (d == 0.0) continue;
-                const double sdf = d - cz;
-                if (sdf < -trunc) continue;  // behind the surface: not seen
-                const double t = std::min(1.0, sdf / trunc);
-                const openvdb::Index idx = openvdb::Index(x << 6 | y << 3 | k);
-                const double w0 = double(weight[idx]);
-                const double v0 = w0 > 0.0 ? double(value[idx]) : 0.0;
-                value[idx] = float((v0 * w0 + t) / (w0 + 1.0));
-                value_on.setOn(idx);
-                weight[idx] = float(w0 + 1.0);
-                weight_on.setOn(idx);
-                if (lc.pixels && t < 1.0) {  // near the surface: its pixel's colour
-                    const Vec3f& c = (*lc.pixels)[std::size_t(v) * w + std::size_t(u)];
-                    const float cw = lc.weight->getValue(idx);
-                    const openvdb::Vec3f c0 = cw > 0.0f ? lc.color->getValue(idx) : openvdb::Vec3f(0.0f);
-                    lc.color->setValueOn(idx, (c0 * cw + openvdb::Vec3f(c[0], c[1], c[2])) / (cw + 1.0f));
-                    lc.weight->setValueOn(idx, cw + 1.0f);
-                }
-            }
+            const RowVoxels row{float(m[0] * p[0][x] + m[4] * p[1][y]), float(m[1] * p[0][x] + m[5] * p[1][y]),
+                                float(m[2] * p[0][x] + m[6] * p[1][y]), a[0], a[1], a[2]};
+            const openvdb::Index first = openvdb::Index(x << 6 | y << 3);
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+            const std::uint32_t updated = vector ? update_row_avx2(cam, row, value + first, weight + first, pixel, t)
+                                                 : update_row(cam, row, value + first, weight + first, pixel, t);
+#else
+            const std::uint32_t updated = update_row(cam, row, value + first, weight + first, pixel, t);
+#endif
+            if (!updated) continue;
+            value_on.getWord<std::uint8_t>(first >> 3) |= std::uint8_t(updated);
+            weight_on.getWord<std::uint8_t>(first >> 3) |= std::uint8_t(updated);
+            if (lc.pixels) update_colors(lc, first, updated, pixel, t);
         }
+    }
+}
+
+/// The colours of a leaf row's updated voxels (bits of `updated`) that lie within the
+/// truncation of the surface (t < 1): the running average of their pixels' colours.
+void TsdfVolume::update_colors(const LeafColors& lc, openvdb::Index first, std::uint32_t updated,
+                               const std::int32_t* pixel, const float* t) {
+    for (int k = 0; k < 8; ++k) {
+        if (!(updated >> k & 1) || !(t[k] < 1.0f)) continue;
+        const openvdb::Index idx = first + openvdb::Index(k);
+        const Vec3f& c = (*lc.pixels)[std::size_t(pixel[k])];
+        const float cw = lc.weight->getValue(idx);
+        const openvdb::Vec3f c0 = cw > 0.0f ? lc.color->getValue(idx) : openvdb::Vec3f(0.0f);
+        lc.color->setValueOn(idx, (c0 * cw + openvdb::Vec3f(c[0], c[1], c[2])) / (cw + 1.0f));
+        lc.weight->setValueOn(idx, cw + 1.0f);
     }
 }
 
@@ -237,8 +339,7 @@ TsdfVolume::TsdfVolume(double voxel, double truncation_voxels, bool carve, const
     : voxel_(voxel), truncation_(truncation_voxels * voxel), carve_(carve), origin_(origin),
       value_(openvdb::FloatGrid::create(1.0f)), weight_(openvdb::FloatGrid::create(0.0f)) {}
 
-std::vector<FloatLeaf*> TsdfVolume::candidates(std::vector<openvdb::Coord> leaves, bool colors) {
-    std::sort(leaves.begin(), leaves.end());
+std::vector<FloatLeaf*> TsdfVolume::candidates(const std::vector<openvdb::Coord>& leaves, bool colors) {
     for (const openvdb::Coord& c : leaves) {  // serially: the trees' structure changes
         value_->tree().touchLeaf(c);
         weight_->tree().touchLeaf(c);
@@ -275,40 +376,51 @@ TsdfVolume::LeafColors TsdfVolume::leaf_colors(const std::vector<Vec3f>* colors,
     return lc;
 }
 
-std::size_t TsdfVolume::integrate(const std::vector<std::array<double, 3>>& points,
-                                  const std::vector<char>& measured, const Intrinsics& K,
-                                  const Pose& m, const std::vector<Vec3f>* colors) {
-    const int w = K.width, h = K.height;
-    // Planar depth per pixel (0: none).
-    std::vector<double> z(std::size_t(w) * std::size_t(h), 0.0);
+TsdfFrame TsdfVolume::prepare(const TsdfRows& rows, const Intrinsics& K, const Pose& m) const {
+    TsdfFrame f;
+    f.K = K;
+    f.pose = m;
+    const std::size_t w = std::size_t(K.width);
+    f.z.assign(w * std::size_t(K.height), 0.0f);
     LeafGather gather(voxel_, truncation_);
-    std::size_t valid = 0;
-    for (std::size_t i = 0; i < z.size(); ++i) {
-        if (!measured[i]) continue;
-        const std::array<double, 3>& c = points[i];
-        z[i] = c[2];
-        ++valid;
-        std::array<double, 3> wpt;
-        for (std::size_t a = 0; a < 3; ++a) {
-            wpt[a] = m[4 * a] * c[0] + m[4 * a + 1] * c[1] + m[4 * a + 2] * c[2] + m[4 * a + 3] - origin_[a];
+    for (int v = 0; v < K.height; ++v) {
+        const std::array<double, 3>* points = nullptr;
+        const char* measured = nullptr;
+        rows(v, points, measured);
+        for (std::size_t u = 0; u < w; ++u) {
+            if (!measured[u]) continue;
+            const std::array<double, 3>& c = points[u];
+            f.z[std::size_t(v) * w + u] = float(c[2]);
+            ++f.measured;
+            std::array<double, 3> wpt;
+            for (std::size_t a = 0; a < 3; ++a) {
+                wpt[a] = m[4 * a] * c[0] + m[4 * a + 1] * c[1] + m[4 * a + 2] * c[2] + m[4 * a + 3] - origin_[a];
+            }
+            gather.add(wpt);
         }
-        gather.add(wpt);
     }
-    pixels_ += valid;
-    if (valid == 0) return 0;
-    if (colors && colors->size() != z.size()) colors = nullptr;
-    const std::vector<FloatLeaf*> todo = candidates(std::move(gather.leaves), colors != nullptr);
-    const DepthTiles tiles(z, w, h);
+    std::sort(gather.leaves.begin(), gather.leaves.end());
+    f.leaves = std::move(gather.leaves);
+    f.tiles = DepthTiles(f.z, K.width, K.height);
+    return f;
+}
+
+std::size_t TsdfVolume::integrate(const TsdfFrame& f) {
+    pixels_ += f.measured;
+    if (f.measured == 0) return 0;
+    const std::vector<Vec3f>* colors = f.colors.size() == f.z.size() ? &f.colors : nullptr;
+    const std::vector<FloatLeaf*> todo = candidates(f.leaves, colors != nullptr);
+    const bool vector = vector_loops();
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, todo.size(), 8),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t j = rg.begin(); j < rg.end(); ++j) {
             FloatLeaf& val = *todo[j];
-            if (!leaf_seen(val.origin(), K, m, tiles)) continue;
+            if (!leaf_seen(val.origin(), f.K, f.pose, f.tiles)) continue;
             FloatLeaf& wt = *weight_->tree().probeLeaf(val.origin());
-            update_leaf(val, wt, z, K, m, leaf_colors(colors, val.origin()));
+            update_leaf(val, wt, f.z, f.K, f.pose, leaf_colors(colors, val.origin()), vector);
         }
     });
-    return valid;
+    return f.measured;
 }
 
 // ---- LiDAR scans ----------------------------------------------------------------------------

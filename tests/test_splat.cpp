@@ -3,6 +3,7 @@
 #include <cstdlib>
 #include <random>
 
+#include "grid_compare.h"
 #include "support.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/splat.h"
@@ -24,28 +25,6 @@ PointCloud noisy_sphere(std::size_t n, double r, unsigned seed) {
         c.colors.push_back({u(rng), u(rng), u(rng)});
     }
     return c;
-}
-
-template <typename GridT>
-bool same_grids(const GridT& a, const GridT& b) {
-    if (a.activeVoxelCount() != b.activeVoxelCount() || a.tree().leafCount() != b.tree().leafCount()) {
-        return false;
-    }
-    for (auto it = a.tree().cbeginLeaf(); it; ++it) {
-        const auto* other = b.tree().probeConstLeaf(it->origin());
-        if (!other || other->getValueMask() != it->getValueMask()) return false;
-        if (std::memcmp(it->buffer().data(), other->buffer().data(),
-                        sizeof(typename GridT::ValueType) * it->SIZE) != 0) {
-            return false;
-        }
-    }
-    return true;
-}
-
-/// The sdf, weight, nearest and colour grids of two splats are bit-identical.
-bool same_volumes(const Volume& a, const Volume& b) {
-    return same_grids(*a.sdf, *b.sdf) && same_grids(*a.weight, *b.weight) &&
-           same_grids(*a.nearest, *b.nearest) && same_grids(*a.color, *b.color);
 }
 
 }  // namespace

@@ -138,7 +138,16 @@ PointCloud scan_samples(const PointCloud& scan, const std::optional<Vec3d>& orig
 namespace detail {
 class TsdfVolume;
 class CellGroups;
+struct TsdfFrame;
 }
+
+/// A depth frame made ready for a fusion by Fusion::prepare: the splat rule's samples
+/// presummed, or the tsdf rule's planar depth and the leaves it reaches.
+struct PreparedFrame {
+    PointCloud groups;                              ///< splat rule
+    std::shared_ptr<const detail::TsdfFrame> tsdf;  ///< tsdf rule
+    std::size_t samples = 0;  ///< the samples (tsdf: measured pixels) it stands for
+};
 
 class Fusion {
   public:
@@ -158,12 +167,14 @@ class Fusion {
                           const ColorImage& color, const Intrinsics& color_K);
     /// Adds an oriented cloud (normals required), e.g. one scan with normals toward its sensor.
     std::size_t integrate(const PointCloud& cloud);
-    /// A frame's samples (relative to origin()) presummed as integrate() does
-    /// (DepthOptions::aggregate); safe to call from several threads at once.
-    PointCloud presum(PointCloud samples) const;
-    /// Adds a frame presummed by presum() (e.g. frames prepared in parallel) that stood for
-    /// `samples` samples: the same volume as integrate() of those samples; returns `samples`.
-    std::size_t integrate_presummed(const PointCloud& groups, std::size_t samples);
+    /// A depth frame (and its colour image seen through *color_K, or none) made ready for
+    /// integrate(PreparedFrame) without changing the fusion, so several frames may be prepared
+    /// at once, from several threads, while earlier ones are integrated.
+    PreparedFrame prepare(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,
+                          const ColorImage* color = nullptr, const Intrinsics* color_K = nullptr) const;
+    /// Adds a frame made by this fusion's prepare(): the same volume as integrate() of the
+    /// frame; returns its samples.
+    std::size_t integrate(const PreparedFrame& frame);
     /// Adds an organized cloud (organized_samples).
     std::size_t integrate(const OrganizedCloud& cloud);
     /// Adds a LiDAR scan: its points (relative to scan.origin, colours optional) measured from
@@ -197,6 +208,8 @@ class Fusion {
     DepthOptions depth_;
     /// Counts a frame and adds its samples; returns their count.
     std::size_t add_frame(const PointCloud& samples);
+    /// The samples (relative to origin()) presummed (DepthOptions::aggregate).
+    PointCloud presum(PointCloud samples) const;
     /// Adds presummed groups that stand for `samples` samples.
     void add(const PointCloud& groups, std::size_t samples);
     void flush() const;

@@ -28,6 +28,8 @@
 #include <openvdb/openvdb.h>
 
 #include <array>
+#include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "vdbrecon/fusion.h"
@@ -35,16 +37,42 @@
 
 namespace vdbrecon::detail {
 
+/// The deepest measured depth of each 8 x 8 block of a frame's pixels (0: none).
+struct DepthTiles {
+    static constexpr int kLog = 3;
+    int columns = 0;
+    std::vector<double> max;
+    DepthTiles() = default;
+    DepthTiles(const std::vector<float>& z, int w, int h);
+    /// The deepest depth of the pixels u0..u1 x v0..v1 (and of their blocks' others).
+    double deepest(int u0, int v0, int u1, int v1) const;
+};
+
+/// A depth frame as TsdfVolume::integrate reads it, made from its pixels alone (not from the
+/// volume: frames are prepared in parallel while earlier ones are integrated).
+struct TsdfFrame {
+    std::vector<float> z;                ///< planar depth per pixel, 0 where nothing was measured
+    DepthTiles tiles;                    ///< of z
+    std::vector<openvdb::Coord> leaves;  ///< within the truncation of its points, sorted
+    std::vector<Vec3f> colors;           ///< per pixel (set by the caller), or empty
+    Intrinsics K;
+    Pose pose{};
+    std::size_t measured = 0;
+};
+
+/// One row v of a frame's pixels: their camera-frame points (planar depth in [2]; the
+/// back-projection and the measurement rules of depth_samples) and whether each was measured.
+using TsdfRows = std::function<void(int v, const std::array<double, 3>*& points, const char*& measured)>;
+
 class TsdfVolume {
   public:
     TsdfVolume(double voxel, double truncation_voxels, bool carve, const Vec3d& origin);
 
-    /// Adds a frame, given as its pixels' camera-frame points (planar depth in [2]; the
-    /// back-projection and the measurement rules of depth_samples) and whether each was
-    /// measured; returns the measured pixels.
-    std::size_t integrate(const std::vector<std::array<double, 3>>& points,
-                          const std::vector<char>& measured, const Intrinsics& K, const Pose& pose,
-                          const std::vector<Vec3f>* colors = nullptr);
+    /// A frame made ready to integrate from its rows (K.height calls of `rows`); const, so
+    /// several frames may be prepared at once.
+    TsdfFrame prepare(const TsdfRows& rows, const Intrinsics& K, const Pose& pose) const;
+    /// Adds a prepared frame; returns its measured pixels.
+    std::size_t integrate(const TsdfFrame& frame);
     /// Adds a LiDAR scan: its samples (scan_samples: hits with normals toward the sensor,
     /// confidences and colours or none) measured from the sensor at `sensor` (world); returns
     /// the hits used.
@@ -58,15 +86,6 @@ class TsdfVolume {
 
   private:
     using FloatLeaf = openvdb::FloatTree::LeafNodeType;
-    /// The deepest measured depth of each 8 x 8 block of a frame's pixels (0: none).
-    struct DepthTiles {
-        static constexpr int kLog = 3;
-        int columns;
-        std::vector<double> max;
-        DepthTiles(const std::vector<double>& z, int w, int h);
-        /// The deepest depth of the pixels u0..u1 x v0..v1 (and of their blocks' others).
-        double deepest(int u0, int v0, int u1, int v1) const;
-    };
     bool leaf_seen(const openvdb::Coord& origin, const Intrinsics& K, const Pose& pose,
                    const DepthTiles& tiles) const;
     using ColorLeaf = openvdb::Vec3fTree::LeafNodeType;
@@ -76,15 +95,18 @@ class TsdfVolume {
         ColorLeaf* color = nullptr;
         FloatLeaf* weight = nullptr;
     };
-    void update_leaf(FloatLeaf& value, FloatLeaf& weight, const std::vector<double>& z,
-                     const Intrinsics& K, const Pose& pose, const LeafColors& colors) const;
+    void update_leaf(FloatLeaf& value, FloatLeaf& weight, const std::vector<float>& z,
+                     const Intrinsics& K, const Pose& pose, const LeafColors& colors,
+                     bool vector) const;
+    static void update_colors(const LeafColors& colors, openvdb::Index first, std::uint32_t updated,
+                              const std::int32_t* pixel, const float* t);
     struct Scan;
     bool leaf_seen(const openvdb::Coord& origin, const Scan& scan) const;
     void update_leaf(FloatLeaf& value, FloatLeaf& weight, const Scan& scan,
                      const LeafColors& colors) const;
     /// Touches `leaves` (within the truncation of a frame's points) and returns the leaves to
     /// update: those, or with carving every leaf held; makes the colour grids' leaves too.
-    std::vector<FloatLeaf*> candidates(std::vector<openvdb::Coord> leaves, bool colors);
+    std::vector<FloatLeaf*> candidates(const std::vector<openvdb::Coord>& leaves, bool colors);
     LeafColors leaf_colors(const std::vector<Vec3f>* colors, const openvdb::Coord& origin) const;
 
     double voxel_, truncation_;

@@ -631,7 +631,7 @@ void Fusion::add(const PointCloud& samples, std::size_t count) {
 
 void Fusion::flush() const {
     if (groups_ && !groups_->empty()) accumulator_.add(groups_->take(accumulator_.origin()));
-    if (!pending_.empty()) accumulator_.add(pending_);
+    if (!pending_.empty()) accumulator_.add(std::move(pending_));
     pending_ = PointCloud{};
     batched_ = 0;
 }

@@ -19,6 +19,7 @@
 #include <algorithm>
 #include <array>
 #include <memory>
+#include <optional>
 #include <climits>
 #include <cmath>
 #include <limits>
@@ -129,6 +130,9 @@ struct SplatState {
     float max_r = 0.0f;  ///< largest kernel radius so far, voxels
     double sigma_min = std::numeric_limits<double>::infinity(), sigma_max = 0.0;
     std::vector<double> sigma_medians;  ///< one per cloud, world units
+    /// The first cloud, not summed yet (owned): alone, its volume is made from its sums in
+    /// double, as splat() makes it; it is summed onto the grids when a second cloud comes.
+    std::optional<PointCloud> first;
 };
 
 }  // namespace detail
@@ -242,8 +246,9 @@ struct alignas(64) BlockSums {
     double w[kBlockVoxels], u[kBlockVoxels], uphi[kBlockVoxels], d2[kBlockVoxels];
     std::uint32_t nearest[kBlockVoxels];
 };
-struct ColorSums {
-    double r, g, b;
+/// Per-voxel colour sums of one block (u * rgb), one array per channel (the vector rows).
+struct alignas(64) ColorSums {
+    double r[kBlockVoxels], g[kBlockVoxels], b[kBlockVoxels];
 };
 
 /// One (block, point) piece: the kernel's box clipped to the block (block-local voxels lo..hi
@@ -259,8 +264,7 @@ struct Piece {
 /// Adds the piece to the sums, one spherical-support run of voxels per (x, y) row; returns the
 /// number of voxel updates.
 template <bool kColors>
-std::size_t add_piece(const Piece& p, const float* col, BlockSums& sums,
-                      std::vector<ColorSums>& csums) {
+std::size_t add_piece(const Piece& p, const float* col, BlockSums& sums, ColorSums* csums) {
     std::size_t updates = 0;
     const double *gx = p.g[0], *gy = p.g[1], *gz = p.g[2];
     const double *dx2 = p.d2[0], *dy2 = p.d2[1], *dz2 = p.d2[2];
@@ -288,10 +292,9 @@ std::size_t add_piece(const Piece& p, const float* col, BlockSums& sums,
                 sums.d2[i] = nearer ? d2 : sums.d2[i];
                 sums.nearest[i] = nearer ? p.point : sums.nearest[i];
                 if (kColors) {
-                    ColorSums& c = csums[std::size_t(i)];
-                    c.r += u * col[0];
-                    c.g += u * col[1];
-                    c.b += u * col[2];
+                    csums->r[i] += u * double(col[0]);
+                    csums->g[i] += u * double(col[1]);
+                    csums->b[i] += u * double(col[2]);
                 }
             }
             updates += std::size_t(std::max(0, z1 - z0 + 1));
@@ -301,13 +304,17 @@ std::size_t add_piece(const Piece& p, const float* col, BlockSums& sums,
 }
 
 #ifdef VDBRECON_HAVE_AVX2_PATHS
-/// add_piece<false> four voxels of a row at a time (AVX2), bit for bit the same sums: every
+/// add_piece four voxels of a row at a time (AVX2), bit for bit the same sums: every
 /// voxel sees the same double operations in the same order, lanes outside the piece's box or
 /// the support add exact zeros (the sums are never -0) and keep their nearest sample. Lanes
 /// are the aligned quads of the 16-voxel block row, so loads and stores stay inside the row.
 /// No FMA: a fused multiply-add would round differently from the scalar code.
-__attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, BlockSums& sums) {
+template <bool kColors>
+__attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, const float* col, BlockSums& sums,
+                                                           ColorSums* csums) {
     std::size_t updates = 0;
+    __m256d rgb[3];
+    for (int c = 0; c < 3; ++c) rgb[c] = _mm256_set1_pd(kColors ? double(col[c]) : 0.0);
     const __m256d r2 = _mm256_set1_pd(p.r2), amp = _mm256_set1_pd(p.amp);
     const __m256d lane = _mm256_setr_pd(0.0, 1.0, 2.0, 3.0);
     const __m256d zlo = _mm256_set1_pd(double(p.lo[2])), zhi = _mm256_set1_pd(double(p.hi[2]));
@@ -351,6 +358,12 @@ __attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, Block
                     _mm256_permutevar8x32_epi32(_mm256_castpd_si256(nearer), low_halves));
                 auto* n = reinterpret_cast<__m128i*>(sums.nearest + i);
                 _mm_store_si128(n, _mm_blendv_epi8(_mm_load_si128(n), point, nearer32));
+                if (kColors) {  // u is +0 on the lanes outside
+                    double* to[3] = {csums->r + i, csums->g + i, csums->b + i};
+                    for (int c = 0; c < 3; ++c) {
+                        _mm256_store_pd(to[c], _mm256_add_pd(_mm256_load_pd(to[c]), _mm256_mul_pd(u, rgb[c])));
+                    }
+                }
             }
         }
     }
@@ -362,9 +375,12 @@ __attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, Block
 /// the piece's box or the support are masked off, and the sums see the scalar loop's double
 /// operations in its order, so the result is the same bit for bit. fp-contract is off, as
 /// AVX-512 implies FMA and GCC would otherwise fuse the multiplies and adds.
+template <bool kColors>
 __attribute__((target("avx512f,avx512vl"), optimize("fp-contract=off"))) std::size_t
-add_piece_avx512(const Piece& p, BlockSums& sums) {
+add_piece_avx512(const Piece& p, const float* col, BlockSums& sums, ColorSums* csums) {
     std::size_t updates = 0;
+    __m512d rgb[3];
+    for (int c = 0; c < 3; ++c) rgb[c] = _mm512_set1_pd(kColors ? double(col[c]) : 0.0);
     const __m512d r2 = _mm512_set1_pd(p.r2), amp = _mm512_set1_pd(p.amp);
     const __m256i point = _mm256_set1_epi32(int(p.point));
     const int zb0 = p.lo[2] & ~7;
@@ -402,6 +418,13 @@ add_piece_avx512(const Piece& p, BlockSums& sums) {
                     _mm512_mask_cmp_pd_mask(in, d2, _mm512_load_pd(sums.d2 + i), _CMP_LT_OQ);
                 _mm512_mask_store_pd(sums.d2 + i, nearer, d2);
                 _mm256_mask_store_epi32(sums.nearest + i, nearer, point);
+                if (kColors) {
+                    double* to[3] = {csums->r + i, csums->g + i, csums->b + i};
+                    for (int c = 0; c < 3; ++c) {
+                        const __m512d sc = _mm512_load_pd(to[c]);
+                        _mm512_store_pd(to[c], _mm512_mask_add_pd(sc, in, sc, _mm512_mul_pd(u, rgb[c])));
+                    }
+                }
             }
         }
     }
@@ -486,7 +509,7 @@ constexpr std::uint32_t kNoPoint = std::numeric_limits<std::uint32_t>::max();
 /// Loads the state's sums of the block at o into `sums` (zero where it has none); the nearest
 /// sample of a loaded voxel is the state's (kNoPoint), until a nearer one comes.
 void load_state(const SplatState& state, const openvdb::Coord& o, double voxel, BlockSums& sums,
-                std::vector<ColorSums>& csums) {
+                ColorSums* csums) {
     const double inv_voxel2 = 1.0 / (voxel * voxel);
     for (int s = 0; s < 8; ++s) {
         const openvdb::Coord lo = o + leaf_offset(s);
@@ -509,7 +532,9 @@ void load_state(const SplatState& state, const openvdb::Coord& o, double voxel, 
             sums.nearest[i] = kNoPoint;
             if (color) {
                 const openvdb::Vec3f& c = color[v];
-                csums[std::size_t(i)] = {double(c[0]), double(c[1]), double(c[2])};
+                csums->r[i] = double(c[0]);
+                csums->g[i] = double(c[1]);
+                csums->b[i] = double(c[2]);
             }
         }
     }
@@ -518,7 +543,7 @@ void load_state(const SplatState& state, const openvdb::Coord& o, double voxel, 
 /// Writes the block's sums back to the state's leaves (made beforehand for every leaf a kernel
 /// reaches). Values only: the state's grids mean "summed" by w > 0, not by active bits.
 void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kernels,
-                 double voxel, const BlockSums& sums, const std::vector<ColorSums>& csums) {
+                 double voxel, const BlockSums& sums, const ColorSums* csums) {
     for (int s = 0; s < 8; ++s) {
         const openvdb::Coord lo = o + leaf_offset(s);
         FloatLeaf* wl = state.w->tree().probeLeaf(lo);
@@ -539,10 +564,7 @@ void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kern
                 const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(openvdb::Index(v)) + lo;
                 nearest[v] = openvdb::Vec3f((k - c.asVec3d()) * voxel);
             }
-            if (color) {
-                const ColorSums& c3 = csums[std::size_t(i)];
-                color[v] = openvdb::Vec3f(float(c3.r), float(c3.g), float(c3.b));
-            }
+            if (color) color[v] = openvdb::Vec3f(float(csums->r[i]), float(csums->g[i]), float(csums->b[i]));
         }
     }
 }
@@ -554,12 +576,16 @@ template <bool kColors, typename P>
 void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Kernels& kernels,
                  const PointCloud& cloud, double voxel, double min_weight, float background,
                  int vector_rows, SplatState* state, BlockSums& sums,
-                 std::vector<ColorSums>& csums, BlockOut& out) {
+                 ColorSums* csums, BlockOut& out) {
     std::fill(std::begin(sums.w), std::end(sums.w), 0.0);
     std::fill(std::begin(sums.u), std::end(sums.u), 0.0);
     std::fill(std::begin(sums.uphi), std::end(sums.uphi), 0.0);
     std::fill(std::begin(sums.d2), std::end(sums.d2), std::numeric_limits<double>::infinity());
-    if (kColors) csums.assign(kBlockVoxels, {0, 0, 0});
+    if (kColors) {
+        std::fill(std::begin(csums->r), std::end(csums->r), 0.0);
+        std::fill(std::begin(csums->g), std::end(csums->g), 0.0);
+        std::fill(std::begin(csums->b), std::end(csums->b), 0.0);
+    }
     if (state) load_state(*state, o, voxel, sums, csums);
     Piece p{};  // zeroed: the vector rows read (and mask out) lanes outside the box
     std::size_t updates = 0;
@@ -588,13 +614,14 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
                 qt *= rho;
             }
         }
+        const float* col = kColors ? cloud.colors[q->point].data() : nullptr;
 #ifdef VDBRECON_HAVE_AVX2_PATHS
-        if (!kColors && vector_rows > 0) {
-            updates += vector_rows == 2 ? add_piece_avx512(p, sums) : add_piece_avx2(p, sums);
+        if (vector_rows > 0) {
+            updates += vector_rows == 2 ? add_piece_avx512<kColors>(p, col, sums, csums)
+                                        : add_piece_avx2<kColors>(p, col, sums, csums);
             continue;
         }
 #endif
-        const float* col = kColors ? cloud.colors[q->point].data() : nullptr;
         updates += add_piece<kColors>(p, col, sums, csums);
     }
     out.updates = updates;
@@ -606,7 +633,7 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
     for (int s = 0; s < 8; ++s) {
         struct At {
             const BlockSums& sums;
-            const std::vector<ColorSums>& csums;
+            const ColorSums* csums;
             const Kernels& kernels;
             openvdb::Coord lo_world;
             double voxel;
@@ -622,10 +649,7 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
                 VoxelSums x{sums.w[i], sums.u[i], sums.uphi[i],
                             openvdb::Vec3f(float(-ex * voxel), float(-ey * voxel), float(-ez * voxel)),
                             0, 0, 0};
-                if (kColors) {
-                    const ColorSums& c3 = csums[std::size_t(i)];
-                    x.r = c3.r, x.g = c3.g, x.b = c3.b;
-                }
+                if (kColors) x.r = csums->r[i], x.g = csums->g[i], x.b = csums->b[i];
                 return x;
             }
         };
@@ -792,12 +816,12 @@ std::vector<std::uint8_t> touched_leaf_masks(const Kernels& kernels, const Block
     return touched;
 }
 
-/// A block's sums (147 kB) per thread, not per task: allocated between the blocks' leaves, a
-/// task's sums left a hole in the one heap that the next task's did not fit, and the heap grew
-/// (bunny 10 %: its resident size varied from run to run by 10 MB).
+/// A block's sums (147 kB, and 98 kB of colour sums) per thread, not per task: allocated
+/// between the blocks' leaves, a task's sums left a hole in the one heap that the next task's
+/// did not fit, and the heap grew (bunny 10 %: its resident size varied from run to run by 10 MB).
 struct BlockScratch {
     std::unique_ptr<BlockSums> sums;
-    std::vector<ColorSums> csums;
+    std::unique_ptr<ColorSums> csums;
 };
 
 /// One slab's blocks (block x-coordinates [x0, x1]): its pairs listed in point order and
@@ -837,7 +861,7 @@ void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::si
     }
     const bool colors = setup.cloud.has_colors();
     const double min_weight = setup.options.min_weight, voxel = setup.options.voxel_size;
-    // Colourless clouds only: 2 AVX-512 rows, 1 AVX2 rows, 0 the scalar loop.
+    // 2: AVX-512 rows, 1: AVX2 rows, 0: the scalar loop.
     const int vector_rows = detail::vector_loops() ? (detail::wide_vector_loops() ? 2 : 1) : 0;
     const std::size_t first_block = blocks.size();
     blocks.resize(first_block + num_blocks);
@@ -845,6 +869,7 @@ void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::si
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         BlockScratch& scratch = scratch_per_thread.local();
         if (!scratch.sums) scratch.sums = std::make_unique<BlockSums>();
+        if (colors && !scratch.csums) scratch.csums = std::make_unique<ColorSums>();
         for (std::size_t B = rg.begin(); B < rg.end(); ++B) {
             const Pair<Key>* b = pairs.data() + block_begin[B];
             const Pair<Key>* e = pairs.data() + block_begin[B + 1];
@@ -852,11 +877,11 @@ void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::si
             if (colors) {
                 splat_block<true>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel, min_weight,
                                   setup.background, vector_rows, setup.state, *scratch.sums,
-                                  scratch.csums, out);
+                                  scratch.csums.get(), out);
             } else {
                 splat_block<false>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel, min_weight,
                                    setup.background, vector_rows, setup.state, *scratch.sums,
-                                   scratch.csums, out);
+                                   scratch.csums.get(), out);
             }
         }
     });
@@ -1228,16 +1253,76 @@ SplatAccumulator& SplatAccumulator::operator=(SplatAccumulator&&) noexcept = def
 
 const SplatOptions& SplatAccumulator::options() const { return state_->options; }
 const Vec3d& SplatAccumulator::origin() const { return state_->origin; }
-std::size_t SplatAccumulator::clouds() const { return state_->clouds; }
-std::size_t SplatAccumulator::points() const { return state_->points; }
+std::size_t SplatAccumulator::clouds() const { return state_->clouds + (state_->first ? 1 : 0); }
+std::size_t SplatAccumulator::points() const {
+    return state_->points + (state_->first ? state_->first->size() : 0);
+}
 
 std::size_t SplatAccumulator::memory_bytes() const {
     const SplatState& st = *state_;
     return std::size_t(st.w->memUsage() + st.u->memUsage() + st.uphi->memUsage() +
-                       st.nearest->memUsage() + (st.color ? st.color->memUsage() : 0));
+                       st.nearest->memUsage() + (st.color ? st.color->memUsage() : 0)) +
+           (st.first ? st.first->memory_bytes() : 0);
 }
 
-void SplatAccumulator::add(const PointCloud& cloud) {
+namespace {
+
+/// The kernels of a cloud added to an accumulator, measured, with the voxel as the area
+/// normalisation's reference sigma: a constant factor of every u, which cancels in
+/// u phi / u, so clouds added apart still mix correctly.
+Kernels added_kernels(const PointCloud& cloud, const SplatOptions& options, CloudSums& sums) {
+    Kernels kernels(cloud, options);
+    measure_kernels(kernels, options.voxel_size, sums);
+    kernels.set_median_sigma(1.0);
+    return kernels;
+}
+
+/// Sums a cloud onto the state's grids.
+void sum_onto(SplatState& st, const PointCloud& cloud) {
+    CloudSums sums;
+    const Kernels kernels = added_kernels(cloud, st.options, sums);
+    sum_kernels(kernels, cloud, st.options, &st, sums);
+    for (const BlockOut& b : sums.blocks) st.updates += b.updates;
+    st.points += cloud.size();
+    st.skipped += sums.skipped;
+    st.clouds += 1;
+    st.max_r = std::max(st.max_r, sums.max_r);
+    st.sigma_min = std::min(st.sigma_min, sums.sigma_min);
+    st.sigma_max = std::max(st.sigma_max, sums.sigma_max);
+    st.sigma_medians.push_back(sums.sigma_median);
+}
+
+/// The volume of an accumulator that holds one cloud: its blocks' sums in double made into
+/// output leaves directly, as splat() does (no crease model).
+SplatResult single_cloud_result(const SplatOptions& options, const PointCloud& cloud) {
+    CloudSums sums;
+    const Kernels kernels = added_kernels(cloud, options, sums);
+    sum_kernels(kernels, cloud, options, nullptr, sums);
+    SplatResult result;
+    result.skipped_points = sums.skipped;
+    result.sigma_min = sums.sigma_min;
+    result.sigma_median = sums.sigma_median;
+    result.sigma_max = sums.sigma_max;
+    Grids g = assemble(sums.blocks, cloud.has_colors(), sums.background, options, result);
+    finish_volume(std::move(g), cloud.origin, cloud.size(), options, result);
+    result.volume.metadata["clouds"] = "1";
+    result.volume.metadata["crease_angle"] = "0";
+    return result;
+}
+
+/// The cloud with arrays of its own (a borrowed column is copied).
+PointCloud owned(PointCloud c) {
+    c.positions.edit();
+    c.normals.edit();
+    c.colors.edit();
+    c.scales.edit();
+    c.confidences.edit();
+    return c;
+}
+
+}  // namespace
+
+void SplatAccumulator::add(PointCloud cloud) {
     SplatState& st = *state_;
     check_cloud(cloud);
     if (cloud.origin != st.origin) {
@@ -1247,27 +1332,19 @@ void SplatAccumulator::add(const PointCloud& cloud) {
         throw InvalidArgument("splat: every cloud added to an accumulator must have colours, or "
                               "none");
     }
-    const SplatOptions& options = st.options;
-    Kernels kernels(cloud, options);
-    CloudSums sums;
-    measure_kernels(kernels, options.voxel_size, sums);
     if (!st.started) {
         st.started = true;
         st.colors = cloud.has_colors();
-        if (st.colors) st.color = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
+        st.first = owned(std::move(cloud));  // summed when a second cloud comes
+        return;
     }
-    // The area normalisation's reference sigma is the voxel, not the cloud's median: a constant
-    // factor of every u, which cancels in u phi / u, so clouds added apart still mix correctly.
-    kernels.set_median_sigma(1.0);
-    sum_kernels(kernels, cloud, options, &st, sums);
-    for (const BlockOut& b : sums.blocks) st.updates += b.updates;
-    st.points += cloud.size();
-    st.skipped += sums.skipped;
-    st.clouds += 1;
-    st.max_r = std::max(st.max_r, sums.max_r);
-    st.sigma_min = std::min(st.sigma_min, sums.sigma_min);
-    st.sigma_max = std::max(st.sigma_max, sums.sigma_max);
-    st.sigma_medians.push_back(sums.sigma_median);
+    if (st.first) {
+        if (st.colors) st.color = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
+        const PointCloud first = std::move(*st.first);
+        st.first.reset();
+        sum_onto(st, first);
+    }
+    sum_onto(st, cloud);
 }
 
 namespace {
@@ -1344,10 +1421,14 @@ SplatResult accumulated_result(const SplatState& st, SplatState* consume) {
 
 }  // namespace
 
-SplatResult SplatAccumulator::result() const { return accumulated_result(*state_, nullptr); }
+SplatResult SplatAccumulator::result() const {
+    if (state_->first) return single_cloud_result(state_->options, *state_->first);
+    return accumulated_result(*state_, nullptr);
+}
 
 SplatResult SplatAccumulator::take_result() {
-    SplatResult r = accumulated_result(*state_, state_.get());
+    SplatResult r = state_->first ? single_cloud_result(state_->options, *state_->first)
+                                  : accumulated_result(*state_, state_.get());
     auto fresh = std::make_unique<detail::SplatState>();
     fresh->options = state_->options;
     fresh->origin = state_->origin;

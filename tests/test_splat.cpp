@@ -107,26 +107,31 @@ TEST_CASE("splatting a slab of blocks at a time gives the same grids", "[splat]"
 }
 
 TEST_CASE("the vector rows give the scalar rows' grids bit for bit", "[splat]") {
-    // Colourless clouds take the AVX-512 or else the AVX2 rows where the CPU has them;
+    // The splat takes the AVX-512 or else the AVX2 rows where the CPU has them;
     // VDBRECON_NO_AVX512 forces AVX2, VDBRECON_SCALAR the scalar loop. Per-point scales make
-    // every sum (w, u, u phi, nearest) differ per point.
-    PointCloud c = noisy_sphere(30000, 1.0, 5);
-    c.colors.clear();
-    SplatOptions o;
-    o.voxel_size = 0.013;
-    ::setenv("VDBRECON_SCALAR", "1", 1);
-    const SplatResult scalar = splat(c, o);
-    ::unsetenv("VDBRECON_SCALAR");
-    ::setenv("VDBRECON_NO_AVX512", "1", 1);
-    const SplatResult avx2 = splat(c, o);
-    ::unsetenv("VDBRECON_NO_AVX512");
-    const SplatResult widest = splat(c, o);
-    for (const SplatResult* vector : {&avx2, &widest}) {
-        REQUIRE(scalar.updates == vector->updates);
-        REQUIRE(scalar.active_voxels == vector->active_voxels);
-        REQUIRE(same_grids(*scalar.volume.sdf, *vector->volume.sdf));
-        REQUIRE(same_grids(*scalar.volume.weight, *vector->volume.weight));
-        REQUIRE(same_grids(*scalar.volume.nearest, *vector->volume.nearest));
+    // every sum (w, u, u phi, nearest, colour) differ per point; with and without colours.
+    for (const bool colored : {false, true}) {
+        PointCloud c = noisy_sphere(30000, 1.0, 5);
+        if (!colored) c.colors.clear();
+        SplatOptions o;
+        o.voxel_size = 0.013;
+        ::setenv("VDBRECON_SCALAR", "1", 1);
+        const SplatResult scalar = splat(c, o);
+        ::unsetenv("VDBRECON_SCALAR");
+        ::setenv("VDBRECON_NO_AVX512", "1", 1);
+        const SplatResult avx2 = splat(c, o);
+        ::unsetenv("VDBRECON_NO_AVX512");
+        const SplatResult widest = splat(c, o);
+        INFO("colours: " << colored);
+        for (const SplatResult* vector : {&avx2, &widest}) {
+            REQUIRE(scalar.updates == vector->updates);
+            REQUIRE(scalar.active_voxels == vector->active_voxels);
+            REQUIRE(same_grids(*scalar.volume.sdf, *vector->volume.sdf));
+            REQUIRE(same_grids(*scalar.volume.weight, *vector->volume.weight));
+            REQUIRE(same_grids(*scalar.volume.nearest, *vector->volume.nearest));
+            REQUIRE(bool(scalar.volume.color) == colored);
+            if (colored) REQUIRE(same_grids(*scalar.volume.color, *vector->volume.color));
+        }
     }
 }
 

@@ -143,10 +143,11 @@ struct SplatState;
 /// time, so memory follows the grid, not the number of frames. result() is the volume of all
 /// clouds added so far, by the rules of splat(); adding the same clouds in the same order gives
 /// the same grids bit for bit for any thread count. What differs from one splat() of all of
-/// them at once: the sums are kept in float between clouds (in double within one), the area
-/// normalisation's reference sigma is the voxel (a constant factor of every u that cancels in
-/// sdf = sum u phi / sum u), and there is no crease model (it needs every sample of a leaf at
-/// once).
+/// them at once: the sums are kept in float between clouds (in double within one; the first
+/// cloud is held until a second comes, so the volume of one cloud is made from its sums in
+/// double, without grids of sums), the area normalisation's reference sigma is the voxel (a
+/// constant factor of every u that cancels in sdf = sum u phi / sum u), and there is no crease
+/// model (it needs every sample of a leaf at once).
 class SplatAccumulator {
   public:
     /// Throws InvalidArgument when the options are out of range. Clouds added must have
@@ -158,7 +159,7 @@ class SplatAccumulator {
 
     /// Adds an oriented cloud (normals required; confidences, scales and colours used as by
     /// splat(): every cloud has colours or none). Throws InvalidArgument as splat() does.
-    void add(const PointCloud& cloud);
+    void add(PointCloud cloud);
     /// The volume of everything added so far (NumericalError when no voxel is valid).
     SplatResult result() const;
     /// The same, leaving the accumulator empty: the sums are freed as the volume is made, so

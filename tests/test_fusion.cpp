@@ -44,6 +44,21 @@ struct Views {
     std::vector<DepthImage> depths;
 };
 
+/// n samples of a sphere, all of one colour.
+PointCloud coloured_sphere(std::size_t n, double radius, const Vec3d& centre, const Vec3f& rgb) {
+    PointCloud s = test::sample_sphere(n, radius, centre);
+    s.colors.assign(s.size(), rgb);
+    return s;
+}
+
+/// The accumulator's splat options: voxel 1 cm, no crease model (it has none).
+SplatOptions accumulator_options() {
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    o.crease_angle = 0.0;
+    return o;
+}
+
 /// `count` views of the mesh from a sphere `distance` diagonals away.
 Views views_of(const Mesh& mesh, int count, int width, int height, double distance = 2.0) {
     Views v;
@@ -953,11 +968,8 @@ TEST_CASE("a fusion's batch presums its clouds' groups once more, as of them joi
 }
 
 TEST_CASE("taking an accumulator's result gives result()'s volume and frees the sums", "[fusion][splat]") {
-    PointCloud s = test::sample_sphere(40000, 0.5);
-    s.colors.assign(s.size(), Vec3f{0.2f, 0.4f, 0.6f});
-    SplatOptions o;
-    o.voxel_size = 0.01;
-    o.crease_angle = 0.0;
+    const PointCloud s = coloured_sphere(40000, 0.5, {0.0, 0.0, 0.0}, {0.2f, 0.4f, 0.6f});
+    const SplatOptions o = accumulator_options();
     SplatAccumulator acc(o);
     acc.add(s);
     const std::size_t before = acc.memory_bytes();
@@ -986,6 +998,36 @@ TEST_CASE("taking an accumulator's result gives result()'s volume and frees the 
     // The spent accumulator starts again.
     acc.add(s);
     CHECK(acc.result().volume.sdf->activeVoxelCount() == kept.volume.sdf->activeVoxelCount());
+}
+
+TEST_CASE("an accumulator's first cloud alone is splatted from double sums, and result() between adds changes nothing", "[fusion][splat]") {
+    // The accumulator holds its first cloud until a second comes: alone, its volume is
+    // splat()'s (no crease model) up to the constant factor of the area normalisation, so the
+    // weights are the same bits and the sdf the same within rounding.
+    const PointCloud a = coloured_sphere(30000, 0.5, {0.0, 0.0, 0.0}, {0.2f, 0.4f, 0.6f});
+    const PointCloud b = coloured_sphere(30000, 0.5, {0.3, 0.0, 0.0}, {0.8f, 0.1f, 0.3f});
+    const SplatOptions o = accumulator_options();
+    SplatAccumulator one(o);
+    one.add(a);
+    CHECK(one.clouds() == 1);
+    CHECK(one.points() == a.size());
+    const Volume alone = one.result().volume, direct = splat(a, o).volume;
+    REQUIRE(alone.sdf->activeVoxelCount() > 10000);
+    CHECK(same_grids(*alone.weight, *direct.weight));
+    REQUIRE(alone.sdf->activeVoxelCount() == direct.sdf->activeVoxelCount());
+    auto d = direct.sdf->getConstAccessor();
+    for (auto it = alone.sdf->cbeginValueOn(); it; ++it) {
+        REQUIRE(*it == Approx(d.getValue(it.getCoord())).margin(1e-6 * o.voxel_size));
+    }
+    // A second cloud: the same grids whether result() was asked for in between or not.
+    one.add(b);
+    SplatAccumulator both(o);
+    both.add(a);
+    both.add(b);
+    const Volume after = one.result().volume, straight = both.result().volume;
+    CHECK(one.clouds() == 2);
+    CHECK(same_volumes(after, straight));
+    CHECK(after.sdf->activeVoxelCount() > alone.sdf->activeVoxelCount());
 }
 
 TEST_CASE("vdbrecon fuse --fusion tsdf: frames read in parallel, the library's volume, any threads", "[fusion][cli][tsdf]") {

@@ -7,6 +7,7 @@
 #           colour painted with bench/paint.py's pattern, --voxel 1 mm (voxel > pixel footprint);
 #   dragon  the dragon's reference mesh scaled to 1.6 m, 30 poses at 2.6 m, noise 2 mm, colour,
 #           --voxel 5 mm: the voxel about the pixel footprint (3.8 mm), many kernels;
+#   dragon4 the same frames at --voxel 4 mm (1.05 pixel footprints);
 #   kinect  PCL's real Kinect frame capture0001 (0.9-3.9 m) as 30 frames of a static camera,
 #           --voxel 1 cm;
 #   table   PCL's real textured-stereo frame (colour) as 30 frames, --voxel 1 cm.
@@ -19,7 +20,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD=${1:-build}
 shift || true
-SCENES=${*:-bunny dragon kinect table}
+SCENES=${*:-bunny dragon dragon4 kinect table}
 OUT=bench/out/fusion
 FRAMES=${FRAMES:-30}
 source bench/harness.sh   # common.sh, ensure_packages
@@ -28,6 +29,12 @@ ensure_packages time python3-open3d
 # scene NAME: writes $OUT/NAME/transforms.json; sets VOXEL and REF (empty: no reference).
 scene() {
   local dir=$OUT/$1 gen=("$BUILD/tests/fusion_scene")
+  if [ "$1" = dragon4 ]; then  # the dragon's frames at a finer voxel
+    [ -f "$OUT/dragon/transforms.json" ] || scene dragon
+    rm -rf "$dir" && cp -r "$OUT/dragon" "$dir"
+    VOXEL=0.004 REF=$dir/reference.ply
+    return
+  fi
   mkdir -p "$dir"
   rm -f "$dir"/*
   case $1 in
@@ -79,7 +86,7 @@ for s in $SCENES; do
       "$BUILD/vdbrecon" eval "$dir/$t.ply" "$dir/$t.ply" --samples 1000 >"$dir/$t.json"
     fi
     colour="-"
-    if [ "$s" = bunny ] || [ "$s" = dragon ]; then colour=$(/usr/bin/python3 bench/paint.py "$dir/$t.ply" "$REF"); fi
+    if [ -n "$REF" ]; then colour=$(/usr/bin/python3 bench/paint.py "$dir/$t.ply" "$REF"); fi
     /usr/bin/python3 - "$dir/$t.json" "$s" "$t" "${BEST[$t]}" "${BEST[open3d]}" "${PEAK[$t]}" "$colour" "$REF" <<'PY'
 import json, sys
 e = json.load(open(sys.argv[1]))

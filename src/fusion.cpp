@@ -638,16 +638,27 @@ void Fusion::flush() const {
 
 PreparedFrame Fusion::prepare(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
                               const ColorImage* color, const Intrinsics* color_K) const {
+    return prepare(depth, K, pose, [&](Intrinsics& C) {
+        if (color) C = *color_K;
+        return color;
+    });
+}
+
+PreparedFrame Fusion::prepare(const DepthImage& depth, const Intrinsics& K, const Pose& pose,
+                              const ColorSource& color_source) const {
     PreparedFrame out;
+    Intrinsics C;
     if (!tsdf_) {
         PointCloud samples = depth_samples(depth, K, pose, depth_, accumulator_.origin());
-        if (color) color_samples(samples, *color, *color_K, pose);
+        if (const ColorImage* color = color_source(C)) color_samples(samples, *color, C, pose);
         out.samples = samples.size();
         out.groups = presum(std::move(samples));  // owned: the samples die here
         return out;
     }
     check_frame(depth, K, pose, depth_);
-    if (color) check_color(*color, *color_K);
+    const ColorImage* color = color_source(C);
+    const Intrinsics* color_K = &C;
+    if (color) check_color(*color, C);
     const DepthRows rows(depth, K, depth_);
     std::vector<Vec3f> colors;  // each measured pixel's colour, seen from the same pose
     if (color) colors.assign(std::size_t(rows.w) * std::size_t(rows.h), Vec3f{0.0f, 0.0f, 0.0f});
@@ -938,13 +949,13 @@ FrameSamples frame_samples(const SceneFrame& f, const Fusion& fusion, bool color
     try {
         const DepthImage img = frame_depth(f);
         const Intrinsics K = frame_intrinsics(f, img);  // checked with the frame
-        if (color && !f.color_path.empty()) {
-            const ColorImage c = read_color_image(f.color_path);
-            const Intrinsics C = color_camera(f, K, c);
-            out.frame = fusion.prepare(img, K, f.pose, &c, &C);
-        } else {
-            out.frame = fusion.prepare(img, K, f.pose);
-        }
+        ColorImage c;
+        out.frame = fusion.prepare(img, K, f.pose, [&](Intrinsics& C) -> const ColorImage* {
+            if (!color || f.color_path.empty()) return nullptr;
+            c = read_color_image(f.color_path);
+            C = color_camera(f, K, c);
+            return &c;
+        });
     } catch (...) {
         out.error = std::current_exception();
     }

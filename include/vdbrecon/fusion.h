@@ -27,6 +27,7 @@
 
 #include <array>
 #include <cstddef>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -172,6 +173,13 @@ class Fusion {
     /// at once, from several threads, while earlier ones are integrated.
     PreparedFrame prepare(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,
                           const ColorImage* color = nullptr, const Intrinsics* color_K = nullptr) const;
+    /// The colour image of a frame made when prepare() needs it: returns it (null: none) and
+    /// sets its intrinsics; it must live until prepare() returns.
+    using ColorSource = std::function<const ColorImage*(Intrinsics& color_K)>;
+    /// The same, the colour image asked for only when it is needed (the splat rule: after the
+    /// depth samples are made, so that a frame's depth and colour arrays are not held at once).
+    PreparedFrame prepare(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,
+                          const ColorSource& color) const;
     /// Adds a frame made by this fusion's prepare(): the same volume as integrate() of the
     /// frame; returns its samples.
     std::size_t integrate(const PreparedFrame& frame);

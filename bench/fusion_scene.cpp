@@ -44,15 +44,24 @@ Args parse(int argc, char** argv) {
     for (int i = 1; i < argc; ++i) {
         const char* s = argv[i];
         const auto next = [&]() { return i + 1 < argc ? argv[++i] : throw std::runtime_error(s); };
-        if (!std::strcmp(s, "--pcd")) a.pcd = true;
-        else if (!std::strcmp(s, "--frames")) a.frames = std::atoi(next());
-        else if (!std::strcmp(s, "--size")) a.width = std::atoi(next()), a.height = std::atoi(next());
-        else if (!std::strcmp(s, "--noise")) a.noise = std::atof(next());
-        else if (!std::strcmp(s, "--scale")) a.scale = std::atof(next());
-        else if (!std::strcmp(s, "--paint")) a.paint = std::atof(next());
-        else if (positional == 0) a.input = s, ++positional;
-        else if (positional == 1) a.dir = s, ++positional;
-        else throw std::runtime_error(s);
+        if (!std::strcmp(s, "--pcd"))
+            a.pcd = true;
+        else if (!std::strcmp(s, "--frames"))
+            a.frames = std::atoi(next());
+        else if (!std::strcmp(s, "--size"))
+            a.width = std::atoi(next()), a.height = std::atoi(next());
+        else if (!std::strcmp(s, "--noise"))
+            a.noise = std::atof(next());
+        else if (!std::strcmp(s, "--scale"))
+            a.scale = std::atof(next());
+        else if (!std::strcmp(s, "--paint"))
+            a.paint = std::atof(next());
+        else if (positional == 0)
+            a.input = s, ++positional;
+        else if (positional == 1)
+            a.dir = s, ++positional;
+        else
+            throw std::runtime_error(s);
     }
     if (positional != 2 || a.frames < 1) throw std::runtime_error("arguments");
     return a;
@@ -61,7 +70,8 @@ Args parse(int argc, char** argv) {
 /// Least-squares fit of pixel = f * t + c over the pairs (t, pixel).
 void fit_axis(const std::vector<std::array<double, 2>>& pairs, double& f, double& c) {
     double n = 0, st = 0, sp = 0, stt = 0, stp = 0;
-    for (const auto& q : pairs) n += 1, st += q[0], sp += q[1], stt += q[0] * q[0], stp += q[0] * q[1];
+    for (const auto& q : pairs)
+        n += 1, st += q[0], sp += q[1], stt += q[0] * q[0], stp += q[0] * q[1];
     f = (n * stp - st * sp) / (n * stt - st * st);
     c = (sp - f * st) / n;
 }
@@ -93,21 +103,24 @@ std::string write_pcd_scene(const Args& a) {
     Intrinsics K{0, 0, 0, 0, c.width, c.height};
     fit_axis(us, K.fx, K.cx);
     fit_axis(vs, K.fy, K.cy);
-    std::fprintf(stderr, "fitted intrinsics: fx %.3f fy %.3f cx %.3f cy %.3f (%zu pixels)\n", K.fx, K.fy,
-                 K.cx, K.cy, us.size());
+    std::fprintf(stderr, "fitted intrinsics: fx %.3f fy %.3f cx %.3f cy %.3f (%zu pixels)\n", K.fx,
+                 K.fy, K.cx, K.cy, us.size());
     Pose pose{1, 0, 0, c.sensor[0], 0, 1, 0, c.sensor[1], 0, 0, 1, c.sensor[2], 0, 0, 0, 1};
     if (!c.colors.empty()) {
         const ColorImage rgb{c.width, c.height, c.colors};
-        for (int i = 0; i < a.frames; ++i) write_color_image(a.dir + "/rgb_" + std::to_string(i) + ".png", rgb);
+        for (int i = 0; i < a.frames; ++i)
+            write_color_image(a.dir + "/rgb_" + std::to_string(i) + ".png", rgb);
     }
     const std::vector<DepthImage> depths(std::size_t(a.frames), d);
-    return test::write_transforms_scene(a.dir, depths, K, std::vector<Pose>(std::size_t(a.frames), pose), "png",
+    return test::write_transforms_scene(a.dir, depths, K,
+                                        std::vector<Pose>(std::size_t(a.frames), pose), "png",
                                         depth_units(depths));
 }
 
 std::string write_mesh_scene(const Args& a) {
     Mesh mesh = read_mesh(a.input);
-    for (Vec3f& p : mesh.vertices.edit()) p = Vec3f{float(p[0] * a.scale), float(p[1] * a.scale), float(p[2] * a.scale)};
+    for (Vec3f& p : mesh.vertices.edit())
+        p = Vec3f{float(p[0] * a.scale), float(p[1] * a.scale), float(p[2] * a.scale)};
     for (double& o : mesh.origin) o *= a.scale;
     if (a.scale != 1.0) write_mesh(a.dir + "/reference.ply", mesh);  // what to score against
     const BBox b = bounding_box(mesh.vertices);
@@ -129,7 +142,8 @@ std::string write_mesh_scene(const Args& a) {
         write_color_image(a.dir + "/rgb_" + std::to_string(i) + ".png",
                           test::render_color(clean, K, pose, paint));
     }
-    std::fprintf(stderr, "camera %.3f from the centre, focal %.1f pixels\n", 1.6 * b.diagonal(), K.fx);
+    std::fprintf(stderr, "camera %.3f from the centre, focal %.1f pixels\n", 1.6 * b.diagonal(),
+                 K.fx);
     return test::write_transforms_scene(a.dir, depths, K, poses, "png", depth_units(depths));
 }
 
@@ -140,9 +154,11 @@ int main(int argc, char** argv) {
     try {
         a = parse(argc, argv);
     } catch (const std::exception& e) {
-        std::fprintf(stderr, "fusion_scene: bad argument near '%s'\nusage: fusion_scene MESH OUTDIR "
-                             "[--frames N] [--size W H] [--noise S] [--scale S] [--paint P]\n"
-                             "       fusion_scene --pcd ORGANIZED.pcd OUTDIR [--frames N]\n", e.what());
+        std::fprintf(stderr,
+                     "fusion_scene: bad argument near '%s'\nusage: fusion_scene MESH OUTDIR "
+                     "[--frames N] [--size W H] [--noise S] [--scale S] [--paint P]\n"
+                     "       fusion_scene --pcd ORGANIZED.pcd OUTDIR [--frames N]\n",
+                     e.what());
         return 2;
     }
     std::printf("%s\n", (a.pcd ? write_pcd_scene(a) : write_mesh_scene(a)).c_str());

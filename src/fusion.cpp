@@ -663,8 +663,9 @@ PreparedFrame Fusion::prepare(const DepthImage& depth, const Intrinsics& K, cons
     std::vector<Vec3f> colors;  // each measured pixel's colour, seen from the same pose
     if (color) colors.assign(std::size_t(rows.w) * std::size_t(rows.h), Vec3f{0.0f, 0.0f, 0.0f});
     // A colour image registered to the depth image (the same camera): a pixel's own colour.
-    const bool registered = color && color_K->fx == K.fx && color_K->fy == K.fy && color_K->cx == K.cx &&
-                            color_K->cy == K.cy && color->width == K.width && color->height == K.height;
+    const bool registered = color && color_K->fx == K.fx && color_K->fy == K.fy &&
+                            color_K->cx == K.cx && color_K->cy == K.cy && color->width == K.width &&
+                            color->height == K.height;
     auto row = [&](int v, const V3*& points, const char*& measured) {
         const GridRow r = rows.row(v);
         points = r.p;
@@ -674,8 +675,9 @@ PreparedFrame Fusion::prepare(const DepthImage& depth, const Intrinsics& K, cons
         for (int u = 0; u < rows.w; ++u) {
             if (!r.valid[u]) continue;
             const V3& x = r.p[u];
-            colors[first + std::size_t(u)] = registered ? color->rgb[first + std::size_t(u)]
-                                                        : seen_color(*color, *color_K, x[0], x[1], x[2]);
+            colors[first + std::size_t(u)] = registered
+                                                 ? color->rgb[first + std::size_t(u)]
+                                                 : seen_color(*color, *color_K, x[0], x[1], x[2]);
         }
     };
     auto f = std::make_shared<detail::TsdfFrame>(tsdf_->prepare(row, K, pose));
@@ -687,11 +689,14 @@ PreparedFrame Fusion::prepare(const DepthImage& depth, const Intrinsics& K, cons
 
 std::size_t Fusion::integrate(const PreparedFrame& frame) {
     if (tsdf_) {
-        if (!frame.tsdf) throw InvalidArgument("fusion: a frame prepared for the splat rule given to the tsdf rule");
+        if (!frame.tsdf)
+            throw InvalidArgument(
+                "fusion: a frame prepared for the splat rule given to the tsdf rule");
         ++frames_;
         return tsdf_->integrate(*frame.tsdf);
     }
-    if (frame.tsdf) throw InvalidArgument("fusion: a frame prepared for the tsdf rule given to the splat rule");
+    if (frame.tsdf)
+        throw InvalidArgument("fusion: a frame prepared for the tsdf rule given to the splat rule");
     ++frames_;
     add(frame.groups, frame.samples);
     return frame.samples;

@@ -15,18 +15,17 @@
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <array>
-#include <memory>
-#include <optional>
 #include <climits>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <numeric>
+#include <optional>
 #include <sstream>
-
-#include <unistd.h>
 #if defined(__x86_64__)
 #include <immintrin.h>
 #endif
@@ -310,8 +309,8 @@ std::size_t add_piece(const Piece& p, const float* col, BlockSums& sums, ColorSu
 /// are the aligned quads of the 16-voxel block row, so loads and stores stay inside the row.
 /// No FMA: a fused multiply-add would round differently from the scalar code.
 template <bool kColors>
-__attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, const float* col, BlockSums& sums,
-                                                           ColorSums* csums) {
+__attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, const float* col,
+                                                           BlockSums& sums, ColorSums* csums) {
     std::size_t updates = 0;
     __m256d rgb[3];
     for (int c = 0; c < 3; ++c) rgb[c] = _mm256_set1_pd(kColors ? double(col[c]) : 0.0);
@@ -361,7 +360,8 @@ __attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, const
                 if (kColors) {  // u is +0 on the lanes outside
                     double* to[3] = {csums->r + i, csums->g + i, csums->b + i};
                     for (int c = 0; c < 3; ++c) {
-                        _mm256_store_pd(to[c], _mm256_add_pd(_mm256_load_pd(to[c]), _mm256_mul_pd(u, rgb[c])));
+                        _mm256_store_pd(
+                            to[c], _mm256_add_pd(_mm256_load_pd(to[c]), _mm256_mul_pd(u, rgb[c])));
                     }
                 }
             }
@@ -422,7 +422,8 @@ add_piece_avx512(const Piece& p, const float* col, BlockSums& sums, ColorSums* c
                     double* to[3] = {csums->r + i, csums->g + i, csums->b + i};
                     for (int c = 0; c < 3; ++c) {
                         const __m512d sc = _mm512_load_pd(to[c]);
-                        _mm512_store_pd(to[c], _mm512_mask_add_pd(sc, in, sc, _mm512_mul_pd(u, rgb[c])));
+                        _mm512_store_pd(to[c],
+                                        _mm512_mask_add_pd(sc, in, sc, _mm512_mul_pd(u, rgb[c])));
                     }
                 }
             }
@@ -542,8 +543,8 @@ void load_state(const SplatState& state, const openvdb::Coord& o, double voxel, 
 
 /// Writes the block's sums back to the state's leaves (made beforehand for every leaf a kernel
 /// reaches). Values only: the state's grids mean "summed" by w > 0, not by active bits.
-void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kernels,
-                 double voxel, const BlockSums& sums, const ColorSums* csums) {
+void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kernels, double voxel,
+                 const BlockSums& sums, const ColorSums* csums) {
     for (int s = 0; s < 8; ++s) {
         const openvdb::Coord lo = o + leaf_offset(s);
         FloatLeaf* wl = state.w->tree().probeLeaf(lo);
@@ -564,7 +565,9 @@ void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kern
                 const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(openvdb::Index(v)) + lo;
                 nearest[v] = openvdb::Vec3f((k - c.asVec3d()) * voxel);
             }
-            if (color) color[v] = openvdb::Vec3f(float(csums->r[i]), float(csums->g[i]), float(csums->b[i]));
+            if (color)
+                color[v] =
+                    openvdb::Vec3f(float(csums->r[i]), float(csums->g[i]), float(csums->b[i]));
         }
     }
 }
@@ -575,8 +578,8 @@ void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kern
 template <bool kColors, typename P>
 void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Kernels& kernels,
                  const PointCloud& cloud, double voxel, double min_weight, float background,
-                 int vector_rows, SplatState* state, BlockSums& sums,
-                 ColorSums* csums, BlockOut& out) {
+                 int vector_rows, SplatState* state, BlockSums& sums, ColorSums* csums,
+                 BlockOut& out) {
     std::fill(std::begin(sums.w), std::end(sums.w), 0.0);
     std::fill(std::begin(sums.u), std::end(sums.u), 0.0);
     std::fill(std::begin(sums.uphi), std::end(sums.uphi), 0.0);
@@ -875,13 +878,13 @@ void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::si
             const Pair<Key>* e = pairs.data() + block_begin[B + 1];
             BlockOut& out = blocks[first_block + B];
             if (colors) {
-                splat_block<true>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel, min_weight,
-                                  setup.background, vector_rows, setup.state, *scratch.sums,
-                                  scratch.csums.get(), out);
+                splat_block<true>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel,
+                                  min_weight, setup.background, vector_rows, setup.state,
+                                  *scratch.sums, scratch.csums.get(), out);
             } else {
-                splat_block<false>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel, min_weight,
-                                   setup.background, vector_rows, setup.state, *scratch.sums,
-                                   scratch.csums.get(), out);
+                splat_block<false>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel,
+                                   min_weight, setup.background, vector_rows, setup.state,
+                                   *scratch.sums, scratch.csums.get(), out);
             }
         }
     });

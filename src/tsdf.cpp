@@ -207,7 +207,8 @@ std::uint32_t update_row(const RowCamera& c, const RowVoxels& r, float* value, f
         if (!(cz > 0.0f)) continue;
         const float inv = 1.0f / cz;
         const float fu = c.fx * cx * inv + c.cx, fv = c.fy * cy * inv + c.cy;
-        if (!(fu > -0.5f && fu < float(c.w) - 0.5f && fv > -0.5f && fv < float(c.h) - 0.5f)) continue;
+        if (!(fu > -0.5f && fu < float(c.w) - 0.5f && fv > -0.5f && fv < float(c.h) - 0.5f))
+            continue;
         const int u = std::min(int(std::floor(fu + 0.5f)), c.w - 1);
         const int v = std::min(int(std::floor(fv + 0.5f)), c.h - 1);
         const std::int32_t i = v * c.w + u;
@@ -229,10 +230,12 @@ std::uint32_t update_row(const RowCamera& c, const RowVoxels& r, float* value, f
 
 #ifdef VDBRECON_HAVE_AVX2_PATHS
 /// update_row, the 8 lanes at once (AVX2; no FMA: it would round differently).
-__attribute__((target("avx2"))) std::uint32_t update_row_avx2(const RowCamera& c, const RowVoxels& r,
-                                                              float* value, float* weight,
-                                                              std::int32_t* pixel, float* t) {
-    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f), half = _mm256_set1_ps(0.5f);
+__attribute__((target("avx2"))) std::uint32_t update_row_avx2(const RowCamera& c,
+                                                              const RowVoxels& r, float* value,
+                                                              float* weight, std::int32_t* pixel,
+                                                              float* t) {
+    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f),
+                 half = _mm256_set1_ps(0.5f);
     const __m256 cz = _mm256_add_ps(_mm256_set1_ps(r.sz), _mm256_loadu_ps(r.az));
     const __m256 cx = _mm256_add_ps(_mm256_set1_ps(r.sx), _mm256_loadu_ps(r.ax));
     const __m256 cy = _mm256_add_ps(_mm256_set1_ps(r.sy), _mm256_loadu_ps(r.ay));
@@ -244,21 +247,25 @@ __attribute__((target("avx2"))) std::uint32_t update_row_avx2(const RowCamera& c
     const __m256 fv = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(c.fy), cy), inv),
                                     _mm256_set1_ps(c.cy));
     const __m256 lo = _mm256_set1_ps(-0.5f);
-    ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(fu, lo, _CMP_GT_OQ),
-                                         _mm256_cmp_ps(fu, _mm256_set1_ps(float(c.w) - 0.5f), _CMP_LT_OQ)));
-    ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(fv, lo, _CMP_GT_OQ),
-                                         _mm256_cmp_ps(fv, _mm256_set1_ps(float(c.h) - 0.5f), _CMP_LT_OQ)));
+    ok = _mm256_and_ps(
+        ok, _mm256_and_ps(_mm256_cmp_ps(fu, lo, _CMP_GT_OQ),
+                          _mm256_cmp_ps(fu, _mm256_set1_ps(float(c.w) - 0.5f), _CMP_LT_OQ)));
+    ok = _mm256_and_ps(
+        ok, _mm256_and_ps(_mm256_cmp_ps(fv, lo, _CMP_GT_OQ),
+                          _mm256_cmp_ps(fv, _mm256_set1_ps(float(c.h) - 0.5f), _CMP_LT_OQ)));
     if (!_mm256_movemask_ps(ok)) return 0;
-    const __m256i u = _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(fu, half))),
-                                       _mm256_set1_epi32(c.w - 1));
-    const __m256i v = _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(fv, half))),
-                                       _mm256_set1_epi32(c.h - 1));
-    const __m256i i = _mm256_and_si256(_mm256_add_epi32(_mm256_mullo_epi32(v, _mm256_set1_epi32(c.w)), u),
-                                       _mm256_castps_si256(ok));  // lanes off read pixel 0
+    const __m256i u = _mm256_min_epi32(
+        _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(fu, half))), _mm256_set1_epi32(c.w - 1));
+    const __m256i v = _mm256_min_epi32(
+        _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(fv, half))), _mm256_set1_epi32(c.h - 1));
+    const __m256i i =
+        _mm256_and_si256(_mm256_add_epi32(_mm256_mullo_epi32(v, _mm256_set1_epi32(c.w)), u),
+                         _mm256_castps_si256(ok));  // lanes off read pixel 0
     const __m256 d = _mm256_mask_i32gather_ps(zero, c.z, i, ok, 4);
     const __m256 sdf = _mm256_sub_ps(d, cz);
-    ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(d, zero, _CMP_GT_OQ),
-                                         _mm256_cmp_ps(sdf, _mm256_set1_ps(-c.trunc), _CMP_NLT_UQ)));
+    ok =
+        _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(d, zero, _CMP_GT_OQ),
+                                        _mm256_cmp_ps(sdf, _mm256_set1_ps(-c.trunc), _CMP_NLT_UQ)));
     const std::uint32_t updated = std::uint32_t(_mm256_movemask_ps(ok));
     if (!updated) return 0;
     const __m256 w0 = _mm256_loadu_ps(weight);
@@ -293,8 +300,8 @@ void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<fl
     for (int k = 0; k < 8; ++k) {
         for (int b = 0; b < 3; ++b) a[b][k] = float(m[std::size_t(8 + b)] * p[2][k]);
     }
-    const RowCamera cam{z.data(), K.width, K.height, float(K.fx), float(K.fy), float(K.cx),
-                        float(K.cy), float(truncation_)};
+    const RowCamera cam{z.data(),    K.width,     K.height,    float(K.fx),
+                        float(K.fy), float(K.cx), float(K.cy), float(truncation_)};
     float* value = val.buffer().data();
     float* weight = wt.buffer().data();
     auto& value_on = val.getValueMask();
@@ -303,14 +310,20 @@ void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<fl
     float t[8];
     for (int x = 0; x < 8; ++x) {
         for (int y = 0; y < 8; ++y) {
-            const RowVoxels row{float(m[0] * p[0][x] + m[4] * p[1][y]), float(m[1] * p[0][x] + m[5] * p[1][y]),
-                                float(m[2] * p[0][x] + m[6] * p[1][y]), a[0], a[1], a[2]};
+            const RowVoxels row{float(m[0] * p[0][x] + m[4] * p[1][y]),
+                                float(m[1] * p[0][x] + m[5] * p[1][y]),
+                                float(m[2] * p[0][x] + m[6] * p[1][y]),
+                                a[0],
+                                a[1],
+                                a[2]};
             const openvdb::Index first = openvdb::Index(x << 6 | y << 3);
 #ifdef VDBRECON_HAVE_AVX2_PATHS
-            const std::uint32_t updated = vector ? update_row_avx2(cam, row, value + first, weight + first, pixel, t)
-                                                 : update_row(cam, row, value + first, weight + first, pixel, t);
+            const std::uint32_t updated =
+                vector ? update_row_avx2(cam, row, value + first, weight + first, pixel, t)
+                       : update_row(cam, row, value + first, weight + first, pixel, t);
 #else
-            const std::uint32_t updated = update_row(cam, row, value + first, weight + first, pixel, t);
+            const std::uint32_t updated =
+                update_row(cam, row, value + first, weight + first, pixel, t);
 #endif
             if (!updated) continue;
             value_on.getWord<std::uint8_t>(first >> 3) |= std::uint8_t(updated);
@@ -339,7 +352,8 @@ TsdfVolume::TsdfVolume(double voxel, double truncation_voxels, bool carve, const
     : voxel_(voxel), truncation_(truncation_voxels * voxel), carve_(carve), origin_(origin),
       value_(openvdb::FloatGrid::create(1.0f)), weight_(openvdb::FloatGrid::create(0.0f)) {}
 
-std::vector<FloatLeaf*> TsdfVolume::candidates(const std::vector<openvdb::Coord>& leaves, bool colors) {
+std::vector<FloatLeaf*> TsdfVolume::candidates(const std::vector<openvdb::Coord>& leaves,
+                                               bool colors) {
     for (const openvdb::Coord& c : leaves) {  // serially: the trees' structure changes
         value_->tree().touchLeaf(c);
         weight_->tree().touchLeaf(c);
@@ -394,7 +408,8 @@ TsdfFrame TsdfVolume::prepare(const TsdfRows& rows, const Intrinsics& K, const P
             ++f.measured;
             std::array<double, 3> wpt;
             for (std::size_t a = 0; a < 3; ++a) {
-                wpt[a] = m[4 * a] * c[0] + m[4 * a + 1] * c[1] + m[4 * a + 2] * c[2] + m[4 * a + 3] - origin_[a];
+                wpt[a] = m[4 * a] * c[0] + m[4 * a + 1] * c[1] + m[4 * a + 2] * c[2] +
+                         m[4 * a + 3] - origin_[a];
             }
             gather.add(wpt);
         }

@@ -10,7 +10,8 @@ namespace vdbrecon::test {
 /// The same active voxels, leaves and values, bit for bit.
 template <typename GridT>
 bool same_grids(const GridT& a, const GridT& b) {
-    if (a.activeVoxelCount() != b.activeVoxelCount() || a.tree().leafCount() != b.tree().leafCount()) {
+    if (a.activeVoxelCount() != b.activeVoxelCount() ||
+        a.tree().leafCount() != b.tree().leafCount()) {
         return false;
     }
     for (auto it = a.tree().cbeginLeaf(); it; ++it) {

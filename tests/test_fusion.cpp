@@ -1,16 +1,15 @@
 // Range-image fusion: depth pixels to samples, depth image files, scene files, and fused meshes
 // of known shapes seen from every side (tests/depth_scenes.h renders them).
-#include <catch2/catch.hpp>
-
 #include <tbb/task_arena.h>
 #include <zlib.h>
 
 #include <algorithm>
-#include <numeric>
+#include <catch2/catch.hpp>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <functional>
+#include <numeric>
 #include <random>
 #include <sstream>
 #include <unordered_map>
@@ -786,7 +785,8 @@ TEST_CASE("tsdf fusion: the AVX2 rows give the scalar rows' grids bit for bit", 
     auto fused = [&] {
         Fusion f(fusion_options(voxel), d);
         for (std::size_t i = 0; i < v.poses.size(); ++i) {
-            f.integrate(v.depths[i], v.K, v.poses[i], render_color(v.depths[i], v.K, v.poses[i], paint), v.K);
+            f.integrate(v.depths[i], v.K, v.poses[i],
+                        render_color(v.depths[i], v.K, v.poses[i], paint), v.K);
         }
         return f.volume();
     };
@@ -1000,7 +1000,10 @@ TEST_CASE("taking an accumulator's result gives result()'s volume and frees the 
     CHECK(acc.result().volume.sdf->activeVoxelCount() == kept.volume.sdf->activeVoxelCount());
 }
 
-TEST_CASE("an accumulator's first cloud alone is splatted from double sums, and result() between adds changes nothing", "[fusion][splat]") {
+TEST_CASE(
+    "an accumulator's first cloud alone is splatted from double sums, and result() between adds "
+    "changes nothing",
+    "[fusion][splat]") {
     // The accumulator holds its first cloud until a second comes: alone, its volume is
     // splat()'s (no crease model) up to the constant factor of the area normalisation, so the
     // weights are the same bits and the sdf the same within rounding.

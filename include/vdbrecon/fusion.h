@@ -172,7 +172,8 @@ class Fusion {
     /// integrate(PreparedFrame) without changing the fusion, so several frames may be prepared
     /// at once, from several threads, while earlier ones are integrated.
     PreparedFrame prepare(const DepthImage& depth, const Intrinsics& K, const Pose& camera_to_world,
-                          const ColorImage* color = nullptr, const Intrinsics* color_K = nullptr) const;
+                          const ColorImage* color = nullptr,
+                          const Intrinsics* color_K = nullptr) const;
     /// The colour image of a frame made when prepare() needs it: returns it (null: none) and
     /// sets its intrinsics; it must live until prepare() returns.
     using ColorSource = std::function<const ColorImage*(Intrinsics& color_K)>;

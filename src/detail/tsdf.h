@@ -62,7 +62,8 @@ struct TsdfFrame {
 
 /// One row v of a frame's pixels: their camera-frame points (planar depth in [2]; the
 /// back-projection and the measurement rules of depth_samples) and whether each was measured.
-using TsdfRows = std::function<void(int v, const std::array<double, 3>*& points, const char*& measured)>;
+using TsdfRows =
+    std::function<void(int v, const std::array<double, 3>*& points, const char*& measured)>;
 
 class TsdfVolume {
   public:

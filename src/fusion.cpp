@@ -657,15 +657,13 @@ PreparedFrame Fusion::prepare(const DepthImage& depth, const Intrinsics& K, cons
     }
     check_frame(depth, K, pose, depth_);
     const ColorImage* color = color_source(C);
-    const Intrinsics* color_K = &C;
     if (color) check_color(*color, C);
     const DepthRows rows(depth, K, depth_);
     std::vector<Vec3f> colors;  // each measured pixel's colour, seen from the same pose
     if (color) colors.assign(std::size_t(rows.w) * std::size_t(rows.h), Vec3f{0.0f, 0.0f, 0.0f});
     // A colour image registered to the depth image (the same camera): a pixel's own colour.
-    const bool registered = color && color_K->fx == K.fx && color_K->fy == K.fy &&
-                            color_K->cx == K.cx && color_K->cy == K.cy && color->width == K.width &&
-                            color->height == K.height;
+    const bool registered = color && C.fx == K.fx && C.fy == K.fy && C.cx == K.cx &&
+                            C.cy == K.cy && color->width == K.width && color->height == K.height;
     auto row = [&](int v, const V3*& points, const char*& measured) {
         const GridRow r = rows.row(v);
         points = r.p;
@@ -677,7 +675,7 @@ PreparedFrame Fusion::prepare(const DepthImage& depth, const Intrinsics& K, cons
             const V3& x = r.p[u];
             colors[first + std::size_t(u)] = registered
                                                  ? color->rgb[first + std::size_t(u)]
-                                                 : seen_color(*color, *color_K, x[0], x[1], x[2]);
+                                                 : seen_color(*color, C, x[0], x[1], x[2]);
         }
     };
     auto f = std::make_shared<detail::TsdfFrame>(tsdf_->prepare(row, K, pose));

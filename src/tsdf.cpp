@@ -544,7 +544,7 @@ std::size_t TsdfVolume::integrate_scan(const PointCloud& samples, const Vec3d& s
     std::vector<Vec3f> colors;
     if (samples.has_colors()) colors.assign(samples.colors.begin(), samples.colors.end());
     const std::vector<Vec3f>* pc = colors.empty() ? nullptr : &colors;
-    const std::vector<FloatLeaf*> todo = candidates(std::move(gather.leaves), pc != nullptr);
+    const std::vector<FloatLeaf*> todo = candidates(gather.leaves, pc != nullptr);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, todo.size(), 4),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t j = rg.begin(); j < rg.end(); ++j) {

@@ -26,15 +26,15 @@ FRAMES=${FRAMES:-30}
 source bench/harness.sh   # common.sh, ensure_packages
 ensure_packages time python3-open3d
 
-# scene NAME: writes $OUT/NAME/transforms.json; sets VOXEL and REF (empty: no reference).
+# scene NAME: writes the scene's frames to $OUT/NAME/transforms.json (dragon4 reads the
+# dragon's); sets FRAMES_DIR, VOXEL and REF (empty: no reference).
 scene() {
-  local dir=$OUT/$1 gen=("$BUILD/tests/fusion_scene")
   if [ "$1" = dragon4 ]; then  # the dragon's frames at a finer voxel
     [ -f "$OUT/dragon/transforms.json" ] || scene dragon
-    rm -rf "$dir" && cp -r "$OUT/dragon" "$dir"
-    VOXEL=0.004 REF=$dir/reference.ply
+    FRAMES_DIR=$OUT/dragon VOXEL=0.004 REF=$OUT/dragon/reference.ply
     return
   fi
+  local dir=$OUT/$1 gen=("$BUILD/tests/fusion_scene")
   mkdir -p "$dir"
   rm -f "$dir"/*
   case $1 in
@@ -47,16 +47,20 @@ scene() {
     *) echo "bench/fusion.sh: unknown scene '$1'" >&2; exit 2 ;;
   esac
   "${gen[@]}" --frames "$FRAMES" >/dev/null 2>"$dir/scene.log"
+  FRAMES_DIR=$dir
 }
 
-# tool_command NAME SCENE_DIR: the command of one tool on the scene (mesh SCENE_DIR/NAME.ply).
-tool_command() {
-  local json=$2/transforms.json
+# run_tool NAME OUT_DIR: one timed run of a tool on the scene's frames (mesh OUT_DIR/NAME.ply,
+# its stderr in OUT_DIR/NAME.log); sets W (s) and R (KB).
+run_tool() {
+  local json=$FRAMES_DIR/transforms.json mesh=$2/$1.ply cmd
   case $1 in
-    splat) echo "$BUILD/vdbrecon fuse $json -o $2/splat.ply --voxel $VOXEL --no-vdb" ;;
-    tsdf) echo "$BUILD/vdbrecon fuse $json -o $2/tsdf.ply --voxel $VOXEL --no-vdb --fusion tsdf" ;;
-    open3d) echo "/usr/bin/python3 bench/fusion_open3d.py $json $2/open3d.ply $VOXEL" ;;
+    splat) cmd=("$BUILD/vdbrecon" fuse "$json" -o "$mesh" --voxel "$VOXEL" --no-vdb) ;;
+    tsdf) cmd=("$BUILD/vdbrecon" fuse "$json" -o "$mesh" --voxel "$VOXEL" --no-vdb --fusion tsdf) ;;
+    open3d) cmd=(/usr/bin/python3 bench/fusion_open3d.py "$json" "$mesh" "$VOXEL") ;;
   esac
+  /usr/bin/time -f "%e %M" -o "$OUT/time.txt" "${cmd[@]}" >/dev/null 2>"$2/$1.log"
+  read -r W R <"$OUT/time.txt"
 }
 
 machine_line
@@ -70,13 +74,12 @@ TOOLS=(splat tsdf open3d)
 for s in $SCENES; do
   scene "$s"
   dir=$OUT/$s
+  mkdir -p "$dir"
   declare -A BEST=() PEAK=()
   for ((k = 0; k < REPEAT; ++k)); do
     for t in "${TOOLS[@]}"; do
-      # shellcheck disable=SC2046
-      /usr/bin/time -f "%e %M" -o "$OUT/time.txt" $(tool_command "$t" "$dir") >/dev/null 2>"$dir/$t.log"
-      read -r w r <"$OUT/time.txt"
-      if better "$w" "${BEST[$t]:-}"; then BEST[$t]=$w; PEAK[$t]=$((r / 1024)); fi
+      run_tool "$t" "$dir"
+      if better "$W" "${BEST[$t]:-}"; then BEST[$t]=$W; PEAK[$t]=$((R / 1024)); fi
     done
   done
   for t in "${TOOLS[@]}"; do

@@ -3,6 +3,8 @@
 #include <fcntl.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -40,16 +42,24 @@ double BBox::diagonal() const {
 }
 
 BBox bounding_box(Span<Vec3f> positions) {
-    BBox b;
-    if (positions.empty()) return b;
-    b.min = b.max = positions[0];
-    for (const Vec3f& p : positions) {
+    if (positions.empty()) return BBox{};
+    // In parallel: min and max do not depend on the order, so neither on the threads. Each
+    // part starts from the first position, as one pass over them all would.
+    const BBox first{positions[0], positions[0]};
+    auto extend = [](BBox b, const Vec3f& lo, const Vec3f& hi) {
         for (int a = 0; a < 3; ++a) {
-            b.min[a] = std::min(b.min[a], p[a]);
-            b.max[a] = std::max(b.max[a], p[a]);
+            b.min[a] = std::min(b.min[a], lo[a]);
+            b.max[a] = std::max(b.max[a], hi[a]);
         }
-    }
-    return b;
+        return b;
+    };
+    return tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, positions.size(), 16384), first,
+        [&](const tbb::blocked_range<std::size_t>& r, BBox b) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) b = extend(b, positions[i], positions[i]);
+            return b;
+        },
+        [&](const BBox& a, const BBox& b) { return extend(a, b.min, b.max); });
 }
 
 

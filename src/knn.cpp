@@ -27,11 +27,9 @@
 // parallel and shares each cell's candidates among its queries.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_reduce.h>
 #include <tbb/parallel_sort.h>
 
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -494,28 +492,9 @@ KnnIndex::KnnIndex(Span<Vec3f> points, const KnnOptions& options) : impl_(std::m
     }
     m.points = points;
     m.n = n;
-    // The bounding box (min and max do not depend on the order, so neither on the threads).
-    using Box = std::array<float, 6>;
-    const float inf = std::numeric_limits<float>::infinity();
-    const Box box = tbb::parallel_reduce(
-        tbb::blocked_range<std::size_t>(0, n, 16384), Box{inf, inf, inf, -inf, -inf, -inf},
-        [&](const tbb::blocked_range<std::size_t>& r, Box b) {
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                for (int a = 0; a < 3; ++a) {
-                    b[std::size_t(a)] = std::min(b[std::size_t(a)], points[i][a]);
-                    b[std::size_t(a) + 3] = std::max(b[std::size_t(a) + 3], points[i][a]);
-                }
-            }
-            return b;
-        },
-        [](Box a, const Box& b) {
-            for (std::size_t j = 0; j < 3; ++j) {
-                a[j] = std::min(a[j], b[j]);
-                a[j + 3] = std::max(a[j + 3], b[j + 3]);
-            }
-            return a;
-        });
-    const double lo[3] = {box[0], box[1], box[2]}, hi[3] = {box[3], box[4], box[5]};
+    const BBox box = bounding_box(points);  // in parallel
+    const double lo[3] = {box.min[0], box.min[1], box.min[2]};
+    const double hi[3] = {box.max[0], box.max[1], box.max[2]};
     double extent = 0.0;
     for (int a = 0; a < 3; ++a) {
         if (!std::isfinite(lo[a]) || !std::isfinite(hi[a])) {

@@ -11,6 +11,7 @@
 #include <mutex>
 
 #include "detail/io_common.h"
+#include "detail/vdb_file.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/pipeline.h"
 
@@ -58,76 +59,6 @@ openvdb::FloatGrid::Ptr make_density(const openvdb::FloatGrid& sdf) {
     return grid;
 }
 
-namespace {
-
-/// OpenVDB stamps every file with a random UUID (36 ASCII characters after the 8-byte magic,
-/// three uint32 versions and a flag byte), so two writes of the same grids differ. Replace it
-/// with one derived from the rest of the file (an FNV-style hash, as a version-5 style UUID):
-/// equal volumes then give byte-identical files whatever the thread count or the run.
-void make_uuid_deterministic(const std::string& file) {
-    constexpr long kOffset = 8 + 4 + 4 + 4 + 1;
-    constexpr std::size_t kLen = 36;
-    std::FILE* f = std::fopen(file.c_str(), "r+b");
-    if (!f) throw IoError(detail::where(file, "cannot reopen the temporary .vdb file"));
-    // The file is hashed in 64 kB chunks as it is read (not held in memory: it is as large as the
-    // grids); `tail` carries the bytes of a word split between chunks.
-    char head[kOffset + kLen];
-    bool uuid = std::fread(head, 1, sizeof(head), f) == sizeof(head);
-    for (std::size_t i = 0; uuid && i < kLen; ++i) {
-        const char c = head[kOffset + i];
-        const bool dash = i == 8 || i == 13 || i == 18 || i == 23;
-        uuid = dash ? c == '-' : std::isxdigit(static_cast<unsigned char>(c)) != 0;
-    }
-    if (!uuid) {  // an unexpected layout: leave the file as OpenVDB wrote it
-        std::fclose(f);
-        return;
-    }
-    // Two FNV-1a style lanes over 8-byte words (byte-wise hashing of a 100 MB file is slow),
-    // then the last bytes one by one.
-    std::uint64_t h[2] = {0xcbf29ce484222325ULL, 0x84222325cbf29ce4ULL};
-    std::vector<char> chunk(std::size_t(1) << 16);
-    char tail[8];
-    std::size_t tail_size = 0, n;
-    auto word = [&h](const char* p) {
-        std::uint64_t w;
-        std::memcpy(&w, p, 8);
-        h[0] = (h[0] ^ w) * 0x100000001b3ULL;
-        h[1] = (h[1] ^ (w >> 32 | w << 32)) * 0x100000001b3ULL;
-        h[1] ^= h[1] >> 29;
-    };
-    while ((n = std::fread(chunk.data(), 1, chunk.size(), f)) > 0) {
-        std::size_t i = 0;
-        while (tail_size > 0 && tail_size < 8 && i < n) tail[tail_size++] = chunk[i++];
-        if (tail_size == 8) {
-            word(tail);
-            tail_size = 0;
-        }
-        for (; i + 8 <= n; i += 8) word(chunk.data() + i);
-        for (; i < n; ++i) tail[tail_size++] = chunk[i];
-    }
-    for (std::size_t i = 0; i < tail_size; ++i) {
-        for (std::uint64_t& x : h) x = (x ^ static_cast<unsigned char>(tail[i])) * 0x100000001b3ULL;
-    }
-    unsigned char b[16];
-    for (int i = 0; i < 8; ++i) {
-        b[i] = static_cast<unsigned char>(h[0] >> (8 * i));
-        b[8 + i] = static_cast<unsigned char>(h[1] >> (8 * i));
-    }
-    b[6] = static_cast<unsigned char>((b[6] & 0x0f) | 0x50);  // version 5 (name-based)
-    b[8] = static_cast<unsigned char>((b[8] & 0x3f) | 0x80);  // RFC 4122 variant
-    char text[kLen + 1];
-    std::snprintf(text, sizeof(text),
-                  "%02x%02x%02x%02x-%02x%02x-%02x%02x-%02x%02x-%02x%02x%02x%02x%02x%02x", b[0],
-                  b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10], b[11], b[12], b[13],
-                  b[14], b[15]);
-    const bool ok = std::fseek(f, kOffset, SEEK_SET) == 0 && std::fwrite(text, 1, kLen, f) == kLen;
-    if (std::fclose(f) != 0 || !ok) {
-        throw IoError(detail::where(file, "cannot write the .vdb header"));
-    }
-}
-
-}  // namespace
-
 std::size_t write_volume(const std::string& path, const Volume& volume) {
     initialize_openvdb();
     if (!volume.sdf) throw InvalidArgument("write_volume: the volume has no sdf grid");
@@ -148,18 +79,12 @@ std::size_t write_volume(const std::string& path, const Volume& volume) {
     }
 
     detail::AtomicFile file(path);
-    file.create();  // permission and space problems are reported in our words
     try {
-        openvdb::io::File out(file.temp_path());
-        // Active-mask compression only: Blosc saved ~6 % of the size of the bunny's grids (float
-        // distances barely compress) for ~40 % more write time.
-        out.setCompression(openvdb::io::COMPRESS_ACTIVE_MASK);
-        out.write(grids, meta);
-        out.close();
+        detail::write_vdb_file(file.stream(), path,
+                               openvdb::GridCPtrVec(grids.begin(), grids.end()), meta);
     } catch (const openvdb::Exception& e) {
         throw IoError(detail::where(path, std::string("cannot write: ") + e.what()));
     }
-    make_uuid_deterministic(file.temp_path());
     file.commit();
     return volume.memory_bytes() + std::size_t(density->memUsage());
 }

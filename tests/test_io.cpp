@@ -1,11 +1,16 @@
+#include <openvdb/io/File.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 #include "support.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/log.h"
+#include "vdbrecon/pipeline.h"
+#include "vdbrecon/volume.h"
 
 using namespace vdbrecon;
 using namespace vdbrecon::test;
@@ -510,4 +515,94 @@ TEST_CASE("LAS: the Autzen tile reads as its PLY twin; classes filter; LAZ is re
     write_bytes(dir.file("cut.las"), read_bytes(las).substr(0, 100000));
     REQUIRE_THROWS_WITH(read_points(dir.file("cut.las")), Catch::Contains("cut.las") &&
                                                               Catch::Contains("truncated"));
+}
+
+TEST_CASE("vdb files: the bytes openvdb::io::File writes, with a UUID from the content", "[io]") {
+    // write_volume writes the leaf buffers itself (src/vdb_file.cpp). Leaves are made to take
+    // every one of the format's seven ways of storing inactive values, in both orders where the
+    // order matters, with NaN and -0, in float and Vec3f grids, beside tiles and an empty grid.
+    initialize_openvdb();
+    const float bg = 0.3f;
+    Volume v;
+    v.voxel_size = 0.1;
+    v.sdf = openvdb::FloatGrid::create(bg);
+    v.sdf->setName("sdf");
+    v.sdf->setGridClass(openvdb::GRID_LEVEL_SET);
+    v.sdf->setTransform(openvdb::math::Transform::createLinearTransform(0.1));
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    // Inactive values of each leaf (in the order met), beside one active voxel at its corner.
+    const std::vector<std::vector<float>> leaves = {
+        {},           {-bg},        {bg, -bg},        {-bg, bg}, {0.5f},          {0.5f, bg},
+        {bg, 0.5f},   {0.5f, 0.7f}, {0.5f, 0.7f, bg}, {nan},     {nan, nan, nan}, {bg, nan},
+        {-0.0f, 0.0f}};
+    auto acc = v.sdf->getAccessor();
+    for (std::size_t l = 0; l < leaves.size(); ++l) {
+        const openvdb::Coord o(int(8 * l), 0, 0);
+        for (int i = 0; i < 512; ++i) {
+            const openvdb::Coord c = o + openvdb::Coord(i >> 6, (i >> 3) & 7, i & 7);
+            const std::vector<float>& vals = leaves[l];
+            if (i == 0 || vals.empty()) {
+                acc.setValueOn(c, -0.01f * float(i % 7));
+            } else {
+                acc.setValueOff(c, vals[std::size_t(i) % vals.size()]);
+            }
+        }
+    }
+    v.sdf->tree().addTile(1, openvdb::Coord(4096, 0, 0), -bg, false);    // inactive tile, inside
+    v.sdf->tree().addTile(1, openvdb::Coord(4096, 128, 0), 0.1f, true);  // active tile
+    v.weight = openvdb::FloatGrid::create(0.0f);
+    v.weight->setName("weight");
+    v.weight->tree().topologyUnion(v.sdf->tree());
+    v.weight->tree().setValueOff(openvdb::Coord(1, 0, 0), -0.0f);
+    v.nearest = openvdb::Vec3fGrid::create();
+    v.nearest->setName("nearest");
+    auto nacc = v.nearest->getAccessor();
+    nacc.setValueOn(openvdb::Coord(0, 0, 0), openvdb::Vec3f(1, 2, 3));
+    nacc.setValueOff(openvdb::Coord(0, 0, 1), openvdb::Vec3f(0, 0, -0.0f));
+    nacc.setValueOn(openvdb::Coord(16, 0, 0), openvdb::Vec3f(4, 5, 6));
+    nacc.setValueOff(openvdb::Coord(16, 0, 1), openvdb::Vec3f(0, 1, 0));
+    nacc.setValueOff(openvdb::Coord(16, 0, 2), openvdb::Vec3f(0, 2, 0));
+    nacc.setValueOff(openvdb::Coord(16, 0, 3), openvdb::Vec3f(0, 3, 0));
+    v.color = openvdb::Vec3fGrid::create();
+    v.color->setName("color");  // empty
+    v.fill = openvdb::FloatGrid::create(1.0f);
+    v.fill->setName("fill");
+    v.fill->tree().setValueOff(openvdb::Coord(0, 0, 0), -1.0f);
+    v.metadata["kernel"] = "gaussian";
+    for (const auto& g : {openvdb::GridBase::Ptr(v.weight), openvdb::GridBase::Ptr(v.nearest),
+                          openvdb::GridBase::Ptr(v.color), openvdb::GridBase::Ptr(v.fill)}) {
+        g->setTransform(v.sdf->transform().copy());
+    }
+
+    TempDir dir;
+    write_volume(dir.file("ours.vdb"), v);
+    {
+        openvdb::io::File ref(dir.file("openvdb.vdb"));
+        ref.setCompression(openvdb::io::COMPRESS_ACTIVE_MASK);
+        openvdb::MetaMap meta;
+        meta.insertMeta("creator", openvdb::StringMetadata(std::string("vdbrecon ") + version()));
+        meta.insertMeta("vdbrecon_voxel_size", openvdb::DoubleMetadata(v.voxel_size));
+        meta.insertMeta("vdbrecon_kernel", openvdb::StringMetadata("gaussian"));
+        ref.write({v.sdf, v.weight, v.nearest, make_density(*v.sdf), v.color, v.fill}, meta);
+    }
+    std::string ours = read_bytes(dir.file("ours.vdb"));
+    std::string theirs = read_bytes(dir.file("openvdb.vdb"));
+    REQUIRE(ours.size() == theirs.size());
+    const std::size_t uuid = 8 + 4 + 4 + 4 + 1;
+    REQUIRE(ours[uuid + 14] == '5');  // a version-5 UUID, ...
+    write_volume(dir.file("again.vdb"), v);
+    REQUIRE(read_bytes(dir.file("again.vdb")) == ours);  // ... the same for the same grids
+    ours.replace(uuid, 36, 36, '-');
+    theirs.replace(uuid, 36, 36, '-');
+    REQUIRE(ours == theirs);
+
+    // The file reads back through OpenVDB with every value in place, NaN included.
+    const Volume back = read_volume(dir.file("ours.vdb"));
+    auto same = [](float a, float b) { return a == b || (std::isnan(a) && std::isnan(b)); };
+    for (auto it = v.sdf->tree().cbeginValueAll(); it; ++it) {
+        const openvdb::Coord c = it.getCoord();
+        REQUIRE(same(back.sdf->tree().getValue(c), *it));
+        REQUIRE(back.sdf->tree().isValueOn(c) == it.isValueOn());
+    }
+    REQUIRE(back.nearest->tree().getValue(openvdb::Coord(16, 0, 2)) == openvdb::Vec3f(0, 2, 0));
 }

@@ -20,7 +20,7 @@ for b in "${BUILDS[@]}"; do
   src=$(sed -n 's/^CMAKE_HOME_DIRECTORY:INTERNAL=//p' "$b/CMakeCache.txt")
   g++ -O3 -DNDEBUG -std=c++17 -DOPENVDB_ABI_VERSION_NUMBER=10 -DOPENVDB_USE_DELAYED_LOADING \
     -I"$src/include" -I"$src/src" -isystem /usr/include/Imath bench/meshers_inprocess.cpp \
-    "$b/libvdbrecon.a" -lopenvdb -ltbb -lImath-3_1 -lOpenEXR-3_1 -lz -lpthread -o "$(exe "$b")"
+    "$b/libvdbrecon.a" -lopenvdb -ltbb -lImath-3_1 -lOpenEXR-3_1 -lz -llz4 -lpthread -o "$(exe "$b")"
 done
 # The CLI's huge-page heap (apps/launcher.cpp).
 export GLIBC_TUNABLES=glibc.malloc.hugetlb=1:glibc.malloc.top_pad=$((64 << 20))

@@ -4,17 +4,18 @@
 #include <openvdb/tools/Interpolation.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_sort.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstring>
-#include <numeric>
 #include <limits>
 #include <memory>
+#include <numeric>
 
 #include "detail/mesh_common.h"
 #include "detail/mesh_graph.h"
+#include "detail/radix_sort.h"
 #include "detail/release.h"
 #include "detail/support.h"
 #include "vdbrecon/error.h"
@@ -85,12 +86,14 @@ bool point_in_valid_cells(FloatAccessor& acc, const openvdb::Vec3d& p) {
 /// to inactive voxels; zero at an inactive corner).
 class CellStencil {
 public:
-    void load(FloatAccessor& acc, const openvdb::Coord& c) {
-        for (const auto& o : kRead) {
-            on_[o[0]][o[1]][o[2]] =
-                acc.probeValue(c.offsetBy(o[0] - 1, o[1] - 1, o[2] - 1), f_[o[0]][o[1]][o[2]]);
-        }
-    }
+  /// Reads through `acc`: a FloatAccessor or a LeafBlock holding the cell's leaf.
+  template <typename Accessor>
+  void load(Accessor& acc, const openvdb::Coord& c) {
+      for (const auto& o : kRead) {
+          on_[o[0]][o[1]][o[2]] =
+              acc.probeValue(c.offsetBy(o[0] - 1, o[1] - 1, o[2] - 1), f_[o[0]][o[1]][o[2]]);
+      }
+  }
 
     /// Whether the cell's eight corners are active.
     bool valid() const {
@@ -190,13 +193,23 @@ std::vector<char> classify_points(const Volume& volume, const MeshOptions& optio
         std::unique_ptr<FloatAccessor> facc;
         if (volume.fill) facc = std::make_unique<FloatAccessor>(volume.fill->tree());
         CellStencil stencil;
+        // The mesher's points come leaf by leaf: each stencil reads the dense copy of its cell's
+        // leaf and margin (most stencils cross a leaf's face, where the accessor's cache misses).
+        std::unique_ptr<LeafBlock> block;
+        openvdb::Coord block_leaf;
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             if (!used[i]) continue;
             const openvdb::Vec3d p(raw.points[i]);
             const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])),
                                    int(std::floor(p[2])));
             if (need_stencil) {
-                stencil.load(acc, c);
+                const openvdb::Coord leaf(c[0] & ~7, c[1] & ~7, c[2] & ~7);
+                if (!block || leaf != block_leaf) {
+                    if (!block) block = std::make_unique<LeafBlock>(acc);
+                    block->load(leaf);
+                    block_leaf = leaf;
+                }
+                stencil.load(*block, c);
                 if (raw.check_cells &&
                     !(in_one_cell(p) ? stencil.valid() : point_in_valid_cells(acc, p))) {
                     continue;
@@ -308,19 +321,37 @@ void weld_coincident(ClassifiedSurface& s) {
         std::memcpy(k.data(), &s.points[std::size_t(i)][0], sizeof k);
         return k;
     };
-    // A total order (position, then index): the same result for any sort and thread count.
-    tbb::parallel_sort(used.begin(), used.end(), [&](std::int32_t a, std::int32_t b) {
-        const auto ka = key(a), kb = key(b);
-        return ka != kb ? ka < kb : a < b;
-    });
+    // The points by a 32-bit hash of their position (a stable radix sort: equal hashes keep the
+    // index order), then within each run of one hash every point after the first with its
+    // position maps to that first, the lowest index: the same pairs as sorting by (position,
+    // index), for any thread count. Runs of distinct positions are nearly always single points.
+    std::vector<std::uint64_t> order(used.size());
+    for (std::size_t j = 0; j < used.size(); ++j) {
+        const auto k = key(used[j]);
+        std::uint64_t h = (std::uint64_t(k[0]) * 0x9e3779b97f4a7c15ULL) ^
+                          (std::uint64_t(k[1]) * 0xc2b2ae3d27d4eb4fULL) ^
+                          (std::uint64_t(k[2]) * 0x165667b19e3779f9ULL);
+        h ^= h >> 29;
+        order[j] = (h & 0xffffffff00000000ULL) | std::uint32_t(used[j]);
+    }
+    radix_sort(order, 32, [](std::uint64_t e) { return e >> 32; });
     std::vector<std::int32_t> to;  // (duplicate, first) pairs
-    for (std::size_t j = 1, first = 0; j < used.size(); ++j) {
-        if (key(used[j]) != key(used[first])) {
-            first = j;  // a new position
-            continue;
+    std::vector<std::int32_t> firsts;  // the distinct positions of the current run
+    for (std::size_t a = 0, b = 0; a < order.size(); a = b) {
+        while (b < order.size() && (order[b] >> 32) == (order[a] >> 32)) ++b;
+        if (b - a == 1) continue;
+        firsts.clear();
+        for (std::size_t j = a; j < b; ++j) {
+            const std::int32_t i = std::int32_t(order[j] & 0xffffffffu);
+            const auto same = std::find_if(firsts.begin(), firsts.end(),
+                                           [&](std::int32_t f) { return key(f) == key(i); });
+            if (same == firsts.end()) {
+                firsts.push_back(i);
+            } else {
+                to.push_back(i);
+                to.push_back(*same);
+            }
         }
-        to.push_back(used[j]);
-        to.push_back(used[first]);
     }
     if (to.empty()) return;
     std::vector<std::int32_t> id(s.points.size());

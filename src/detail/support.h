@@ -16,11 +16,12 @@
 #include <openvdb/tools/Interpolation.h>
 
 #include <algorithm>
-#include <cstdlib>
 #include <cmath>
 #include <cstdint>
+#include <cstdlib>
 #include <limits>
 #include <memory>
+#include <type_traits>
 
 #include "detail/mesh_common.h"
 #include "vdbrecon/mesh.h"
@@ -40,6 +41,44 @@ inline openvdb::Vec3d central_gradient(const FloatAccessor& acc, const openvdb::
         g[k] = 0.5 * (double(acc.getValue(hi)) - double(acc.getValue(lo)));
     }
     return g;
+}
+
+/// The values and active states (bit 4 dx + 2 dy + dz) of the eight corners (dx, dy, dz) of
+/// the cell at voxel c, as eight probeValue() calls would give them, into v[4 dx + 2 dy + dz].
+/// A cell inside one leaf (c on none of its leaf's last planes: 343 of 512 cells) takes one
+/// leaf probe and eight reads of its buffer.
+template <typename Accessor, typename ValueT>
+std::uint32_t cell_corners(Accessor& acc, const openvdb::Coord& c, ValueT (&v)[8]) {
+    using Leaf = typename std::remove_const_t<typename Accessor::TreeType>::LeafNodeType;
+    std::uint32_t on = 0;
+    if ((c[0] & 7) != 7 && (c[1] & 7) != 7 && (c[2] & 7) != 7) {
+        if (const Leaf* leaf = acc.probeConstLeaf(c)) {
+            static constexpr openvdb::Index kStep[8] = {0, 1, 8, 9, 64, 65, 72, 73};
+            const openvdb::Index o = Leaf::coordToOffset(c);
+            const ValueT* data = leaf->buffer().data();
+            for (int k = 0; k < 8; ++k) {
+                v[k] = data[o + kStep[k]];
+                on |= std::uint32_t(leaf->valueMask().isOn(o + kStep[k])) << k;
+            }
+            return on;
+        }
+    }
+    for (int k = 0; k < 8; ++k) {
+        on |= std::uint32_t(acc.probeValue(c.offsetBy(k >> 2, (k >> 1) & 1, k & 1), v[k])) << k;
+    }
+    return on;
+}
+
+/// openvdb::tools::BoxSampler::sample(acc, p), bit for bit, with the corners read by
+/// cell_corners().
+template <typename Accessor>
+double box_sample(Accessor& acc, const openvdb::Vec3d& p) {
+    const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
+    float v[8];
+    cell_corners(acc, c, v);
+    float data[2][2][2];
+    for (int k = 0; k < 8; ++k) data[k >> 2][(k >> 1) & 1][k & 1] = v[k];
+    return openvdb::tools::BoxSampler::trilinearInterpolation(data, p - c.asVec3d());
 }
 
 class SupportTest {
@@ -86,8 +125,8 @@ class SupportTest {
         const double gap = nearest_sample(*a.nearest, p, sample);
         if (gap_ && gap > max_gap_) return Support::far;
         if (weight_ && std::isfinite(gap)) {
-            const double w = openvdb::tools::BoxSampler::sample(*a.weight, p);
-            const double w_sample = openvdb::tools::BoxSampler::sample(*a.weight, sample);
+            const double w = box_sample(*a.weight, p);
+            const double w_sample = box_sample(*a.weight, sample);
             if (!(w >= min_ratio_ * w_sample)) return Support::weak;
         }
         return Support::ok;
@@ -126,20 +165,17 @@ class SupportTest {
         const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
         // Squared distances, one square root at the end.
         double best = std::numeric_limits<double>::infinity();
-        for (int dx = 0; dx <= 1; ++dx) {
-            for (int dy = 0; dy <= 1; ++dy) {
-                for (int dz = 0; dz <= 1; ++dz) {
-                    const openvdb::Coord q = c.offsetBy(dx, dy, dz);
-                    openvdb::Vec3f e;
-                    if (!acc.probeValue(q, e)) continue;
-                    // sample = corner + e (world); point = p * voxel
-                    const openvdb::Vec3d at = q.asVec3d() + openvdb::Vec3d(e) / voxel_;
-                    const double d2 = (at - p).lengthSqr();
-                    if (d2 < best) {
-                        best = d2;
-                        sample = at;
-                    }
-                }
+        openvdb::Vec3f e[8];
+        const std::uint32_t on = cell_corners(acc, c, e);
+        for (int k = 0; k < 8; ++k) {
+            if (!((on >> k) & 1u)) continue;
+            // sample = corner + e (world); point = p * voxel
+            const openvdb::Coord q = c.offsetBy(k >> 2, (k >> 1) & 1, k & 1);
+            const openvdb::Vec3d at = q.asVec3d() + openvdb::Vec3d(e[k]) / voxel_;
+            const double d2 = (at - p).lengthSqr();
+            if (d2 < best) {
+                best = d2;
+                sample = at;
             }
         }
         return std::sqrt(best) * voxel_;

@@ -47,7 +47,6 @@
 // within reach of most kernels (95 %) show two faces. Each voxel is computed on its own from samples in a fixed order:
 // the result does not depend on the thread count.
 #include "detail/creases.h"
-#include "detail/union_find.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -61,6 +60,9 @@
 #include <limits>
 #include <numeric>
 #include <vector>
+
+#include "detail/radix_sort.h"
+#include "detail/union_find.h"
 
 namespace vdbrecon::detail {
 namespace {
@@ -167,35 +169,31 @@ class SampleCells {
 
     SampleCells(const Kernels& kernels, std::size_t n, double cos_group)
         : index_(std::make_shared<openvdb::Int32Tree>(-1)) {
-        // Each sample's cell in parallel (a kernel costs an evaluation), then those with a
-        // support, in order.
+        // Each sample's cell and quick-test box in parallel (a kernel costs an evaluation),
+        // then those with a support, in order.
         std::vector<std::pair<openvdb::Coord, std::uint32_t>> keyed(n);
-        std::vector<char> used(n);
+        std::vector<std::array<float, 4>> where(n);
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t i = r.begin(); i < r.end(); ++i) {
                 const Kernel k = kernels(i, false);
-                used[i] = k.r > 0.0f;
+                where[i] = {float(k.cx), float(k.cy), float(k.cz), k.r};
                 keyed[i] = {cell({k.cx, k.cy, k.cz}), std::uint32_t(i)};
             }
         });
         std::size_t m = 0;
         for (std::size_t i = 0; i < n; ++i) {
-            if (used[i]) keyed[m++] = keyed[i];
+            if (where[i][3] > 0.0f) keyed[m++] = keyed[i];
         }
         keyed.resize(m);
-        // (cell, index) pairs are distinct, so the sorted order is unique.
-        tbb::parallel_sort(keyed.begin(), keyed.end(), [](const auto& a, const auto& b) {
-            return a.first < b.first || (a.first == b.first && a.second < b.second);
-        });
+        sort_by_cell(keyed);
         order_.resize(keyed.size());
         where_.resize(keyed.size());
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, keyed.size(), 4096),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t j = r.begin(); j < r.end(); ++j) {
                 order_[j] = keyed[j].second;
-                const Kernel k = kernels(order_[j], false);
-                where_[j] = {float(k.cx), float(k.cy), float(k.cz), k.r};
+                where_[j] = where[order_[j]];
             }
         });
         for (std::size_t j = 0; j < keyed.size(); ++j) {
@@ -208,6 +206,38 @@ class SampleCells {
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cells_.size(), 256),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t c = r.begin(); c < r.end(); ++c) summarise(cells_[c], kernels, cos_group);
+        });
+    }
+
+    /// Sorts (cell, sample) pairs (in sample order) by cell, then sample: a radix sort on the
+    /// cells' offsets from the lowest packed x-major, or where they need more than 64 bits a
+    /// comparison sort. The pairs are distinct, so the order is unique either way.
+    static void sort_by_cell(std::vector<std::pair<openvdb::Coord, std::uint32_t>>& keyed) {
+        if (keyed.empty()) return;
+        openvdb::Coord lo = keyed[0].first, hi = lo;
+        for (const auto& e : keyed) {
+            lo.minComponent(e.first);
+            hi.maxComponent(e.first);
+        }
+        int bits[3], total = 0;
+        for (int a = 0; a < 3; ++a) {
+            const std::uint64_t span = std::uint64_t(std::int64_t(hi[a]) - lo[a]);
+            bits[a] = 0;
+            while (bits[a] < 64 && (span >> bits[a]) != 0) ++bits[a];
+            total += bits[a];
+        }
+        if (total > 64) {
+            tbb::parallel_sort(keyed.begin(), keyed.end(), [](const auto& a, const auto& b) {
+                return a.first < b.first || (a.first == b.first && a.second < b.second);
+            });
+            return;
+        }
+        radix_sort(keyed, total, [&](const std::pair<openvdb::Coord, std::uint32_t>& e) {
+            std::uint64_t key = 0;
+            for (int a = 0; a < 3; ++a) {
+                key = (key << bits[a]) | std::uint64_t(std::int64_t(e.first[a]) - lo[a]);
+            }
+            return key;
         });
     }
 

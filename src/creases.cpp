@@ -89,7 +89,8 @@ constexpr double kMaxFaceCurvature = 0.1;
 constexpr double kStepGap = 1.0;         ///< offset gap (voxels) that splits parallel faces
 
 /// Leader clustering of unit normals: a normal joins the first group whose first normal is
-/// within the angle (cosine `cos_group`), else starts a new one.
+/// within the angle (cosine `cos_group`), else starts a new one. At most kMaxGroups groups, held
+/// in place (a leaf's screening makes one; no allocation).
 class NormalGroups {
   public:
     explicit NormalGroups(double cos_group) : cos_group_(cos_group) {}
@@ -97,45 +98,57 @@ class NormalGroups {
     /// The group of normal n (weighted by `count` samples), or -1 past kMaxGroups groups.
     int add(const openvdb::Vec3d& n, int count = 1) {
         int g = 0;
-        while (g < int(leader_.size()) && n.dot(leader_[std::size_t(g)]) < cos_group_) ++g;
-        if (g == int(leader_.size())) {
+        while (g < size_ && n.dot(leader_[std::size_t(g)]) < cos_group_) ++g;
+        if (g == size_) {
             if (g == kMaxGroups) return -1;
-            leader_.push_back(n);
-            sum_.push_back(openvdb::Vec3d(0.0));
-            count_.push_back(0);
+            leader_[std::size_t(g)] = n;
+            sum_[std::size_t(g)] = openvdb::Vec3d(0.0);
+            count_[std::size_t(g)] = 0;
+            ++size_;
         }
         sum_[std::size_t(g)] += double(count) * n;
         count_[std::size_t(g)] += count;
         return g;
     }
-    int size() const { return int(leader_.size()); }
+    int size() const { return size_; }
     int count(int g) const { return count_[std::size_t(g)]; }
 
-    /// Faces: groups joined when their mean normals are closer than the crease angle. Returns
-    /// the face of each group, numbered in order of first group.
-    std::vector<int> faces(double cos_crease) const {
+    using Labels = std::array<int, kMaxGroups>;
+    /// Faces: groups joined when their mean normals are closer than the crease angle. Sets the
+    /// face of each group, numbered in order of first group; returns the number of faces.
+    int face_labels(double cos_crease, Labels& face) const {
         const int n = size();
-        std::vector<int> parent(static_cast<std::size_t>(n));
-        std::iota(parent.begin(), parent.end(), 0);
+        std::array<openvdb::Vec3d, kMaxGroups> means;
+        Labels parent, number;
+        for (int g = 0; g < n; ++g) {
+            means[std::size_t(g)] = mean(g);
+            parent[std::size_t(g)] = g;
+            number[std::size_t(g)] = -1;
+        }
         const auto root = [&](int g) {
             while (parent[std::size_t(g)] != g) g = parent[std::size_t(g)];
             return g;
         };
         for (int a = 0; a < n; ++a) {
             for (int b = a + 1; b < n; ++b) {
-                if (!close(a, b, cos_crease)) continue;
+                if (!(means[std::size_t(a)].dot(means[std::size_t(b)]) > cos_crease)) continue;
                 const int ra = root(a), rb = root(b);
                 parent[std::size_t(std::max(ra, rb))] = std::min(ra, rb);
             }
         }
-        std::vector<int> face(static_cast<std::size_t>(n), -1), number(face.size(), -1);
         int faces = 0;
         for (int g = 0; g < n; ++g) {
             const int r = root(g);
             if (number[std::size_t(r)] < 0) number[std::size_t(r)] = faces++;
             face[std::size_t(g)] = number[std::size_t(r)];
         }
-        return face;
+        return faces;
+    }
+    /// face_labels() as a vector, one entry per group.
+    std::vector<int> faces(double cos_crease) const {
+        Labels face;
+        face_labels(cos_crease, face);
+        return std::vector<int>(face.begin(), face.begin() + size());
     }
     openvdb::Vec3d mean(int g) const { return sum_[std::size_t(g)].unitSafe(); }
     /// Whether groups a and b are one face by their normals: mean normals closer than the
@@ -146,8 +159,9 @@ class NormalGroups {
 
   private:
     double cos_group_;
-    std::vector<openvdb::Vec3d> leader_, sum_;
-    std::vector<int> count_;
+    int size_ = 0;
+    std::array<openvdb::Vec3d, kMaxGroups> leader_, sum_;
+    std::array<int, kMaxGroups> count_;
 };
 
 /// How many faces hold at least `least` samples.
@@ -640,13 +654,14 @@ bool leaf_near_crease(const SampleCells& cells, SampleCells::Accessor& acc,
                                c.count[std::size_t(g)]) < 0;
         }
     });
-    if (noise) return false;
-    const std::vector<int> face_of_group = groups.faces(cos_crease);
-    std::vector<int> size(face_of_group.size(), 0);
+    if (noise || groups.size() < 2) return false;
+    NormalGroups::Labels face_of_group, size{};
+    const int faces = groups.face_labels(cos_crease, face_of_group);
     for (int g = 0; g < groups.size(); ++g) {
         size[std::size_t(face_of_group[std::size_t(g)])] += groups.count(g);
     }
-    return faces_of_size(size, kMinCreaseFace) >= 2;
+    return std::count_if(size.begin(), size.begin() + faces,
+                         [](int n) { return n >= kMinCreaseFace; }) >= 2;
 }
 
 /// Gathers the samples whose support reaches the leaf at `origin`.

@@ -183,21 +183,21 @@ class SampleCells {
 
     SampleCells(const Kernels& kernels, std::size_t n, double cos_group)
         : index_(std::make_shared<openvdb::Int32Tree>(-1)) {
-        // Each sample's cell and quick-test box in parallel (a kernel costs an evaluation),
-        // then those with a support, in order.
+        // Each sample's cell in parallel (a kernel costs an evaluation), then those with a
+        // support, in order.
         std::vector<std::pair<openvdb::Coord, std::uint32_t>> keyed(n);
-        std::vector<std::array<float, 4>> where(n);
+        std::vector<char> used(n);
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t i = r.begin(); i < r.end(); ++i) {
                 const Kernel k = kernels(i, false);
-                where[i] = {float(k.cx), float(k.cy), float(k.cz), k.r};
+                used[i] = k.r > 0.0f;
                 keyed[i] = {cell({k.cx, k.cy, k.cz}), std::uint32_t(i)};
             }
         });
         std::size_t m = 0;
         for (std::size_t i = 0; i < n; ++i) {
-            if (where[i][3] > 0.0f) keyed[m++] = keyed[i];
+            if (used[i]) keyed[m++] = keyed[i];
         }
         keyed.resize(m);
         sort_by_cell(keyed);
@@ -207,7 +207,8 @@ class SampleCells {
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t j = r.begin(); j < r.end(); ++j) {
                 order_[j] = keyed[j].second;
-                where_[j] = where[order_[j]];
+                const Kernel k = kernels(order_[j], false);
+                where_[j] = {float(k.cx), float(k.cy), float(k.cz), k.r};
             }
         });
         for (std::size_t j = 0; j < keyed.size(); ++j) {

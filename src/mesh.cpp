@@ -4,6 +4,7 @@
 #include <openvdb/tools/Interpolation.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <array>
@@ -15,7 +16,6 @@
 
 #include "detail/mesh_common.h"
 #include "detail/mesh_graph.h"
-#include "detail/radix_sort.h"
 #include "detail/release.h"
 #include "detail/support.h"
 #include "vdbrecon/error.h"
@@ -321,8 +321,8 @@ void weld_coincident(ClassifiedSurface& s) {
         std::memcpy(k.data(), &s.points[std::size_t(i)][0], sizeof k);
         return k;
     };
-    // The points by a 32-bit hash of their position (a stable radix sort: equal hashes keep the
-    // index order), then within each run of one hash every point after the first with its
+    // The points by a 32-bit hash of their position, then index (sorted in place as one 64-bit
+    // value each), then within each run of one hash every point after the first with its
     // position maps to that first, the lowest index: the same pairs as sorting by (position,
     // index), for any thread count. Runs of distinct positions are nearly always single points.
     std::vector<std::uint64_t> order(used.size());
@@ -334,7 +334,8 @@ void weld_coincident(ClassifiedSurface& s) {
         h ^= h >> 29;
         order[j] = (h & 0xffffffff00000000ULL) | std::uint32_t(used[j]);
     }
-    radix_sort(order, 32, [](std::uint64_t e) { return e >> 32; });
+    release(used);
+    tbb::parallel_sort(order.begin(), order.end());
     std::vector<std::int32_t> to;  // (duplicate, first) pairs
     std::vector<std::int32_t> firsts;  // the distinct positions of the current run
     for (std::size_t a = 0, b = 0; a < order.size(); a = b) {
@@ -353,6 +354,7 @@ void weld_coincident(ClassifiedSurface& s) {
             }
         }
     }
+    release(order);
     if (to.empty()) return;
     std::vector<std::int32_t> id(s.points.size());
     std::iota(id.begin(), id.end(), 0);

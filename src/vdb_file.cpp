@@ -5,7 +5,7 @@
 // metadata, then writes each leaf through std::ostream in several small writes (a system call
 // for most leaves), one leaf at a time. On the bunny at 0.5 mm (35.6 MB, 4 grids) that took
 // 0.13-0.24 s of a second core, beside the mesh stage. Here one pass classifies the leaves (in
-// parallel), and the buffers are serialised in parallel into a 4 MB block that is written at
+// parallel), and the buffers are serialised in parallel into a 1 MB block that is written at
 // once.
 //
 // The leaf layout follows OpenVDB's file format (io/Compression.h, format version 224) with
@@ -111,12 +111,12 @@ class ContentHash {
     std::size_t tail_size_ = 0;
 };
 
-/// The file through a 4 MB block: bytes are appended (or serialised in place with room() and
+/// The file through a 1 MB block: bytes are appended (or serialised in place with room() and
 /// advance()), each full block is hashed (past the UUID) and written with one call.
 class Output {
   public:
     Output(std::FILE* file, const std::string& path)
-        : file_(file), path_(path), block_(std::size_t(4) << 20) {}
+        : file_(file), path_(path), block_(std::size_t(1) << 20) {}
 
     std::int64_t position() const { return std::int64_t(written_ + used_); }
     std::size_t capacity() const { return block_.size(); }
@@ -376,7 +376,7 @@ void write_grid(Output& out, const Archive& archive, const GridT& grid) {
     out.put(head);
     const std::vector<std::size_t>& offsets = buffers.offsets;
     for (std::size_t first = 0, n = buffers.leaves.size(); first < n;) {
-        // As many leaves as fit a block (one leaf is at most 6.3 kB of the 4 MB).
+        // As many leaves as fit a block (one leaf is at most 6.3 kB of the 1 MB).
         const std::size_t last =
             std::size_t(std::upper_bound(offsets.begin() + std::ptrdiff_t(first) + 1, offsets.end(),
                                          offsets[first] + out.capacity()) -

@@ -5,10 +5,8 @@
 #include <openvdb/tree/LeafManager.h>
 
 #include <algorithm>
-#include <cctype>
-#include <cstdio>
-#include <cstring>
 #include <mutex>
+#include <set>
 
 #include "detail/io_common.h"
 #include "detail/vdb_file.h"
@@ -62,14 +60,32 @@ openvdb::FloatGrid::Ptr make_density(const openvdb::FloatGrid& sdf) {
 std::size_t write_volume(const std::string& path, const Volume& volume) {
     initialize_openvdb();
     if (!volume.sdf) throw InvalidArgument("write_volume: the volume has no sdf grid");
-    openvdb::GridPtrVec grids;
-    grids.push_back(volume.sdf);
-    if (volume.weight) grids.push_back(volume.weight);
-    if (volume.nearest) grids.push_back(volume.nearest);
     const openvdb::FloatGrid::Ptr density = make_density(*volume.sdf);
-    grids.push_back(density);
-    if (volume.color) grids.push_back(volume.color);
-    if (volume.fill) grids.push_back(volume.fill);
+    // Each grid under its role's name (read_volume finds them by name), in full floats (a grid
+    // read from a file saved with half floats keeps its values, in twice the bytes) and with a
+    // tree of its own (one shared with another grid, an instance in its file, is copied): the
+    // file writer's terms. A grid that already meets them is written as it is; the others
+    // through a copy, so the caller's grids never change.
+    openvdb::GridCPtrVec grids;
+    std::set<const openvdb::TreeBase*> trees;
+    auto add = [&](const openvdb::GridBase::Ptr& grid, const char* role) {
+        if (!grid) return;
+        openvdb::GridBase::Ptr g = grid;
+        const bool shared = !trees.insert(&g->baseTree()).second;
+        if (shared || g->getName() != role || g->saveFloatAsHalf()) {
+            g = shared ? g->deepCopyGrid() : g->copyGrid();
+            if (shared) trees.insert(&g->baseTree());
+            g->setName(role);
+            g->setSaveFloatAsHalf(false);
+        }
+        grids.push_back(g);
+    };
+    add(volume.sdf, "sdf");
+    add(volume.weight, "weight");
+    add(volume.nearest, "nearest");
+    add(density, "density");
+    add(volume.color, "color");
+    add(volume.fill, "fill");
 
     openvdb::MetaMap meta;
     meta.insertMeta("creator", openvdb::StringMetadata(std::string("vdbrecon ") + version()));
@@ -80,8 +96,7 @@ std::size_t write_volume(const std::string& path, const Volume& volume) {
 
     detail::AtomicFile file(path);
     try {
-        detail::write_vdb_file(file.stream(), path,
-                               openvdb::GridCPtrVec(grids.begin(), grids.end()), meta);
+        detail::write_vdb_file(file.stream(), path, grids, meta);
     } catch (const openvdb::Exception& e) {
         throw IoError(detail::where(path, std::string("cannot write: ") + e.what()));
     }

@@ -606,3 +606,38 @@ TEST_CASE("vdb files: the bytes openvdb::io::File writes, with a UUID from the c
     }
     REQUIRE(back.nearest->tree().getValue(openvdb::Coord(16, 0, 2)) == openvdb::Vec3f(0, 2, 0));
 }
+
+TEST_CASE("vdb files: half-float, renamed and instanced grids write in full, as their roles",
+          "[io]") {
+    // A volume read from a file saved with half floats (or whose grids share a tree, or carry
+    // other names) is written through copies in full floats under the role names; the caller's
+    // grids are left as they were.
+    initialize_openvdb();
+    TempDir dir;
+    Volume v;
+    v.voxel_size = 0.5;
+    v.sdf = openvdb::FloatGrid::create(1.5f);
+    v.sdf->setName("distance");
+    v.sdf->setGridClass(openvdb::GRID_LEVEL_SET);
+    v.sdf->setTransform(openvdb::math::Transform::createLinearTransform(0.5));
+    for (int i = 0; i < 20; ++i)
+        v.sdf->tree().setValueOn(openvdb::Coord(i, 0, 0), 0.1f * float(i) - 1.0f);
+    v.sdf->setSaveFloatAsHalf(true);
+    v.weight = openvdb::FloatGrid::create(v.sdf->treePtr());  // shares the sdf's tree
+    v.weight->setName("weight");
+    v.weight->setTransform(v.sdf->transform().copy());
+    write_volume(dir.file("v.vdb"), v);
+    REQUIRE(v.sdf->getName() == "distance");
+    REQUIRE(v.sdf->saveFloatAsHalf());
+    REQUIRE(&v.weight->tree() == &v.sdf->tree());
+
+    const Volume back = read_volume(dir.file("v.vdb"));
+    REQUIRE(back.weight);
+    REQUIRE(&back.weight->tree() != &back.sdf->tree());
+    for (int i = 0; i < 20; ++i) {
+        const openvdb::Coord c(i, 0, 0);
+        REQUIRE(back.sdf->tree().getValue(c) == v.sdf->tree().getValue(c));  // full floats
+        REQUIRE(back.weight->tree().getValue(c) == v.sdf->tree().getValue(c));
+    }
+    REQUIRE_FALSE(back.sdf->saveFloatAsHalf());
+}

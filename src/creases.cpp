@@ -144,12 +144,6 @@ class NormalGroups {
         }
         return faces;
     }
-    /// face_labels() as a vector, one entry per group.
-    std::vector<int> faces(double cos_crease) const {
-        Labels face;
-        face_labels(cos_crease, face);
-        return std::vector<int>(face.begin(), face.begin() + size());
-    }
     openvdb::Vec3d mean(int g) const { return sum_[std::size_t(g)].unitSafe(); }
     /// Whether groups a and b are one face by their normals: mean normals closer than the
     /// crease angle (cosine `cos_crease`).
@@ -164,10 +158,9 @@ class NormalGroups {
     std::array<int, kMaxGroups> count_;
 };
 
-/// How many faces hold at least `least` samples.
-int faces_of_size(const std::vector<int>& face_size, int least) {
-    return int(std::count_if(face_size.begin(), face_size.end(),
-                             [&](int s) { return s >= least; }));
+/// How many of the `faces` faces (face_size: their sample counts) hold at least `least` samples.
+int faces_of_size(const int* face_size, int faces, int least) {
+    return int(std::count_if(face_size, face_size + faces, [&](int s) { return s >= least; }));
 }
 
 /// The samples sorted by cell (cells of kCell voxels), each cell's run of them and a summary of
@@ -661,8 +654,7 @@ bool leaf_near_crease(const SampleCells& cells, SampleCells::Accessor& acc,
     for (int g = 0; g < groups.size(); ++g) {
         size[std::size_t(face_of_group[std::size_t(g)])] += groups.count(g);
     }
-    return std::count_if(size.begin(), size.begin() + faces,
-                         [](int n) { return n >= kMinCreaseFace; }) >= 2;
+    return faces_of_size(size.data(), faces, kMinCreaseFace) >= 2;
 }
 
 /// Gathers the samples whose support reaches the leaf at `origin`.

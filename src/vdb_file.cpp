@@ -39,7 +39,6 @@ namespace vdbrecon::detail {
 namespace {
 
 namespace vio = openvdb::io;
-using Mask = openvdb::util::NodeMask<3>;
 constexpr std::uint32_t kCompression = vio::COMPRESS_ACTIVE_MASK;
 constexpr std::size_t kMaskBytes = 64;
 constexpr std::size_t kLeafValues = 512;
@@ -215,7 +214,7 @@ int stored_inactive_values(const LeafCode<T>& c) {
 /// for the second), with +bg left implicit and -bg flagged; more than two, every value is
 /// stored.
 template <typename T>
-LeafCode<T> classify_leaf(const Mask& mask, const std::uint64_t* on, const T* values, const T& bg) {
+LeafCode<T> classify_leaf(const std::uint64_t* on, const T* values, const T& bg) {
     LeafCode<T> c;
     T seen[2] = {bg, bg};
     int n = 0;
@@ -242,7 +241,11 @@ LeafCode<T> classify_leaf(const Mask& mask, const std::uint64_t* on, const T* va
     }
     c.inactive[0] = seen[0];
     c.inactive[1] = seen[1];
-    const std::size_t count = c.code == vio::NO_MASK_AND_ALL_VALS ? kLeafValues : mask.countOn();
+    std::size_t count = kLeafValues;
+    if (c.code != vio::NO_MASK_AND_ALL_VALS) {
+        count = 0;
+        for (int w = 0; w < 8; ++w) count += openvdb::util::CountOn(on[w]);
+    }
     c.bytes = kMaskBytes + 1 + sizeof(T) * (std::size_t(stored_inactive_values(c)) + count) +
               (has_selection_mask(c) ? kMaskBytes : 0);
     return c;
@@ -295,8 +298,7 @@ struct LeafBuffers {
                               for (std::size_t i = r.begin(); i < r.end(); ++i) {
                                   leaves[i] = &manager.leaf(i);
                                   words(i, w);
-                                  codes[i] = classify_leaf(leaves[i]->valueMask(), w,
-                                                           leaves[i]->buffer().data(), bg);
+                                  codes[i] = classify_leaf(w, leaves[i]->buffer().data(), bg);
                               }
                           });
         offsets.assign(leaves.size() + 1, 0);

@@ -80,19 +80,18 @@ bool point_in_valid_cells(FloatAccessor& acc, const openvdb::Vec3d& p) {
     return true;
 }
 
-/// The SDF around one cell, for the gradient at points inside it: the cell's eight corners and
-/// their axis neighbours outside the cell (32 voxels), read once instead of seven reads per
-/// corner. gradient() is the trilinear blend of the corners' central differences (one-sided next
-/// to inactive voxels; zero at an inactive corner).
+/// The SDF around one cell, for the gradient at points inside it: a view of the LeafBlock that
+/// holds the cell's leaf (the cell's eight corners and their axis neighbours outside the cell
+/// lie in the block), read in place. gradient() is the trilinear blend of the corners' central
+/// differences (one-sided next to inactive voxels; zero at an inactive corner).
 class CellStencil {
 public:
-  /// Reads through `acc`: a FloatAccessor or a LeafBlock holding the cell's leaf.
-  template <typename Accessor>
-  void load(Accessor& acc, const openvdb::Coord& c) {
-      for (const auto& o : kRead) {
-          on_[o[0]][o[1]][o[2]] =
-              acc.probeValue(c.offsetBy(o[0] - 1, o[1] - 1, o[2] - 1), f_[o[0]][o[1]][o[2]]);
-      }
+  /// The cell at voxel c, which lies in `block`'s leaf.
+  void view(const LeafBlock& block, const openvdb::Coord& c) {
+      int i = 0;
+      block.index(c.offsetBy(-1), i);  // in the block: c is in its leaf
+      f_ = block.values() + i;
+      on_ = block.actives() + i;
   }
 
     /// Whether the cell's eight corners are active.
@@ -100,7 +99,7 @@ public:
         for (int x = 1; x <= 2; ++x) {
             for (int y = 1; y <= 2; ++y) {
                 for (int z = 1; z <= 2; ++z) {
-                    if (!on_[x][y][z]) return false;
+                    if (!on_[at(x, y, z)]) return false;
                 }
             }
         }
@@ -123,31 +122,20 @@ public:
     }
 
 private:
-    /// The voxels read, 0..3 per axis: those with at most one coordinate outside the cell (1..2).
-    static constexpr std::array<std::array<int, 3>, 32> kRead = [] {
-        std::array<std::array<int, 3>, 32> r{};
-        int n = 0;
-        for (int x = 0; x < 4; ++x) {
-            for (int y = 0; y < 4; ++y) {
-                for (int z = 0; z < 4; ++z) {
-                    if ((x % 3 == 0) + (y % 3 == 0) + (z % 3 == 0) <= 1) r[std::size_t(n++)] = {x, y, z};
-                }
-            }
-        }
-        return r;
-    }();
+  /// The view's index of stencil voxel (x, y, z), 0..3 per axis from c - 1.
+  static int at(int x, int y, int z) {
+      return x * LeafBlock::kStep[0] + y * LeafBlock::kStep[1] + z;
+  }
 
     openvdb::Vec3d corner_gradient(int x, int y, int z) const {
         openvdb::Vec3d g(0.0);
-        if (!on_[x][y][z]) return g;
-        const double f0 = double(f_[x][y][z]);
-        const int at[3] = {x, y, z};
+        const int c = at(x, y, z);
+        if (!on_[c]) return g;
+        const double f0 = double(f_[c]);
         for (int a = 0; a < 3; ++a) {
-            int lo[3] = {x, y, z}, hi[3] = {x, y, z};
-            lo[a] = at[a] - 1;
-            hi[a] = at[a] + 1;
-            const bool l = on_[lo[0]][lo[1]][lo[2]], h = on_[hi[0]][hi[1]][hi[2]];
-            const double fl = double(f_[lo[0]][lo[1]][lo[2]]), fh = double(f_[hi[0]][hi[1]][hi[2]]);
+            const int lo = c - LeafBlock::kStep[a], hi = c + LeafBlock::kStep[a];
+            const bool l = on_[lo], h = on_[hi];
+            const double fl = double(f_[lo]), fh = double(f_[hi]);
             if (l && h) {
                 g[a] = 0.5 * (fh - fl);
             } else if (h) {
@@ -159,8 +147,8 @@ private:
         return g;
     }
 
-    float f_[4][4][4];
-    bool on_[4][4][4];
+    const float* f_ = nullptr;
+    const std::uint8_t* on_ = nullptr;
 };
 
 /// Whether the index-space point p lies in one cell only (not within eps of a cell face).
@@ -209,7 +197,7 @@ std::vector<char> classify_points(const Volume& volume, const MeshOptions& optio
                     block->load(leaf);
                     block_leaf = leaf;
                 }
-                stencil.load(*block, c);
+                stencil.view(*block, c);
                 if (raw.check_cells &&
                     !(in_one_cell(p) ? stencil.valid() : point_in_valid_cells(acc, p))) {
                     continue;

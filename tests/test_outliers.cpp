@@ -196,6 +196,37 @@ TEST_CASE("outliers: the in-place removal keeps the same points as the copying o
     }
 }
 
+TEST_CASE("outliers: planarity candidates whose lists the search did not keep are searched again",
+          "[outliers]") {
+    // A dense sphere (200k points: the median d) and, far from it, a plane three times as
+    // sparse (90k points, batches of their own) with a scattered blob on it. Every plane point is
+    // a planarity candidate, but its batch keeps only the lists above its own median d, so most
+    // candidates are searched again; the blob's must still go, as with the whole lists.
+    PointCloud c = sample_sphere(200000, 1.0);
+    const float h = 0.024f;  // the sphere's spacing is about 0.008
+    for (int i = 0; i < 300; ++i) {
+        for (int j = 0; j < 300; ++j) {
+            c.positions.push_back({20.0f, float(i) * h, float(j) * h});
+            c.normals.push_back({1.0f, 0.0f, 0.0f});
+        }
+    }
+    const std::size_t blob = add_strays(c, 400, 0.15, 5);
+    std::vector<Vec3f>& pos = c.positions.edit();
+    for (std::size_t b = c.size() - blob; b < c.size(); ++b) {
+        pos[b] = {pos[b][0] + 20.0f, pos[b][1] + 3.6f, pos[b][2] + 3.6f};
+    }
+    OutlierOptions o;
+    const OutlierResult whole = remove_outliers(c, o, OutlierHandOver{true, 0});
+    const OutlierResult batched = remove_outliers(c, o, OutlierHandOver{false, 10});
+    REQUIRE(whole.planarity > 100);
+    CHECK(batched.planarity == whole.planarity);
+    CHECK(batched.statistical == whole.statistical);
+    CHECK(batched.removed == whole.removed);
+    std::size_t blob_gone = 0;
+    for (std::size_t b = c.size() - blob; b < c.size(); ++b) blob_gone += batched.removed[b];
+    CHECK(blob_gone > blob / 2);
+}
+
 TEST_CASE("outliers: batches of the neighbour search give the rules of the whole lists",
           "[outliers]") {
     // Large enough for several batches (rows whose neighbours come in later batches wait for

@@ -10,7 +10,8 @@
 // Queries go cell by cell: the candidates of all queries in a cell are the points of its 3x3x3
 // block of cells, gathered once into contiguous arrays; each query measures them all (an AVX2
 // loop where the CPU has one, else one the compiler vectorises), keeps those within a bound
-// from the previous query's answer, and inserts them into its list of the k smallest, ordered
+// from the previous query's answer (and of those, when more than k, the ones within a quarter
+// more than that answer's k-th distance), and inserts them into its list of the k smallest, ordered
 // by (distance, point index) so that the answer does not depend on the gathering order (with
 // AVX2, a list of up to 16 lives in registers and takes a key without a branch on its place).
 // The answer is exact when the k-th distance is
@@ -150,6 +151,7 @@ public:
         clear();
     }
     void clear() { std::fill(key_.begin(), key_.end(), kNoKey); }
+    int k() const { return k_; }
     bool full() const { return key_[std::size_t(k_ - 1)] != kNoKey; }
     /// Keys from this one up cannot enter: the last kept key once full, else none.
     std::uint64_t limit() const { return full() ? key_[std::size_t(k_ - 1)] : ~std::uint64_t(0); }
@@ -344,25 +346,36 @@ struct KnnIndex::Impl {
         end = cell_first[std::size_t(last - cell_key.begin())];
     }
 
-    /// The candidates of a 3x3x3 block of cells, in gathering order, and scratch for measure().
+    /// The candidates of a 3x3x3 block of cells, in gathering order (the first m entries of
+    /// the arrays, which only grow), and scratch for measure().
     struct Block {
         std::vector<float> x, y, z;
         std::vector<int> id;
         std::vector<float> d;
-        std::vector<std::uint32_t> keep;
+        std::vector<std::uint32_t> keep, near;
+        std::size_t m = 0;
         bool vector = detail::vector_loops();  ///< keep_within() by AVX2
-        void clear() {
-            x.clear();
-            y.clear();
-            z.clear();
-            id.clear();
+        /// Room for `count` candidates.
+        void reserve(std::size_t count) {
+            if (count <= x.size()) return;
+            count = std::max(count, 2 * x.size());
+            x.resize(count);
+            y.resize(count);
+            z.resize(count);
+            id.resize(count);
+            d.resize(count);
+            keep.resize(count + 8);
+            near.resize(count + 8);
         }
     };
 
-    /// Gathers the points of the 3x3x3 block around level-l cell c into `b`.
+    /// Gathers the points of the 3x3x3 block around level-l cell c into `b`: the cells' runs
+    /// found first, then copied element by element (most hold a dozen points).
     void gather(int l, const std::uint32_t c[3], Block& b) const {
-        b.clear();
         const std::int64_t top = (std::int64_t(1) << l) - 1;
+        std::uint32_t begin[27], end[27];
+        int runs = 0;
+        std::size_t total = 0;
         for (const auto& o : kBlockOrder) {
             std::int64_t cc[3];
             bool inside = true;
@@ -371,25 +384,31 @@ struct KnnIndex::Impl {
                 inside = inside && cc[a] >= 0 && cc[a] <= top;
             }
             if (!inside) continue;
-            std::uint32_t begin, end;
             cell_range(l, morton(std::uint32_t(cc[0]), std::uint32_t(cc[1]), std::uint32_t(cc[2])),
-                       begin, end);
-            b.x.insert(b.x.end(), x.begin() + begin, x.begin() + end);
-            b.y.insert(b.y.end(), y.begin() + begin, y.begin() + end);
-            b.z.insert(b.z.end(), z.begin() + begin, z.begin() + end);
-            b.id.insert(b.id.end(), id.begin() + begin, id.begin() + end);
+                       begin[runs], end[runs]);
+            total += end[runs] - begin[runs];
+            runs += end[runs] > begin[runs];
         }
         // Padded to whole groups of 8 for keep_within(): a NaN candidate is never within any
         // bound, so the padding is never kept, by the scalar loop either.
-        const float nan = std::numeric_limits<float>::quiet_NaN();
-        while (b.x.size() % 8 != 0) {
-            b.x.push_back(nan);
-            b.y.push_back(nan);
-            b.z.push_back(nan);
-            b.id.push_back(-1);
+        b.m = (total + 7) / 8 * 8;
+        b.reserve(b.m);
+        float *bx = b.x.data(), *by = b.y.data(), *bz = b.z.data();
+        int* bid = b.id.data();
+        std::size_t o = 0;
+        for (int r = 0; r < runs; ++r) {
+            for (std::uint32_t j = begin[r]; j < end[r]; ++j, ++o) {
+                bx[o] = x[j];
+                by[o] = y[j];
+                bz[o] = z[j];
+                bid[o] = id[j];
+            }
         }
-        b.d.resize(b.x.size());
-        b.keep.resize(b.x.size() + 8);
+        const float nan = std::numeric_limits<float>::quiet_NaN();
+        for (; o < b.m; ++o) {
+            bx[o] = by[o] = bz[o] = nan;
+            bid[o] = -1;
+        }
     }
 
     /// Distance from world point q to the outside of the block around level-l cell c (infinite
@@ -410,10 +429,11 @@ struct KnnIndex::Impl {
     /// `bound`, in block order (into b.keep); returns their count.
     static std::size_t keep_within(Block& b, const float q[3], float bound) {
 #ifdef VDBRECON_HAVE_AVX2_PATHS
-        if (b.vector) return keep_within_avx2(b.x.data(), b.y.data(), b.z.data(), b.x.size(), q,
-                                            bound, b.d.data(), b.keep.data());
+        if (b.vector)
+            return keep_within_avx2(b.x.data(), b.y.data(), b.z.data(), b.m, q, bound, b.d.data(),
+                                    b.keep.data());
 #endif
-        const std::size_t m = b.x.size();
+        const std::size_t m = b.m;
         const float qx = q[0], qy = q[1], qz = q[2];
         float* d = b.d.data();
         const float *bx = b.x.data(), *by = b.y.data(), *bz = b.z.data();
@@ -432,10 +452,29 @@ struct KnnIndex::Impl {
 
     /// Offers every candidate of `b` except `self` within squared distance `bound` of q to
     /// `best` (bound: an upper bound of the k-th distance, or infinity when none is known).
-    static void measure(Block& b, const float q[3], int self, float bound, Best& best) {
-        const std::size_t kept = keep_within(b, q, bound);
+    ///
+    /// `guess`, a smaller bound that may fail: where more than k candidates lie within it, the
+    /// k nearest do too (with all their ties), and only those are offered, so fewer enter the
+    /// list to be pushed out again; else all within `bound` are. Neither bound changes the
+    /// answer: with fewer than k candidates the list is not full and the caller measures again
+    /// without a bound.
+    static void measure(Block& b, const float q[3], int self, float bound, Best& best,
+                        float guess = std::numeric_limits<float>::infinity()) {
+        std::size_t kept = keep_within(b, q, bound);
         const float* d = b.d.data();
         const std::uint32_t* keep = b.keep.data();
+        if (guess < bound) {
+            std::uint32_t* near = b.near.data();
+            std::size_t count = 0;
+            for (std::size_t e = 0; e < kept; ++e) {
+                near[count] = keep[e];
+                count += d[keep[e]] <= guess;
+            }
+            if (count > std::size_t(best.k())) {
+                keep = near;
+                kept = count;
+            }
+        }
         best.clear();
         best.offer_all(d, b.id.data(), keep, kept, self);
     }
@@ -622,7 +661,9 @@ void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
                     const float r = std::sqrt(prev_worst) + std::sqrt(ex * ex + ey * ey + ez * ez);
                     bound = r * r * 1.0001f;
                 }
-                measure(block, p, s, bound, best);
+                // The previous query's k-th squared distance (a quarter more) as the guess.
+                measure(block, p, s, bound, best,
+                        prev ? 1.25f * prev_worst : std::numeric_limits<float>::infinity());
                 if (!best.full()) measure(block, p, s, std::numeric_limits<float>::infinity(), best);
                 if (!settled(best, level, c, p)) answer_alone(p, s, level - 1, alone, best);
                 const std::size_t row = row_base == kByQuery ? i : j - row_base;

@@ -208,14 +208,12 @@ void mesh_cleanup_stages(PipelineResult& r, const PipelineOptions& options, cons
 }
 
 /// The stages after the splat, on r.volume: close > mesh > clean > fill (and the closed
-/// volume). Each volume goes to on_volume while the next stage runs.
+/// volume). The volumes go to on_volume once the mesh is made, while the stages after it run:
+/// the mesh stage scales over the threads, the clean stage is serial (bunny at 0.5 mm, 2
+/// threads: its .vdb written beside the mesh stage took a thread from it for 0.1 s).
 void mesh_stages(PipelineResult& r, const PipelineOptions& options, const StageCallback& on_stage,
                  const VolumeCallback& on_volume) {
-    // Each volume is handed to on_volume (e.g. written to disk) while the next stage runs.
     tbb::task_group side;
-    auto hand_over = [&](const char* stage, const Volume& v) {
-        if (on_volume) side.run([&on_volume, stage, &v] { on_volume(stage, v); });
-    };
     auto stop_side = [&] {
         side.cancel();
         try {
@@ -223,40 +221,44 @@ void mesh_stages(PipelineResult& r, const PipelineOptions& options, const StageC
         } catch (...) {
         }
     };
-    hand_over("splat", r.volume);
-    try {
-        const Volume* meshed = &r.volume;
-        if (options.close.enabled()) {
-            StageClock clock(r.timings, on_stage, "close");
-            r.close = close_volume(r.volume, options.close, options.mesh);
-            r.closed_volume = std::move(r.close.volume);
-            r.close.volume = Volume{};
-            meshed = &r.closed_volume;
-            hand_over("closed", r.closed_volume);
-        }
+    const Volume* meshed = &r.volume;
+    if (options.close.enabled()) {
+        StageClock clock(r.timings, on_stage, "close");
+        r.close = close_volume(r.volume, options.close, options.mesh);
+        r.closed_volume = std::move(r.close.volume);
+        r.close.volume = Volume{};
+        meshed = &r.closed_volume;
+    }
+    {
         StageClock clock(r.timings, on_stage, "mesh");
         r.mesh_stats = extract_mesh(*meshed, options.mesh);
         r.mesh = std::move(r.mesh_stats.mesh);
         r.mesh_stats.mesh = Mesh{};
+    }
+    if (on_volume) {
+        side.run([&] { on_volume("splat", r.volume); });
+        if (meshed != &r.volume) side.run([&] { on_volume("closed", r.closed_volume); });
+    }
+    try {
+        // --watertight keeps the grid frame for the closed mesh's volume.
+        Volume frame;
+        if (options.watertight) {
+            frame.sdf = openvdb::FloatGrid::create(r.volume.sdf->background());  // its frame only
+            frame.sdf->setTransform(r.volume.sdf->transform().copy());
+            frame.voxel_size = r.volume.voxel_size;
+            frame.origin = r.volume.origin;
+            frame.metadata = r.volume.metadata;
+        }
+        mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
     } catch (...) {
         stop_side();
         throw;
     }
     side.wait();  // rethrows what on_volume threw
-    // --watertight keeps the grid frame for the closed mesh's volume.
-    Volume frame;
-    if (options.watertight) {
-        frame.sdf = openvdb::FloatGrid::create(r.volume.sdf->background());  // its frame only
-        frame.sdf->setTransform(r.volume.sdf->transform().copy());
-        frame.voxel_size = r.volume.voxel_size;
-        frame.origin = r.volume.origin;
-        frame.metadata = r.volume.metadata;
-    }
     if (!options.keep_volumes) {
         r.volume = Volume{};
         r.closed_volume = Volume{};
     }
-    mesh_cleanup_stages(r, options, frame, on_stage, on_volume);
 }
 
 }  // namespace

@@ -10,11 +10,11 @@
 // Queries go cell by cell: the candidates of all queries in a cell are the points of its 3x3x3
 // block of cells, gathered once into contiguous arrays; each query measures them all (an AVX2
 // loop where the CPU has one, else one the compiler vectorises), keeps those within a bound
-// from the previous query's answer (and of those, when more than k, the ones within a quarter
-// more than that answer's k-th distance), and inserts them into its list of the k smallest, ordered
-// by (distance, point index) so that the answer does not depend on the gathering order (with
-// AVX2, a list of up to 16 lives in registers and takes a key without a branch on its place).
-// The answer is exact when the k-th distance is
+// from the previous query's answer (and of those, when more than k, the ones within 1.25 times
+// that answer's k-th squared distance), and inserts them into its list of the k smallest,
+// ordered by (distance, point index) so that the answer does not depend on the gathering order
+// (with AVX2, a list of up to 16 lives in registers and takes a key without a branch on its
+// place). The answer is exact when the k-th distance is
 // smaller than the distance from the query to the outside of the block, which no point outside
 // the block can beat; otherwise (sparse regions, stray points, queries outside the cube) the
 // query is repeated on the block of its cell at the next coarser level, down to level 0, where
@@ -661,7 +661,7 @@ void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
                     const float r = std::sqrt(prev_worst) + std::sqrt(ex * ex + ey * ey + ez * ez);
                     bound = r * r * 1.0001f;
                 }
-                // The previous query's k-th squared distance (a quarter more) as the guess.
+                // The previous query's k-th squared distance, a quarter more, as the guess.
                 measure(block, p, s, bound, best,
                         prev ? 1.25f * prev_worst : std::numeric_limits<float>::infinity());
                 if (!best.full()) measure(block, p, s, std::numeric_limits<float>::infinity(), best);

@@ -547,7 +547,7 @@ RunResult run_to_files(const std::string& input, const std::string& output,
     // looks for a resource manager and starts the worker threads (2-3 ms on the 2-core VM). Done
     // here, that start-up is not charged to the first stage's work.
     tbb::parallel_for(0, 2, [](int) {});
-    // The volumes are written while the next stage runs (I/O and compression are serial).
+    // The volumes are written while the stages after the mesh run (mesh_stages).
     double vdb_seconds = 0.0;
     std::mutex vdb_mutex;  // the two volumes may be written at the same time
     VolumeCallback write_vdb;

@@ -156,12 +156,14 @@ struct PipelineResult {
 /// Progress callback: stage name, called when a stage starts.
 using StageCallback = std::function<void(const std::string& stage)>;
 
-/// Called with each stage's volume ("splat", then "closed" when closing); runs concurrently with
-/// the next stage (on the same worker threads), e.g. to write the volume to disk meanwhile.
+/// Called with each stage's volume ("splat", then "closed" when closing) once the mesh is made;
+/// runs concurrently with the stages after it (on the same worker threads), e.g. to write the
+/// volume to disk meanwhile.
 using VolumeCallback = std::function<void(const std::string& stage, const Volume& volume)>;
 
 /// Runs outliers > normals > splat > close > mesh > clean on an in-memory cloud (outliers are
-/// removed from it, normals and scales filled in). Exceptions from `on_volume` propagate once meshing has finished.
+/// removed from it, normals and scales filled in). Exceptions from `on_volume` propagate once
+/// the stages after the mesh have finished.
 PipelineResult reconstruct(PointCloud& cloud, const PipelineOptions& options,
                            const StageCallback& on_stage = {},
                            const VolumeCallback& on_volume = {});

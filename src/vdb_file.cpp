@@ -23,8 +23,10 @@
 #include <openvdb/tree/LeafManager.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
@@ -155,13 +157,23 @@ class Output {
         const std::size_t skip = written_ >= kUuidOffset + kUuidLength
                                      ? 0
                                      : std::min(used_, kUuidOffset + kUuidLength - written_);
-        hash_.add(block_.data() + skip, used_ - skip);
-        if (used_ > 0 && std::fwrite(block_.data(), 1, used_, file_) != used_) fail();
+        // The hash and the write read the same block: at once, where a second thread is free
+        // (bunny at 0.5 mm, 2 threads: the writer 0.057 -> 0.049 s). errno is the writing
+        // thread's.
+        int error = 0;
+        tbb::parallel_invoke(
+            [&] { hash_.add(block_.data() + skip, used_ - skip); },
+            [&] {
+                if (used_ > 0 && std::fwrite(block_.data(), 1, used_, file_) != used_) {
+                    error = errno != 0 ? errno : EIO;
+                }
+            });
+        if (error != 0) fail(error);
         written_ += used_;
         used_ = 0;
     }
-    [[noreturn]] void fail() const {
-        throw IoError(where(path_, std::string("cannot write: ") + std::strerror(errno)));
+    [[noreturn]] void fail(int error = errno) const {
+        throw IoError(where(path_, std::string("cannot write: ") + std::strerror(error)));
     }
 
     std::FILE* file_;

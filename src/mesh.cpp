@@ -85,14 +85,14 @@ bool point_in_valid_cells(FloatAccessor& acc, const openvdb::Vec3d& p) {
 /// lie in the block), read in place. gradient() is the trilinear blend of the corners' central
 /// differences (one-sided next to inactive voxels; zero at an inactive corner).
 class CellStencil {
-public:
-  /// The cell at voxel c, which lies in `block`'s leaf.
-  void view(const LeafBlock& block, const openvdb::Coord& c) {
-      int i = 0;
-      block.index(c.offsetBy(-1), i);  // in the block: c is in its leaf
-      f_ = block.values() + i;
-      on_ = block.actives() + i;
-  }
+  public:
+    /// The cell at voxel c, which lies in `block`'s leaf.
+    void view(const LeafBlock& block, const openvdb::Coord& c) {
+        int i = 0;
+        block.index(c.offsetBy(-1), i);  // in the block: c is in its leaf
+        f_ = block.values() + i;
+        on_ = block.actives() + i;
+    }
 
     /// Whether the cell's eight corners are active.
     bool valid() const {
@@ -121,11 +121,11 @@ public:
         return g;
     }
 
-private:
-  /// The view's index of stencil voxel (x, y, z), 0..3 per axis from c - 1.
-  static int at(int x, int y, int z) {
-      return x * LeafBlock::kStep[0] + y * LeafBlock::kStep[1] + z;
-  }
+  private:
+    /// The view's index of stencil voxel (x, y, z), 0..3 per axis from c - 1.
+    static int at(int x, int y, int z) {
+        return x * LeafBlock::kStep[0] + y * LeafBlock::kStep[1] + z;
+    }
 
     openvdb::Vec3d corner_gradient(int x, int y, int z) const {
         openvdb::Vec3d g(0.0);

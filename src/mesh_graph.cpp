@@ -56,12 +56,15 @@ VertexFaces vertex_faces(Span<Triangle> faces, std::size_t lo, std::size_t hi) {
     }
     for (std::size_t v = 0; v < hi - lo; ++v) r.first[v + 1] += r.first[v];
     r.around.resize(r.first[hi - lo]);
-    std::vector<std::size_t> fill(r.first.begin(), r.first.end() - 1);
+    // first[v] serves as v's cursor (then holds v's end, v + 1's start) and is shifted back
+    // after: no second array of offsets.
     for (std::size_t f = 0; f < faces.size(); ++f) {
         for (std::int32_t i : faces[f]) {
-            if (in(i)) r.around[fill[std::size_t(i) - lo]++] = std::int32_t(f);
+            if (in(i)) r.around[r.first[std::size_t(i) - lo]++] = std::int32_t(f);
         }
     }
+    for (std::size_t v = hi - lo; v > 0; --v) r.first[v] = r.first[v - 1];
+    r.first[0] = 0;
     return r;
 }
 
@@ -131,15 +134,18 @@ std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh, std::size_
     // The faces' normals in parallel, a chunk at a time; then added to their vertices in face
     // order, so that every sum is the same bits for any thread count.
     const Span<Triangle> faces = mesh.faces;
-    constexpr std::size_t kChunk = std::size_t(1) << 16;
+    constexpr std::size_t kChunk = std::size_t(1) << 16, kPiece = 4096;
     std::vector<std::array<double, 3>> n(std::min(faces.size(), kChunk));
+    std::vector<char> touched(kChunk / kPiece);  // per piece of a chunk: a face reaches the range
     for (std::size_t c0 = 0; c0 < faces.size(); c0 += kChunk) {
         const std::size_t c1 = std::min(faces.size(), c0 + kChunk);
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(c0, c1, 4096),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t f = r.begin(); f < r.end(); ++f) {
+        const std::size_t pieces = (c1 - c0 + kPiece - 1) / kPiece;
+        tbb::parallel_for(std::size_t(0), pieces, [&](std::size_t p) {
+            touched[p] = 0;
+            for (std::size_t f = c0 + p * kPiece, e = std::min(c1, f + kPiece); f < e; ++f) {
                 const Triangle& t = faces[f];
                 if (!in(t[0]) && !in(t[1]) && !in(t[2])) continue;  // not added below either
+                touched[p] = 1;
                 const Vec3f &pa = mesh.vertices[std::size_t(t[0])],
                             &pb = mesh.vertices[std::size_t(t[1])],
                             &pc = mesh.vertices[std::size_t(t[2])];
@@ -152,10 +158,16 @@ std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh, std::size_
                              u[0] * v[1] - u[1] * v[0]};
             }
         });
-        for (std::size_t f = c0; f < c1; ++f) {
-            for (std::int32_t i : faces[f]) {
-                if (!in(i)) continue;
-                for (std::size_t k = 0; k < 3; ++k) sum[std::size_t(i) - first][k] += n[f - c0][k];
+        // Pieces no face of which reaches the range are skipped: a block of vertices (see
+        // vertex_normals) is reached by few pieces when the faces come in the vertices' order.
+        for (std::size_t p = 0; p < pieces; ++p) {
+            if (!touched[p]) continue;
+            for (std::size_t f = c0 + p * kPiece, e = std::min(c1, f + kPiece); f < e; ++f) {
+                for (std::int32_t i : faces[f]) {
+                    if (!in(i)) continue;
+                    for (std::size_t k = 0; k < 3; ++k)
+                        sum[std::size_t(i) - first][k] += n[f - c0][k];
+                }
             }
         }
     }

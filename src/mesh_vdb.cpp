@@ -22,14 +22,15 @@ RawSurface mesh_vdb(const Volume& volume, const MeshOptions& options) {
 
     RawSurface raw;
     raw.check_cells = true;  // volumeToMesh knows nothing of the validity mask
-    const openvdb::tools::PointList& points = mesher.pointList();
-    raw.points.assign(points.get(), points.get() + mesher.pointListSize());
+    // The triangles first, from the mesher's points; its polygons freed, then the points copied
+    // and the mesher's freed: its arrays and ours never all coexist (4 MB on the bunny).
+    openvdb::tools::PointList& points = mesher.pointList();
     // For a level set volumeToMesh's polygons are clockwise seen from outside: reverse them.
     // Quads are split along their shorter diagonal.
     auto len2 = [&](openvdb::Index32 a, openvdb::Index32 b) {
-        return (raw.points[a] - raw.points[b]).lengthSqr();
+        return (points[a] - points[b]).lengthSqr();
     };
-    const openvdb::tools::PolygonPoolList& pools = mesher.polygonPoolList();
+    openvdb::tools::PolygonPoolList& pools = mesher.polygonPoolList();
     const std::size_t npools = mesher.polygonPoolListSize();
     std::vector<std::size_t> first(npools + 1, 0);  // each pool's first triangle
     for (std::size_t p = 0; p < npools; ++p) {
@@ -58,6 +59,9 @@ RawSurface mesh_vdb(const Volume& volume, const MeshOptions& options) {
             }
         }
     });
+    pools.reset();  // serially: frees from two threads at once contend for the heap's lock
+    raw.points.assign(points.get(), points.get() + mesher.pointListSize());
+    points.reset();
     return raw;
 }
 

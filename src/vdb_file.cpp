@@ -403,21 +403,27 @@ void write_grid(Output& out, const Archive& archive, const GridT& grid) {
     }
 }
 
+/// Refuses a grid outside write_vdb_file's terms, or one whose name or tree an earlier one has.
+void check_grid(const openvdb::GridBase::ConstPtr& g, std::set<std::string>& names,
+                std::set<const openvdb::TreeBase*>& trees) {
+    const bool known = g && (g->isType<openvdb::FloatGrid>() || g->isType<openvdb::Vec3SGrid>());
+    if (!known || g->getName().empty() || !names.insert(g->getName()).second ||
+        !trees.insert(&g->baseTree()).second || g->saveFloatAsHalf()) {
+        throw InvalidArgument(
+            "write_vdb_file: grids must be float or Vec3f grids with distinct names and "
+            "trees of their own, without half floats");
+    }
+}
+
 }  // namespace
 
-void write_vdb_file(std::FILE* file, const std::string& path, const openvdb::GridCPtrVec& grids,
+void write_vdb_file(std::FILE* file, const std::string& path, const std::vector<FileGrid>& grids,
                     const openvdb::MetaMap& meta) {
+    // The given grids are checked before anything is written, a made one when it is made.
     std::set<std::string> names;
     std::set<const openvdb::TreeBase*> trees;
-    for (const openvdb::GridBase::ConstPtr& g : grids) {
-        const bool known =
-            g && (g->isType<openvdb::FloatGrid>() || g->isType<openvdb::Vec3SGrid>());
-        if (!known || g->getName().empty() || !names.insert(g->getName()).second ||
-            !trees.insert(&g->baseTree()).second || g->saveFloatAsHalf()) {
-            throw InvalidArgument(
-                "write_vdb_file: grids must be float or Vec3f grids with distinct names and "
-                "trees of their own, without half floats");
-        }
+    for (const FileGrid& g : grids) {
+        if (g.grid || !g.make) check_grid(g.grid, names, trees);
     }
     const Archive archive;
     std::ostringstream head(std::ios_base::binary);
@@ -428,12 +434,19 @@ void write_vdb_file(std::FILE* file, const std::string& path, const openvdb::Gri
 
     Output out(file, path);
     out.put(head.str());
-    for (const openvdb::GridBase::ConstPtr& g : grids) {
+    for (const FileGrid& source : grids) {
+        openvdb::GridBase::ConstPtr g = source.grid;
+        if (!g) {
+            g = source.make();
+            check_grid(g, names, trees);
+        }
         if (g->isType<openvdb::FloatGrid>()) {
             write_grid(out, archive, static_cast<const openvdb::FloatGrid&>(*g));
         } else {
             write_grid(out, archive, static_cast<const openvdb::Vec3SGrid&>(*g));
         }
+        // A made grid is freed here; its tree's address may serve a later one.
+        if (!source.grid) trees.erase(&g->baseTree());
     }
     out.finish();
 }

@@ -3,9 +3,18 @@
 
 #include <openvdb/openvdb.h>
 
+#include <functional>
 #include <string>
+#include <vector>
 
 namespace vdbrecon::detail {
+
+/// One grid of a file: `grid`, or, when that is null, the grid `make` returns when its turn to
+/// be written comes (so that it need not coexist with the grids written before it).
+struct FileGrid {
+    openvdb::GridBase::ConstPtr grid;
+    std::function<openvdb::GridBase::ConstPtr()> make;
+};
 
 /// Writes `grids` (float and Vec3f grids with distinct, non-empty names and trees of their own)
 /// and the file metadata `meta` to the open file `file` (named `path` in errors), in the layout
@@ -15,7 +24,7 @@ namespace vdbrecon::detail {
 /// OpenVDB stamps a random UUID; this one is derived from the rest of the file, so equal grids
 /// give byte-identical files whatever the run or thread count. Throws IoError when a write
 /// fails and InvalidArgument for grids outside the above.
-void write_vdb_file(std::FILE* file, const std::string& path, const openvdb::GridCPtrVec& grids,
+void write_vdb_file(std::FILE* file, const std::string& path, const std::vector<FileGrid>& grids,
                     const openvdb::MetaMap& meta);
 
 }  // namespace vdbrecon::detail

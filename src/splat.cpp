@@ -215,6 +215,23 @@ inline bool clip_to_block(const Box& b, const openvdb::Coord& o, int lo[3], int 
     return true;
 }
 
+/// The block's 8^3 leaves that the block-local box [lo, hi] (clip_to_block) reaches, bit
+/// 4 x + 2 y + z for the leaf in half (x, y, z) of the block.
+inline unsigned leaf_mask(const int lo[3], const int hi[3]) {
+    unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
+    for (int a = 0; a < 3; ++a) {
+        halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
+    }
+    unsigned mask = 0;
+    for (int leaf = 0; leaf < 8; ++leaf) {
+        if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
+            (halves[2] >> (leaf & 1) & 1u)) {
+            mask |= 1u << leaf;
+        }
+    }
+    return mask;
+}
+
 /// The blocks box b touches, block coordinates [lo, hi] per axis; false when the box is empty
 /// (a kernel narrower than the voxel spacing can fall between voxels), which touches none. One
 /// rule for counting, ranging and listing a point's pairs, so they always agree.
@@ -236,6 +253,7 @@ struct BlockOut {
     std::unique_ptr<FloatLeaf> sdf[8], weight[8];
     std::unique_ptr<Vec3Leaf> nearest[8], color[8];
     std::size_t updates = 0, touched = 0, active = 0;
+    std::uint8_t leaves = 0;  ///< the leaves its kernels reach (leaf_mask)
 };
 
 /// Per-voxel sums of one block, as separate arrays: w, the averaging weight u = amp * w, u * phi,
@@ -595,6 +613,7 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
     for (const P* q = begin; q != end; ++q) {
         const Kernel k = kernels(q->point);
         if (!clip_to_block(support_box(k), o, p.lo, p.hi)) continue;
+        out.leaves |= std::uint8_t(leaf_mask(p.lo, p.hi));
         const double inv_s2 = k.inv_s2, rho = k.rho;
         p.r2 = double(k.r) * double(k.r);
         p.amp = double(k.amp);
@@ -802,16 +821,7 @@ std::vector<std::uint8_t> touched_leaf_masks(const Kernels& kernels, const Block
             for (std::size_t j = block_begin[B]; j < block_begin[B + 1]; ++j) {
                 int lo[3], hi[3];
                 if (!clip_to_block(support_box(kernels(pairs[j].point, false)), o, lo, hi)) continue;
-                unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
-                for (int a = 0; a < 3; ++a) {
-                    halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
-                }
-                for (int leaf = 0; leaf < 8; ++leaf) {
-                    if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
-                        (halves[2] >> (leaf & 1) & 1u)) {
-                        mask |= 1u << leaf;
-                    }
-                }
+                mask |= leaf_mask(lo, hi);
             }
             touched[B] = std::uint8_t(mask);
         }
@@ -853,14 +863,22 @@ void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::si
     }
     block_begin.push_back(pairs.size());
     const std::size_t num_blocks = block_begin.size() - 1;
-    {
+    // The budget on the leaves: eight a block at most, a bound that costs nothing. Only where it
+    // exceeds the budget, or an accumulator's state needs them made first, are the leaves the
+    // kernels reach counted before the sums (a pass over the pairs, ~5 % of the splat on the
+    // bunny); otherwise the sums count them (BlockOut::leaves), the same number.
+    const auto need = [&](std::size_t leaves) {
+        return double(kernels.size()) * 64.0 + double(leaves) * double(SplatOptions::kBytesPerLeaf);
+    };
+    const bool count_first = setup.state != nullptr || need(num_leaves + 8 * num_blocks) >
+                                                           double(memory_budget(setup.options));
+    if (count_first) {
         std::vector<std::uint8_t> touched = touched_leaf_masks(kernels, codec, pairs, block_begin);
         for (std::uint8_t m : touched) num_leaves += std::size_t(__builtin_popcount(m));
         if (setup.state) num_leaves = make_state_leaves(*setup.state, codec, pairs, block_begin, touched);
         std::ostringstream what;
         what << num_leaves << " leaves of 8^3 voxels";
-        check_memory(double(kernels.size()) * 64.0 + double(num_leaves) * double(SplatOptions::kBytesPerLeaf),
-                     setup.options, what.str().c_str());
+        check_memory(need(num_leaves), setup.options, what.str().c_str());
     }
     const bool colors = setup.cloud.has_colors();
     const double min_weight = setup.options.min_weight, voxel = setup.options.voxel_size;
@@ -888,6 +906,11 @@ void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::si
             }
         }
     });
+    if (!count_first) {
+        for (std::size_t B = 0; B < num_blocks; ++B) {
+            num_leaves += std::size_t(__builtin_popcount(blocks[first_block + B].leaves));
+        }
+    }
 }
 
 /// Lists the (block, point) pairs, sorts them, checks the memory budget and sums every block,

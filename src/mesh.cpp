@@ -4,7 +4,6 @@
 #include <openvdb/tools/Interpolation.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <array>
@@ -16,6 +15,7 @@
 
 #include "detail/mesh_common.h"
 #include "detail/mesh_graph.h"
+#include "detail/radix_sort.h"
 #include "detail/release.h"
 #include "detail/support.h"
 #include "vdbrecon/error.h"
@@ -314,16 +314,21 @@ void weld_coincident(ClassifiedSurface& s) {
     // position maps to that first, the lowest index: the same pairs as sorting by (position,
     // index), for any thread count. Runs of distinct positions are nearly always single points.
     std::vector<std::uint64_t> order(used.size());
-    for (std::size_t j = 0; j < used.size(); ++j) {
-        const auto k = key(used[j]);
-        std::uint64_t h = (std::uint64_t(k[0]) * 0x9e3779b97f4a7c15ULL) ^
-                          (std::uint64_t(k[1]) * 0xc2b2ae3d27d4eb4fULL) ^
-                          (std::uint64_t(k[2]) * 0x165667b19e3779f9ULL);
-        h ^= h >> 29;
-        order[j] = (h & 0xffffffff00000000ULL) | std::uint32_t(used[j]);
-    }
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, used.size(), 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t j = r.begin(); j < r.end(); ++j) {
+                              const auto k = key(used[j]);
+                              std::uint64_t h = (std::uint64_t(k[0]) * 0x9e3779b97f4a7c15ULL) ^
+                                                (std::uint64_t(k[1]) * 0xc2b2ae3d27d4eb4fULL) ^
+                                                (std::uint64_t(k[2]) * 0x165667b19e3779f9ULL);
+                              h ^= h >> 29;
+                              order[j] = (h & 0xffffffff00000000ULL) | std::uint32_t(used[j]);
+                          }
+                      });
     release(used);
-    tbb::parallel_sort(order.begin(), order.end());
+    // Made in index order, so a stable sort on the hash alone orders them by the whole value
+    // (a radix sort: the bunny's 338k points took a comparison sort 20 ms of one thread).
+    radix_sort(order, 32, [](std::uint64_t v) { return v >> 32; });
     std::vector<std::int32_t> to;  // (duplicate, first) pairs
     std::vector<std::int32_t> firsts;  // the distinct positions of the current run
     for (std::size_t a = 0, b = 0; a < order.size(); a = b) {

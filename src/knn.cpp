@@ -28,7 +28,6 @@
 // parallel and shares each cell's candidates among its queries.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <cmath>
@@ -565,7 +564,7 @@ KnnIndex::KnnIndex(Span<Vec3f> points, const KnnOptions& options) : impl_(std::m
                 codes[j] = m.code_of(points[j * stride].data(), kBits);
             }
         });
-        tbb::parallel_sort(codes.begin(), codes.end());
+        detail::radix_sort(codes, 3 * kBits, [](std::uint64_t c) { return c; });
         std::size_t first_diff[kBits + 1] = {};
         for (std::size_t i = 1; i < codes.size(); ++i) {
             const std::uint64_t d = codes[i] ^ codes[i - 1];

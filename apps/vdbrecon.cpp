@@ -14,6 +14,7 @@
 #include <cmath>
 #include <csignal>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <iostream>
@@ -25,10 +26,10 @@
 #include "vdbrecon/choices.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/eval.h"
-#include "vdbrecon/scene.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/log.h"
 #include "vdbrecon/pipeline.h"
+#include "vdbrecon/scene.h"
 
 namespace {
 
@@ -809,10 +810,20 @@ void report(const RunResult& r, const PipelineOptions& o,
     }
 }
 
+/// Ends the process once every output is written and reported, without destroying the run's
+/// results: the system takes their memory back at once, where freeing the grids' leaves and the
+/// mesh one by one (two threads contending for the heap) took 0.03-0.04 s of the bunny's 0.8 s.
+[[noreturn]] void finish(int code) {
+    std::cout.flush();
+    std::cerr.flush();
+    std::fflush(nullptr);
+    std::_Exit(code);
+}
+
 int run_reconstruct(Args& args, double startup_rss_mb) {
     const auto start = std::chrono::steady_clock::now();
     PipelineOptions o;
-    o.keep_volumes = false;  // written to .vdb files by the time the mesh is cleaned
+    o.keep_volumes = true;  // not freed: the process ends without destroying them (finish)
     std::string input, output;
     bool quiet = false;
     while (!args.done()) {
@@ -823,13 +834,13 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
     const StageCallback on_stage = install_log_handler(quiet);
     const RunResult r = run(input, output, o, on_stage);
     if (!quiet) report(r, o, start, startup_rss_mb, false);
-    return kExitOk;
+    finish(kExitOk);
 }
 
 int run_fuse(Args& args, double startup_rss_mb) {
     const auto start = std::chrono::steady_clock::now();
     PipelineOptions o;
-    o.keep_volumes = false;
+    o.keep_volumes = true;  // as in run_reconstruct
     FuseOptions f;
     std::string input, output;
     bool quiet = false;
@@ -890,7 +901,7 @@ int run_fuse(Args& args, double startup_rss_mb) {
     const StageCallback on_stage = install_log_handler(quiet);
     const RunResult r = fuse(input, output, o, f, on_stage);
     if (!quiet) report(r, o, start, startup_rss_mb, true);
-    return kExitOk;
+    finish(kExitOk);
 }
 
 }  // namespace

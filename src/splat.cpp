@@ -35,6 +35,7 @@
 #include "detail/kernels.h"
 #include "detail/radix_sort.h"
 #include "detail/release.h"
+#include "detail/select.h"
 #include "detail/simd.h"
 #include "detail/splat_frame.h"
 #include "detail/volume_grids.h"
@@ -1005,15 +1006,21 @@ void measure_kernels(const Kernels& kernels, double voxel, CloudSums& out) {
         std::accumulate(chunk_skipped.begin(), chunk_skipped.end(), std::size_t(0));
     detail::check_kernel_range(max_index, max_r, out.skipped, n, voxel);
 
-    // Sigma statistics (world units).
+    // Sigma statistics (world units). The median by select_rank (a histogram, then a small
+    // selection) rather than nth_element over every sigma (3-4 ms of one thread on the bunny):
+    // the -1 of a skipped point orders after every sigma (its sign bit), so rank valid / 2 among
+    // all of them is the valid ones' median.
     {
-        std::vector<float> s = std::move(sigmas);
-        s.erase(std::remove(s.begin(), s.end(), -1.0f), s.end());
-        std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
-        out.sigma_median = double(s[s.size() / 2]) * voxel;
-        const auto mm = std::minmax_element(s.begin(), s.end());
-        out.sigma_min = double(*mm.first) * voxel;
-        out.sigma_max = double(*mm.second) * voxel;
+        const std::size_t valid = n - out.skipped;
+        out.sigma_median = double(detail::select_rank(valid / 2, sigmas)) * voxel;
+        float lo = std::numeric_limits<float>::max(), hi = 0.0f;
+        for (const float s : sigmas) {
+            if (s == -1.0f) continue;
+            lo = std::min(lo, s);
+            hi = std::max(hi, s);
+        }
+        out.sigma_min = double(lo) * voxel;
+        out.sigma_max = double(hi) * voxel;
     }
 
 }

@@ -1,4 +1,5 @@
 #include <openvdb/io/File.h>
+#include <openvdb/tools/LevelSetSphere.h>
 
 #include <algorithm>
 #include <cmath>
@@ -515,6 +516,79 @@ TEST_CASE("LAS: the Autzen tile reads as its PLY twin; classes filter; LAZ is re
     write_bytes(dir.file("cut.las"), read_bytes(las).substr(0, 100000));
     REQUIRE_THROWS_WITH(read_points(dir.file("cut.las")), Catch::Contains("cut.las") &&
                                                               Catch::Contains("truncated"));
+}
+
+namespace {
+
+/// make_density's definition: the sdf's topology copied, every active voxel given its density
+/// and switched off where that is 0, then pruned.
+openvdb::FloatTree::Ptr density_by_definition(const openvdb::FloatGrid& sdf) {
+    const float ramp = float(1.5 * sdf.voxelSize()[0]);
+    auto tree =
+        std::make_shared<openvdb::FloatTree>(sdf.tree(), 0.0f, 0.0f, openvdb::TopologyCopy());
+    for (auto leaf = tree->beginLeaf(); leaf; ++leaf) {
+        const auto* src = sdf.tree().probeConstLeaf(leaf->origin());
+        for (auto it = leaf->beginValueOn(); it; ++it) {
+            const float d = std::clamp(0.5f - src->getValue(it.pos()) / (2.0f * ramp), 0.0f, 1.0f);
+            it.setValue(d);
+            if (d == 0.0f) it.setValueOff();
+        }
+    }
+    tree->prune(0.0f);
+    return tree;
+}
+
+/// The same nodes, tiles, values and states.
+void require_same_tree(const openvdb::FloatTree& a, const openvdb::FloatTree& b) {
+    REQUIRE(a.leafCount() == b.leafCount());
+    REQUIRE(a.nonLeafCount() == b.nonLeafCount());
+    REQUIRE(a.activeTileCount() == b.activeTileCount());
+    REQUIRE(a.activeVoxelCount() == b.activeVoxelCount());
+    for (auto leaf = a.cbeginLeaf(); leaf; ++leaf) {
+        const auto* other = b.probeConstLeaf(leaf->origin());
+        REQUIRE(other != nullptr);
+        REQUIRE(other->getValueMask() == leaf->getValueMask());
+        for (openvdb::Index i = 0; i < 512; ++i) REQUIRE(other->getValue(i) == leaf->getValue(i));
+    }
+    for (auto it = a.cbeginValueOn(); it; ++it) {
+        if (it.isVoxelValue()) continue;  // tiles: the same value, as a tile of the same size
+        REQUIRE(b.getValue(it.getCoord()) == *it);
+        REQUIRE(b.getValueDepth(it.getCoord()) == a.getValueDepth(it.getCoord()));
+    }
+}
+
+}  // namespace
+
+TEST_CASE("vdb files: the density grid is the sdf's valid voxels' ramp, pruned", "[io]") {
+    // A sphere's narrow band, a leaf wholly inside (density 1 everywhere: a tile), one wholly
+    // outside (density 0: no leaf), one half of each.
+    const float voxel = 0.1f;
+    openvdb::FloatGrid::Ptr sdf = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(
+        2.0f, openvdb::Vec3f(0.0f), voxel, 3.0f);
+    auto fill_leaf = [&](const openvdb::Coord& origin, auto value) {
+        auto* leaf = sdf->tree().touchLeaf(origin);
+        for (openvdb::Index i = 0; i < 512; ++i) leaf->setValueOn(i, value(i));
+    };
+    fill_leaf(openvdb::Coord(400, 0, 0), [&](openvdb::Index) { return -2.0f * voxel; });
+    fill_leaf(openvdb::Coord(408, 0, 0), [&](openvdb::Index) { return 2.0f * voxel; });
+    fill_leaf(openvdb::Coord(416, 0, 0),
+              [&](openvdb::Index i) { return i < 256 ? -voxel : voxel; });
+    REQUIRE_FALSE(sdf->tree().hasActiveTiles());
+    const openvdb::FloatGrid::Ptr density = make_density(*sdf);
+    REQUIRE(density->getName() == "density");
+    REQUIRE(density->getGridClass() == openvdb::GRID_FOG_VOLUME);
+    require_same_tree(density->tree(), *density_by_definition(*sdf));
+    REQUIRE(density->tree().getValueDepth(openvdb::Coord(403, 3, 3)) == 2);  // a leaf-sized tile
+    REQUIRE(density->tree().getValue(openvdb::Coord(403, 3, 3)) == 1.0f);
+    REQUIRE(density->tree().probeConstLeaf(openvdb::Coord(408, 0, 0)) == nullptr);
+    REQUIRE(density->tree().getValue(openvdb::Coord(0, 0, 20)) == 0.5f);  // on the surface
+
+    // An sdf with an active tile (a closed volume's interior) keeps it, as a tile of 0.
+    sdf->tree().addTile(1, openvdb::Coord(800, 0, 0), -1.0f, true);
+    REQUIRE(sdf->tree().hasActiveTiles());
+    const openvdb::FloatGrid::Ptr with_tile = make_density(*sdf);
+    require_same_tree(with_tile->tree(), *density_by_definition(*sdf));
+    REQUIRE(with_tile->tree().isValueOn(openvdb::Coord(803, 3, 3)));
 }
 
 TEST_CASE("vdb files: the bytes openvdb::io::File writes, with a UUID from the content", "[io]") {

@@ -820,16 +820,20 @@ void report(const RunResult& r, const PipelineOptions& o,
     std::_Exit(code);
 }
 
+/// The volumes stay in the result, not freed (the process ends without destroying them, see
+/// finish), unless a preview is rendered after the stages: it then reuses their memory.
+void keep_volumes_unless_preview(PipelineOptions& o) { o.keep_volumes = o.preview_path.empty(); }
+
 int run_reconstruct(Args& args, double startup_rss_mb) {
     const auto start = std::chrono::steady_clock::now();
     PipelineOptions o;
-    o.keep_volumes = true;  // not freed: the process ends without destroying them (finish)
     std::string input, output;
     bool quiet = false;
     while (!args.done()) {
         parse_common_option(args.next(), args, o, input, output, quiet);
     }
     if (input.empty()) throw UsageError("no input file (see --help)");
+    keep_volumes_unless_preview(o);
 
     const StageCallback on_stage = install_log_handler(quiet);
     const RunResult r = run(input, output, o, on_stage);
@@ -840,7 +844,6 @@ int run_reconstruct(Args& args, double startup_rss_mb) {
 int run_fuse(Args& args, double startup_rss_mb) {
     const auto start = std::chrono::steady_clock::now();
     PipelineOptions o;
-    o.keep_volumes = true;  // as in run_reconstruct
     FuseOptions f;
     std::string input, output;
     bool quiet = false;
@@ -898,6 +901,7 @@ int run_fuse(Args& args, double startup_rss_mb) {
         }
     }
     if (input.empty()) throw UsageError("fuse: no scene (a transforms.json or a TUM folder)");
+    keep_volumes_unless_preview(o);
     const StageCallback on_stage = install_log_handler(quiet);
     const RunResult r = fuse(input, output, o, f, on_stage);
     if (!quiet) report(r, o, start, startup_rss_mb, true);

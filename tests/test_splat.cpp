@@ -107,6 +107,36 @@ TEST_CASE("splatting a slab of blocks at a time gives the same grids", "[splat]"
     }
 }
 
+TEST_CASE("the memory budget counts the leaves the kernels reach, in one slab or many", "[splat]") {
+    // Under a budget the leaves are counted from the sums, above it by a pass over the pairs
+    // first: both give the same count, so the run fits exactly when its leaves fit, whether it
+    // is summed in one slab or in many (each slab checks the count so far).
+    const PointCloud c = noisy_sphere(40000, 1.0, 5);
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    // Room for the points and their (block, point) pairs, not the leaves: the refusal names the
+    // count of the one slab, which holds every leaf.
+    o.max_memory = c.size() * 64 + (std::size_t(4) << 20);
+    std::size_t leaves = 0;
+    try {
+        splat(c, o);
+    } catch (const InvalidArgument& e) {
+        const std::string m = e.what();
+        const std::size_t end = m.find(" leaves of 8^3 voxels");
+        REQUIRE(end != std::string::npos);
+        leaves = std::stoul(m.substr(m.rfind('(', end) + 1));
+    }
+    REQUIRE(leaves > 0);
+    const std::size_t need = c.size() * 64 + leaves * SplatOptions::kBytesPerLeaf;
+    for (std::size_t limit : {std::size_t(0), std::size_t(1)}) {  // one slab; one per column
+        o.slab_pairs = limit;
+        o.max_memory = need;
+        REQUIRE(splat(c, o).volume.sdf->activeVoxelCount() > 0);
+        o.max_memory = need - 1;
+        REQUIRE_THROWS_AS(splat(c, o), InvalidArgument);
+    }
+}
+
 TEST_CASE("the vector rows give the scalar rows' grids bit for bit", "[splat]") {
     // The splat takes the AVX-512 or else the AVX2 rows where the CPU has them;
     // VDBRECON_NO_AVX512 forces AVX2, VDBRECON_SCALAR the scalar loop. Per-point scales make

@@ -14,6 +14,8 @@ namespace vdbrecon::detail {
 /// The value of rank `rank` among the values >= 0 that scan(fn) hands over a chunk at a time
 /// (fn(values, count)), in two scans: a histogram of their top 16 bits (such floats order like
 /// their bit patterns), then only the values of the bucket that holds the rank, selected.
+/// Negative values (markers) order after all of them (the sign bit): a rank below the count of
+/// the values >= 0 selects among those alone.
 template <typename Scan>
 float select_rank(std::uint64_t rank, const Scan& scan) {
     const auto bucket = [](float x) {

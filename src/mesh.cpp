@@ -12,6 +12,7 @@
 #include <limits>
 #include <memory>
 #include <numeric>
+#include <optional>
 
 #include "detail/mesh_common.h"
 #include "detail/mesh_graph.h"
@@ -159,11 +160,12 @@ bool in_one_cell(const openvdb::Vec3d& p) {
 }
 
 /// Classifies the points the triangles use (invalid cell, supported, weak, far; see
-/// detail/support.h) and, when the mesher gave none, takes their normals from the SDF gradient
-/// into `grad`.
+/// detail/support.h), takes their normals from the SDF gradient into `grad` when the mesher gave
+/// none, and samples the weight grid (trilinear) at the valid ones into `weight` when it is not
+/// empty (the support test's own sample where it took one).
 std::vector<char> classify_points(const Volume& volume, const MeshOptions& options,
                                   const RawSurface& raw, bool own_normals,
-                                  std::vector<openvdb::Vec3f>& grad) {
+                                  std::vector<openvdb::Vec3f>& grad, std::vector<float>& weight) {
     const openvdb::FloatGrid& sdf = *volume.sdf;
     const std::size_t npoints = raw.points.size();
     // Only points some triangle uses are looked at (marching cubes hands over every crossing).
@@ -180,6 +182,8 @@ std::vector<char> classify_points(const Volume& volume, const MeshOptions& optio
         SupportTest::Accessors sacc = support.accessors();
         std::unique_ptr<FloatAccessor> facc;
         if (volume.fill) facc = std::make_unique<FloatAccessor>(volume.fill->tree());
+        std::unique_ptr<FloatAccessor> wacc;
+        if (!weight.empty()) wacc = std::make_unique<FloatAccessor>(volume.weight->tree());
         CellStencil stencil;
         // The mesher's points come leaf by leaf: each stencil reads the dense copy of its cell's
         // leaf and margin (most stencils cross a leaf's face, where the accessor's cache misses).
@@ -207,12 +211,14 @@ std::vector<char> classify_points(const Volume& volume, const MeshOptions& optio
             status[i] = kSupported;
             // A closing vouches for the points whose nearest voxel it closed (it judged that
             // voxel's support where the surface is, see SupportTest::at_voxel).
-            if (facc && facc->isValueOn(openvdb::Coord(int(std::lround(p[0])), int(std::lround(p[1])),
-                                                       int(std::lround(p[2]))))) {
-                continue;
+            std::optional<double> w;
+            if (!facc ||
+                !facc->isValueOn(openvdb::Coord(int(std::lround(p[0])), int(std::lround(p[1])),
+                                                int(std::lround(p[2]))))) {
+                const Support s = support.at(sacc, p, &w);
+                if (s != Support::ok) status[i] = s == Support::far ? kFar : kWeak;
             }
-            const Support s = support.at(sacc, p);
-            if (s != Support::ok) status[i] = s == Support::far ? kFar : kWeak;
+            if (wacc) weight[i] = float(w ? *w : box_sample(*wacc, p));
         }
     });
     return status;
@@ -410,7 +416,8 @@ ClassifiedSurface classify_surface(const Volume& volume, const MeshOptions& opti
     const bool own_normals = raw.normals.size() == npoints && npoints > 0;
     out.grad = own_normals ? std::move(raw.normals)
                            : std::vector<openvdb::Vec3f>(npoints, openvdb::Vec3f(0.0f));
-    out.status = classify_points(volume, options, raw, own_normals, out.grad);
+    if (volume.weight) out.weight.assign(npoints, 0.0f);
+    out.status = classify_points(volume, options, raw, own_normals, out.grad, out.weight);
 
     // Faces in invalid cells are dropped. Compacted in place (a filtered copy would add the
     // mesh's faces to the peak).
@@ -436,18 +443,6 @@ ClassifiedSurface classify_surface(const Volume& volume, const MeshOptions& opti
                 if (status[i] == kInvalid) continue;
                 out.colors[i] = openvdb::tools::BoxSampler::sample(
                     cacc, openvdb::Vec3d(out.points[i]));
-            }
-        });
-    }
-    if (volume.weight) {
-        out.weight.assign(npoints, 0.0f);
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, npoints, 4096),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            FloatAccessor wacc(volume.weight->tree());
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                if (status[i] == kInvalid) continue;
-                out.weight[i] = float(openvdb::tools::BoxSampler::sample(
-                    wacc, openvdb::Vec3d(out.points[i])));
             }
         });
     }

@@ -21,6 +21,7 @@
 #include <cstdlib>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <type_traits>
 
 #include "detail/mesh_common.h"
@@ -118,14 +119,17 @@ class SupportTest {
         return a;
     }
 
-    /// The support at the index-space point p.
-    Support at(Accessors& a, const openvdb::Vec3d& p) const {
+    /// The support at the index-space point p. When the test samples the weight grid at p
+    /// (box_sample), it leaves that value in `*weight_at_p` if given.
+    Support at(Accessors& a, const openvdb::Vec3d& p,
+               std::optional<double>* weight_at_p = nullptr) const {
         if (!enabled()) return Support::ok;
         openvdb::Vec3d sample(p);
         const double gap = nearest_sample(*a.nearest, p, sample);
         if (gap_ && gap > max_gap_) return Support::far;
         if (weight_ && std::isfinite(gap)) {
             const double w = box_sample(*a.weight, p);
+            if (weight_at_p) *weight_at_p = w;
             const double w_sample = box_sample(*a.weight, sample);
             if (!(w >= min_ratio_ * w_sample)) return Support::weak;
         }
@@ -163,21 +167,26 @@ class SupportTest {
     double nearest_sample(Vec3Accessor& acc, const openvdb::Vec3d& p,
                           openvdb::Vec3d& sample) const {
         const openvdb::Coord c(int(std::floor(p[0])), int(std::floor(p[1])), int(std::floor(p[2])));
-        // Squared distances, one square root at the end.
-        double best = std::numeric_limits<double>::infinity();
         openvdb::Vec3f e[8];
         const std::uint32_t on = cell_corners(acc, c, e);
+        // sample = corner + e (world); point = p * voxel
+        const auto sample_of = [&](int k) {
+            return c.offsetBy(k >> 2, (k >> 1) & 1, k & 1).asVec3d() +
+                   openvdb::Vec3d(e[k]) / voxel_;
+        };
+        // Squared distances, one square root at the end. The first corner with the least is
+        // chosen by selects, not branches: which corner wins is data, and mispredicted branches
+        // made this search most of the mesh stage's support test.
+        constexpr double inf = std::numeric_limits<double>::infinity();
+        double best = inf;
+        int best_k = -1;
         for (int k = 0; k < 8; ++k) {
-            if (!((on >> k) & 1u)) continue;
-            // sample = corner + e (world); point = p * voxel
-            const openvdb::Coord q = c.offsetBy(k >> 2, (k >> 1) & 1, k & 1);
-            const openvdb::Vec3d at = q.asVec3d() + openvdb::Vec3d(e[k]) / voxel_;
-            const double d2 = (at - p).lengthSqr();
-            if (d2 < best) {
-                best = d2;
-                sample = at;
-            }
+            const double d2 = (on >> k) & 1u ? (sample_of(k) - p).lengthSqr() : inf;
+            const bool less = d2 < best;
+            best = less ? d2 : best;
+            best_k = less ? k : best_k;
         }
+        if (best_k >= 0) sample = sample_of(best_k);
         return std::sqrt(best) * voxel_;
     }
 

@@ -386,9 +386,10 @@ void vertex_normals(Mesh& mesh, std::vector<openvdb::Vec3f>&& grad,
     // 3 MB of sums a block, each block a pass over the faces (the bunny's 338k vertices in one
     // block took 8 MB, most of it fresh memory at the mesh stage's peak).
     constexpr std::size_t kBlock = std::size_t(1) << 17;
+    const FaceNormalSums face_normal_sums(mesh);
     for (std::size_t first = 0; first < nv; first += kBlock) {
         const std::size_t last = std::min(nv, first + kBlock);
-        const std::vector<std::array<double, 3>> face_n = face_normal_sums(mesh, first, last);
+        const std::vector<std::array<double, 3>> face_n = face_normal_sums(first, last);
         tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 16384),
                           [&](const tbb::blocked_range<std::size_t>& r) {
             for (std::size_t v = r.begin(); v < r.end(); ++v) {

@@ -4,8 +4,10 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <limits>
 #include <numeric>
 
 namespace vdbrecon::detail {
@@ -123,54 +125,102 @@ std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::si
     return remap;
 }
 
-std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh) {
-    return face_normal_sums(mesh, 0, mesh.vertices.size());
+namespace {
+
+constexpr std::size_t kPiece = 4096;  ///< faces per piece, the unit a range of vertices skips
+
+/// Per piece of kPiece faces, the least and the greatest vertex index its faces use.
+std::vector<std::array<std::int32_t, 2>> piece_bounds(Span<Triangle> faces) {
+    std::vector<std::array<std::int32_t, 2>> bounds((faces.size() + kPiece - 1) / kPiece);
+    tbb::parallel_for(std::size_t(0), bounds.size(), [&](std::size_t p) {
+        std::int32_t lo = std::numeric_limits<std::int32_t>::max(), hi = -1;
+        for (std::size_t f = p * kPiece, e = std::min(faces.size(), f + kPiece); f < e; ++f) {
+            for (std::int32_t i : faces[f]) {
+                lo = std::min(lo, i);
+                hi = std::max(hi, i);
+            }
+        }
+        bounds[p] = {lo, hi};
+    });
+    return bounds;
 }
 
-std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh, std::size_t first,
-                                                    std::size_t last) {
-    std::vector<std::array<double, 3>> sum(last - first, {0.0, 0.0, 0.0});
-    const auto in = [&](std::int32_t i) { return std::size_t(i) >= first && std::size_t(i) < last; };
-    // The faces' normals in parallel, a chunk at a time; then added to their vertices in face
-    // order, so that every sum is the same bits for any thread count.
+/// The faces the vertices first .. last - 1 make a pass over: those of the pieces whose bounds
+/// meet the range.
+std::size_t faces_to_scan(Span<Triangle> faces,
+                          const std::vector<std::array<std::int32_t, 2>>& bounds, std::size_t first,
+                          std::size_t last) {
+    std::size_t n = 0;
+    for (std::size_t p = 0; p < bounds.size(); ++p) {
+        if (std::size_t(bounds[p][1]) >= first && std::size_t(bounds[p][0]) < last) {
+            n += std::min(faces.size(), (p + 1) * kPiece) - p * kPiece;
+        }
+    }
+    return n;
+}
+
+/// Adds each face's normal to sum[v - first] of its vertices v in first .. last - 1, in face
+/// order; pieces whose bounds miss the range are skipped.
+void add_face_normals(const Mesh& mesh, const std::vector<std::array<std::int32_t, 2>>& bounds,
+                      std::size_t first, std::size_t last, std::array<double, 3>* sum) {
+    const auto in = [&](std::int32_t i) {
+        return std::size_t(i) >= first && std::size_t(i) < last;
+    };
     const Span<Triangle> faces = mesh.faces;
-    constexpr std::size_t kChunk = std::size_t(1) << 16, kPiece = 4096;
-    std::vector<std::array<double, 3>> n(std::min(faces.size(), kChunk));
-    std::vector<char> touched(kChunk / kPiece);  // per piece of a chunk: a face reaches the range
-    for (std::size_t c0 = 0; c0 < faces.size(); c0 += kChunk) {
-        const std::size_t c1 = std::min(faces.size(), c0 + kChunk);
-        const std::size_t pieces = (c1 - c0 + kPiece - 1) / kPiece;
-        tbb::parallel_for(std::size_t(0), pieces, [&](std::size_t p) {
-            touched[p] = 0;
-            for (std::size_t f = c0 + p * kPiece, e = std::min(c1, f + kPiece); f < e; ++f) {
-                const Triangle& t = faces[f];
-                if (!in(t[0]) && !in(t[1]) && !in(t[2])) continue;  // not added below either
-                touched[p] = 1;
-                const Vec3f &pa = mesh.vertices[std::size_t(t[0])],
-                            &pb = mesh.vertices[std::size_t(t[1])],
-                            &pc = mesh.vertices[std::size_t(t[2])];
-                double u[3], v[3];
-                for (int k = 0; k < 3; ++k) {
-                    u[k] = double(pb[k]) - double(pa[k]);
-                    v[k] = double(pc[k]) - double(pa[k]);
-                }
-                n[f - c0] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
-                             u[0] * v[1] - u[1] * v[0]};
+    for (std::size_t p = 0; p < bounds.size(); ++p) {
+        if (std::size_t(bounds[p][1]) < first || std::size_t(bounds[p][0]) >= last) continue;
+        for (std::size_t f = p * kPiece, e = std::min(faces.size(), f + kPiece); f < e; ++f) {
+            const Triangle& t = faces[f];
+            if (!in(t[0]) && !in(t[1]) && !in(t[2])) continue;
+            const Vec3f &pa = mesh.vertices[std::size_t(t[0])],
+                        &pb = mesh.vertices[std::size_t(t[1])],
+                        &pc = mesh.vertices[std::size_t(t[2])];
+            double u[3], v[3];
+            for (int k = 0; k < 3; ++k) {
+                u[k] = double(pb[k]) - double(pa[k]);
+                v[k] = double(pc[k]) - double(pa[k]);
             }
-        });
-        // Pieces no face of which reaches the range are skipped: a block of vertices (see
-        // vertex_normals) is reached by few pieces when the faces come in the vertices' order.
-        for (std::size_t p = 0; p < pieces; ++p) {
-            if (!touched[p]) continue;
-            for (std::size_t f = c0 + p * kPiece, e = std::min(c1, f + kPiece); f < e; ++f) {
-                for (std::int32_t i : faces[f]) {
-                    if (!in(i)) continue;
-                    for (std::size_t k = 0; k < 3; ++k)
-                        sum[std::size_t(i) - first][k] += n[f - c0][k];
-                }
+            const double n[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                                 u[0] * v[1] - u[1] * v[0]};
+            for (std::int32_t i : t) {
+                if (!in(i)) continue;
+                for (int k = 0; k < 3; ++k) sum[std::size_t(i) - first][k] += n[k];
             }
         }
     }
+}
+
+}  // namespace
+
+std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh) {
+    return FaceNormalSums(mesh)(0, mesh.vertices.size());
+}
+
+FaceNormalSums::FaceNormalSums(const Mesh& mesh) : mesh_(mesh), bounds_(piece_bounds(mesh.faces)) {}
+
+std::vector<std::array<double, 3>> FaceNormalSums::operator()(std::size_t first,
+                                                              std::size_t last) const {
+    std::vector<std::array<double, 3>> sum(last - first, {0.0, 0.0, 0.0});
+    const Span<Triangle> faces = mesh_.faces;
+    // The range split in parts summed in parallel, each over the faces that reach it in face
+    // order: every sum is the same bits for any split and thread count. As many parts as keep
+    // the passes to about one over the faces: faces in their vertices' order (a mesher's) reach
+    // few parts each, faces in no order every part, and then one part is best.
+    const std::size_t n = last - first;
+    std::size_t parts = std::min(4 * std::size_t(tbb::this_task_arena::max_concurrency()),
+                                 std::max<std::size_t>(1, n / 4096));
+    for (; parts > 1; parts /= 2) {
+        std::size_t scanned = 0;
+        for (std::size_t k = 0; k < parts; ++k) {
+            scanned +=
+                faces_to_scan(faces, bounds_, first + n * k / parts, first + n * (k + 1) / parts);
+        }
+        if (scanned <= 2 * faces.size()) break;
+    }
+    tbb::parallel_for(std::size_t(0), parts, [&](std::size_t k) {
+        const std::size_t a = first + n * k / parts, b = first + n * (k + 1) / parts;
+        add_face_normals(mesh_, bounds_, a, b, sum.data() + (a - first));
+    });
     return sum;
 }
 

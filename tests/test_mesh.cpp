@@ -1,3 +1,9 @@
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <random>
+
+#include "detail/mesh_graph.h"
 #include "support.h"
 #include "support_volume.h"
 #include "vdbrecon/error.h"
@@ -135,4 +141,64 @@ TEST_CASE("mesh options are validated", "[mesh]") {
     o.max_gap = 0.0;
     REQUIRE_THROWS_AS(extract_mesh(v, o), InvalidArgument);
     REQUIRE_THROWS_AS(extract_mesh(Volume{}), InvalidArgument);
+}
+
+TEST_CASE("mesh: face normal sums a block of vertices at a time, in face order, any thread count",
+          "[mesh]") {
+    // A wavy 300 x 300 grid (90k vertices, 178k faces) with its faces in the vertices' order,
+    // as a mesher makes them, then shuffled (every run of faces then reaches every block). Each
+    // vertex's sum must be its faces' normals added in face order (the reference below, bit for
+    // bit) for any block and thread count. Jittered, so that the sums round and their order shows
+    // in the bits.
+    const int w = 300;
+    Mesh m;
+    std::vector<Vec3f>& v = m.vertices.edit();
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> jitter(-0.3f, 0.3f);
+    for (int y = 0; y < w; ++y) {
+        for (int x = 0; x < w; ++x) {
+            v.push_back(
+                {x + jitter(rng), y + jitter(rng), float(std::sin(0.37 * x) * std::cos(0.23 * y))});
+        }
+    }
+    std::vector<Triangle> faces;
+    for (int y = 0; y + 1 < w; ++y) {
+        for (int x = 0; x + 1 < w; ++x) {
+            const std::int32_t a = y * w + x, b = a + 1, c = a + w, d = c + 1;
+            faces.push_back({a, b, d});
+            faces.push_back({a, d, c});
+        }
+    }
+    for (const bool shuffled : {false, true}) {
+        CAPTURE(shuffled);
+        if (shuffled) std::shuffle(faces.begin(), faces.end(), std::mt19937(7));
+        m.faces = faces;
+        std::vector<std::array<double, 3>> want(v.size(), {0.0, 0.0, 0.0});
+        for (const Triangle& t : faces) {
+            const Vec3f &a = v[std::size_t(t[0])], &b = v[std::size_t(t[1])],
+                        &c = v[std::size_t(t[2])];
+            const double u[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]};
+            const double s[3] = {double(c[0]) - a[0], double(c[1]) - a[1], double(c[2]) - a[2]};
+            const double n[3] = {u[1] * s[2] - u[2] * s[1], u[2] * s[0] - u[0] * s[2],
+                                 u[0] * s[1] - u[1] * s[0]};
+            for (std::int32_t i : t) {
+                for (int k = 0; k < 3; ++k) want[std::size_t(i)][k] += n[k];
+            }
+        }
+        for (const int threads : {1, 2}) {
+            tbb::task_arena arena(threads);
+            arena.execute([&] {
+                const detail::FaceNormalSums sums(m);
+                for (const auto& [first, last] : std::vector<std::pair<std::size_t, std::size_t>>{
+                         {0, v.size()}, {0, 4000}, {12345, 60000}, {89999, 90000}}) {
+                    const std::vector<std::array<double, 3>> got = sums(first, last);
+                    REQUIRE(got.size() == last - first);
+                    std::size_t differ = 0;
+                    for (std::size_t i = first; i < last; ++i) differ += got[i - first] != want[i];
+                    CHECK(differ == 0);
+                }
+                CHECK(detail::face_normal_sums(m) == want);
+            });
+        }
+    }
 }

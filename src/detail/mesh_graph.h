@@ -96,9 +96,17 @@ std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::si
 /// Per vertex, the sum of the (unnormalised, so area-weighted) normals of the faces around it.
 std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh);
 
-/// The same sums for the vertices first .. last - 1 only (entry v - first), each summed in face
-/// order as above, bit for bit: a large mesh's sums a block of vertices at a time.
-std::vector<std::array<double, 3>> face_normal_sums(const Mesh& mesh, std::size_t first,
-                                                    std::size_t last);
+/// The same sums a block of vertices at a time, for a large mesh: operator()(first, last) gives
+/// those of the vertices first .. last - 1 (entry v - first), each summed in face order as
+/// above, bit for bit. Made once per mesh (it notes which vertices each run of faces reaches).
+class FaceNormalSums {
+  public:
+    explicit FaceNormalSums(const Mesh& mesh);
+    std::vector<std::array<double, 3>> operator()(std::size_t first, std::size_t last) const;
+
+  private:
+    const Mesh& mesh_;
+    std::vector<std::array<std::int32_t, 2>> bounds_;  ///< per run of faces, least/greatest vertex
+};
 
 }  // namespace vdbrecon::detail

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -234,11 +235,18 @@ std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::ve
     const std::size_t nf = tris.size();
     std::vector<char> trim(nf, 0);
     std::vector<char> mine(npoints, 0);  // the points of unsupported faces
-    std::vector<std::int32_t> slot(nf, -1), face_of;  // unsupported faces, numbered in order
+    std::vector<std::int32_t> slot(nf), face_of;  // unsupported faces, numbered in order
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t f = r.begin(); f < r.end(); ++f) {
+                              bool unsupported = false;
+                              for (std::int32_t v : tris[f])
+                                  unsupported |= status[std::size_t(v)] != kSupported;
+                              slot[f] = unsupported ? 0 : -1;
+                          }
+                      });
     for (std::size_t f = 0; f < nf; ++f) {
-        bool unsupported = false;
-        for (std::int32_t v : tris[f]) unsupported |= status[std::size_t(v)] != kSupported;
-        if (!unsupported) continue;
+        if (slot[f] < 0) continue;
         slot[f] = std::int32_t(face_of.size());
         face_of.push_back(std::int32_t(f));
         for (std::int32_t v : tris[f]) mine[std::size_t(v)] = 1;
@@ -255,15 +263,25 @@ std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::ve
     for (std::size_t i = 0; i < sides.size(); ++i) {
         if (i == 0 || sides[i].key != sides[i - 1].key) keys.push_back(sides[i].key);
     }
-    std::vector<std::uint32_t> uses(keys.size(), 0);
-    for (const Triangle& t : tris) {
-        for (int k = 0; k < 3; ++k) {
-            const std::int32_t a = t[k], b = t[(k + 1) % 3];
-            if (a == b || !mine[std::size_t(a)] || !mine[std::size_t(b)]) continue;
-            const auto it = std::lower_bound(keys.begin(), keys.end(), edge_key(a, b));
-            if (it != keys.end() && *it == edge_key(a, b)) ++uses[std::size_t(it - keys.begin())];
-        }
-    }
+    std::vector<std::atomic<std::uint32_t>> uses(keys.size());
+    for (auto& u : uses) u.store(0, std::memory_order_relaxed);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t f = r.begin(); f < r.end(); ++f) {
+                              const Triangle& t = tris[f];
+                              for (int k = 0; k < 3; ++k) {
+                                  const std::int32_t a = t[k], b = t[(k + 1) % 3];
+                                  if (a == b || !mine[std::size_t(a)] || !mine[std::size_t(b)])
+                                      continue;
+                                  const auto it =
+                                      std::lower_bound(keys.begin(), keys.end(), edge_key(a, b));
+                                  if (it != keys.end() && *it == edge_key(a, b)) {
+                                      uses[std::size_t(it - keys.begin())].fetch_add(
+                                          1, std::memory_order_relaxed);
+                                  }
+                              }
+                          }
+                      });
     // Regions: union-find over the unsupported faces, joined where they share an edge; roots
     // are the smallest number, so the labels do not depend on the order of the unions.
     MinUnionFind sets(face_of.size());

@@ -40,6 +40,7 @@
 
 #include "detail/knn_flann.h"
 #include "detail/radix_sort.h"
+#include "detail/select.h"
 #include "detail/simd.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
@@ -866,11 +867,11 @@ void KnnIndex::fill_rows(KnnResult& r, const std::vector<std::size_t>& rows) con
     }
 }
 
-double median_density_spacing(std::vector<float>& kth_sq, int k) {
+double median_density_spacing(const std::vector<float>& kth_sq, int k) {
     if (kth_sq.empty() || k <= 0) return 0.0;
-    const auto mid = kth_sq.begin() + std::ptrdiff_t(kth_sq.size() / 2);
-    std::nth_element(kth_sq.begin(), mid, kth_sq.end());
-    return density_spacing(*mid, k);
+    // The element nth_element would put at the middle, without reordering the 362k distances
+    // of the bunny (3-4 ms of one thread).
+    return density_spacing(detail::select_rank(kth_sq.size() / 2, kth_sq), k);
 }
 
 double density_spacing(float kth_sq, int k) { return std::sqrt(double(kth_sq) * M_PI / double(k)); }

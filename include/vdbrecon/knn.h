@@ -117,7 +117,7 @@ private:
 };
 
 /// The median sample spacing of a surface from its points' squared distances to their k-th
-/// nearest neighbour (`kth_sq`, reordered here; 0 when empty), world units.
+/// nearest neighbour (`kth_sq`; 0 when empty), world units.
 ///
 /// A point's spacing is taken from the local density: with lambda samples per unit area, the
 /// disc out to the k-th neighbour holds about k of them, so lambda ~ k / (pi r_k^2) and the
@@ -126,7 +126,7 @@ private:
 /// spacings on a square raster but 1.23 on a random sample of the same density, which
 /// clusters. On the Stanford bunny scans, a 10 % random subsample's value is 3.08x the whole
 /// scan's with k = 16 (sqrt(10) = 3.16 would be exact); the mean distance gives 2.84x.
-double median_density_spacing(std::vector<float>& kth_sq, int k);
+double median_density_spacing(const std::vector<float>& kth_sq, int k);
 
 /// The spacing one squared distance to the k-th neighbour stands for (see above), world units.
 double density_spacing(float kth_sq, int k);

@@ -2,7 +2,10 @@
 // printable excerpts, atomic and staged output files, the buffered writer and the number
 // parsing and formatting. The format modules (io.cpp's dispatch, io_ply, io_text, io_las,
 // io_pcd) depend on this file, never on each other's.
+#include "detail/io_common.h"
+
 #include <sys/stat.h>
+#include <tbb/parallel_for.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -15,8 +18,8 @@
 #include <cstring>
 #include <string>
 #include <utility>
+#include <vector>
 
-#include "detail/io_common.h"
 #include "detail/temp_files.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/io.h"
@@ -126,14 +129,25 @@ std::string StagedOutputs::final_names(std::string message) const {
 }
 
 void StagedOutputs::commit_all() {
-    for (Entry& e : files_) {
+    // Side by side (in the caller's arena: one after another with one thread). A rename over
+    // an older file is slow on ext4: it drops the old file's cached pages and flushes the new
+    // one (auto_da_alloc), 5-20 ms for the bunny's 36 MB .vdb and 17 MB mesh.
+    std::vector<int> failed(files_.size(), 0);  // errno
+    tbb::parallel_for(std::size_t(0), files_.size(), [&](std::size_t i) {
+        Entry& e = files_[i];
         struct stat st {};
-        if (::stat(e.temp.c_str(), &st) != 0) continue;  // not written (e.g. an empty preview)
+        if (::stat(e.temp.c_str(), &st) != 0) return;  // not written (e.g. an empty preview)
         if (std::rename(e.temp.c_str(), e.final.c_str()) != 0) {
-            throw IoError(where(e.final, std::string("cannot rename the temporary file into "
-                                                     "place: ") + std::strerror(errno)));
+            failed[i] = errno;
+        } else {
+            e.committed = true;
         }
-        e.committed = true;
+    });
+    for (std::size_t i = 0; i < files_.size(); ++i) {
+        if (failed[i] == 0) continue;
+        throw IoError(where(files_[i].final, std::string("cannot rename the temporary file into "
+                                                         "place: ") +
+                                                 std::strerror(failed[i])));
     }
 }
 

@@ -628,7 +628,7 @@ void write_outputs(RunResult& out, const PipelineOptions& options, const std::st
         write_image(staged.stage(options.preview_path),
                     render_preview(out.result.mesh, options.preview));
     }
-    staged.commit_all();
+    in_arena(options.threads, [&] { staged.commit_all(); });
 }
 
 }  // namespace

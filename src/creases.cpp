@@ -62,6 +62,7 @@
 #include <vector>
 
 #include "detail/radix_sort.h"
+#include "detail/select.h"
 #include "detail/union_find.h"
 
 namespace vdbrecon::detail {
@@ -838,10 +839,10 @@ CreaseReach crease_reach(const Kernels& kernels, std::size_t points) {
     });
     reach.r_max = *std::max_element(radius.begin(), radius.end());
     // The crease test looks as far as most kernels reach (95 %): a crease only the widest
-    // kernels see from a leaf leaves the splat's value there.
-    auto p95 = radius.begin() + std::ptrdiff_t(0.95 * double(points - 1));
-    std::nth_element(radius.begin(), p95, radius.end());
-    reach.r_typical = *p95;
+    // kernels see from a leaf leaves the splat's value there. The radii are >= 0 (0: a point
+    // skipped); select_rank gives what nth_element would put at that rank, without reordering
+    // them (nth_element took 3-4 ms of one thread on the bunny's 362k).
+    reach.r_typical = select_rank(std::size_t(0.95 * double(points - 1)), radius);
     return reach;
 }
 

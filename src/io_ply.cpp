@@ -195,6 +195,42 @@ Header parse_header(const std::string& path, std::string_view content) {
     return h;
 }
 
+/// The value of type T at b, in the file's byte order (kSwap: big-endian, reversed).
+template <typename T, bool kSwap>
+T load(const unsigned char* b) {
+    unsigned char bytes[sizeof(T)];
+    for (std::size_t i = 0; i < sizeof(T); ++i) bytes[i] = b[kSwap ? sizeof(T) - 1 - i : i];
+    T v;
+    std::memcpy(&v, bytes, sizeof(T));
+    return v;
+}
+
+/// The binary value of type t at b as a double. Each type's bytes are copied with their fixed
+/// size (a copy of a size known only at run time was a call per value: most of a binary row's
+/// parse).
+template <bool kSwap>
+double binary_value(const unsigned char* b, PlyType t) {
+    switch (t) {
+        case PlyType::int8:
+            return double(std::int8_t(b[0]));
+        case PlyType::uint8:
+            return double(b[0]);
+        case PlyType::int16:
+            return double(load<std::int16_t, kSwap>(b));
+        case PlyType::uint16:
+            return double(load<std::uint16_t, kSwap>(b));
+        case PlyType::int32:
+            return double(load<std::int32_t, kSwap>(b));
+        case PlyType::uint32:
+            return double(load<std::uint32_t, kSwap>(b));
+        case PlyType::float32:
+            return double(load<float, kSwap>(b));
+        case PlyType::float64:
+            return load<double, kSwap>(b);
+    }
+    return 0.0;
+}
+
 // Reads one scalar of type t; returns false at end of data.
 class Cursor {
 public:
@@ -233,42 +269,7 @@ public:
         return true;
     }
 
-private:
-  /// The value of type t at b, of the file's byte order (big-endian: reversed). Each type's
-  /// bytes are copied with their fixed size (a copy of a size known only at run time was a
-  /// call per value: most of a binary row's parse).
-  template <bool kSwap>
-  static double binary_value(const unsigned char* b, PlyType t) {
-      switch (t) {
-          case PlyType::int8:
-              return double(std::int8_t(b[0]));
-          case PlyType::uint8:
-              return double(b[0]);
-          case PlyType::int16:
-              return double(load<std::int16_t, kSwap>(b));
-          case PlyType::uint16:
-              return double(load<std::uint16_t, kSwap>(b));
-          case PlyType::int32:
-              return double(load<std::int32_t, kSwap>(b));
-          case PlyType::uint32:
-              return double(load<std::uint32_t, kSwap>(b));
-          case PlyType::float32:
-              return double(load<float, kSwap>(b));
-          case PlyType::float64:
-              return load<double, kSwap>(b);
-      }
-      return 0.0;
-  }
-
-  template <typename T, bool kSwap>
-  static T load(const unsigned char* b) {
-      unsigned char bytes[sizeof(T)];
-      for (std::size_t i = 0; i < sizeof(T); ++i) bytes[i] = b[kSwap ? sizeof(T) - 1 - i : i];
-      T v;
-      std::memcpy(&v, bytes, sizeof(T));
-      return v;
-  }
-
+  private:
     bool read_ascii(double& v) {
         while (p_ < end_ && (*p_ == ' ' || *p_ == '\t' || *p_ == '\n' || *p_ == '\r')) ++p_;
         if (p_ == end_) {
@@ -409,121 +410,158 @@ void skip_element(const std::string& path, const Element& e, Cursor& c, Encoding
     }
 }
 
-void read_vertices(const std::string& path, const Element& e, Cursor& c, Encoding enc,
-                   RawPoints& raw, const Consumed& consumed, const RowSink& sink) {
-    std::vector<Role> roles;
-    bool has[int(Role::scan) + 1] = {};  // one per role (scan is the last)
-    PlyType colour_type = PlyType::uint8;
-    for (const Property& p : e.props) {
-        Role r = role_of(p.name);
-        if (p.list && (r == Role::x || r == Role::y || r == Role::z)) {
-            throw FormatError(where(path, printable(e.name) + " property '" + p.name +
-                                              "' is a list; coordinates must be scalars"));
+/// Where the vertex element's properties go: each role's first property into its column of
+/// `raw` (the rest, and lists, are skipped). Rows are held a range at a time (hold()).
+class VertexColumns {
+  public:
+    /// Throws FormatError naming `path` for a list coordinate or a missing x, y or z.
+    VertexColumns(const std::string& path, const Element& e, RawPoints& raw) : raw_(raw) {
+        PlyType colour_type = PlyType::uint8;
+        for (const Property& p : e.props) {
+            Role r = role_of(p.name);
+            if (p.list && (r == Role::x || r == Role::y || r == Role::z)) {
+                throw FormatError(where(path, printable(e.name) + " property '" + p.name +
+                                                  "' is a list; coordinates must be scalars"));
+            }
+            if (p.list) r = Role::ignore;
+            if (r != Role::ignore && has_[int(r)]) r = Role::ignore;  // first one wins
+            if (r != Role::ignore) has_[int(r)] = true;
+            if (r == Role::red) colour_type = p.type;
+            // Float coordinates are kept as floats (exact): half the memory of doubles.
+            if (r == Role::x || r == Role::y || r == Role::z) {
+                float_xyz_ = float_xyz_ && p.type == PlyType::float32;
+            }
+            roles_.push_back(r);
         }
-        if (p.list) r = Role::ignore;
-        if (r != Role::ignore && has[int(r)]) r = Role::ignore;  // first one wins
-        if (r != Role::ignore) has[int(r)] = true;
-        if (r == Role::red) colour_type = p.type;
-        roles.push_back(r);
-    }
-    for (Role r : {Role::x, Role::y, Role::z}) {
-        if (!has[int(r)]) {
-            const char* n = r == Role::x ? "x" : r == Role::y ? "y" : "z";
-            throw FormatError(where(path, "element '" + printable(e.name) + "' has no '" + n +
-                                              "' property"));
+        for (Role r : {Role::x, Role::y, Role::z}) {
+            if (!has_[int(r)]) {
+                const char* n = r == Role::x ? "x" : r == Role::y ? "y" : "z";
+                throw FormatError(
+                    where(path, "element '" + printable(e.name) + "' has no '" + n + "' property"));
+            }
         }
+        normals_ = has_[int(Role::nx)] && has_[int(Role::ny)] && has_[int(Role::nz)];
+        colors_ = has_[int(Role::red)] && has_[int(Role::green)] && has_[int(Role::blue)];
+        cscale_ = 1.0 / colour_scale(colour_type);
     }
-    const bool normals = has[int(Role::nx)] && has[int(Role::ny)] && has[int(Role::nz)];
-    const bool colors = has[int(Role::red)] && has[int(Role::green)] && has[int(Role::blue)];
-    const double cscale = 1.0 / colour_scale(colour_type);
 
-    // Float coordinates are kept as floats (exact): half the memory of doubles.
-    bool float_xyz = true;
-    for (std::size_t k = 0; k < e.props.size(); ++k) {
-        const Role r = roles[k];
-        if (r == Role::x || r == Role::y || r == Role::z) {
-            float_xyz = float_xyz && e.props[k].type == PlyType::float32;
-        }
-    }
-    const std::size_t n = std::size_t(e.count);
-    // Rows [base, base + m) are held, at row - base (all of them at once without a sink).
-    std::size_t base = 0;
-    const auto hold = [&](std::size_t first, std::size_t m) {
-        base = first;
+    /// Rows [first, first + m) are held, at row - first.
+    void hold(std::size_t first, std::size_t m) {
+        base_ = first;
         const auto size = [](auto& v, bool want, std::size_t len) {
             v.clear();
             if (want) v.resize(len);
         };
-        size(raw.xyz_float, float_xyz, m);
-        size(raw.xyz, !float_xyz, 3 * m);
-        size(raw.normals, normals, 3 * m);
-        size(raw.colors, colors, 3 * m);
-        size(raw.scales, has[int(Role::scale)], m);
-        size(raw.confidences, has[int(Role::confidence)], m);
-        size(raw.scans, has[int(Role::scan)], m);
-    };
-    if (!sink) hold(0, n);
+        size(raw_.xyz_float, float_xyz_, m);
+        size(raw_.xyz, !float_xyz_, 3 * m);
+        size(raw_.normals, normals_, 3 * m);
+        size(raw_.colors, colors_, 3 * m);
+        size(raw_.scales, has_[int(Role::scale)], m);
+        size(raw_.confidences, has_[int(Role::confidence)], m);
+        size(raw_.scans, has_[int(Role::scan)], m);
+    }
+    std::size_t base() const { return base_; }
+    bool used(std::size_t k) const { return roles_[k] != Role::ignore; }
 
-    auto put_coordinate = [&](std::size_t row, int a, double v) {
-        if (float_xyz) {
-            raw.xyz_float[row][std::size_t(a)] = float(v);
+    /// Property k's value v of file row `file_row` (a held one) into its column.
+    void store(std::size_t file_row, std::size_t k, double v) {
+        const std::size_t row = file_row - base_;
+        switch (roles_[k]) {
+            case Role::ignore:
+                break;
+            case Role::x:
+                put_coordinate(row, 0, v);
+                break;
+            case Role::y:
+                put_coordinate(row, 1, v);
+                break;
+            case Role::z:
+                put_coordinate(row, 2, v);
+                break;
+            case Role::nx:
+                if (normals_) raw_.normals[3 * row] = float(v);
+                break;
+            case Role::ny:
+                if (normals_) raw_.normals[3 * row + 1] = float(v);
+                break;
+            case Role::nz:
+                if (normals_) raw_.normals[3 * row + 2] = float(v);
+                break;
+            case Role::red:
+                if (colors_) raw_.colors[3 * row] = float(v * cscale_);
+                break;
+            case Role::green:
+                if (colors_) raw_.colors[3 * row + 1] = float(v * cscale_);
+                break;
+            case Role::blue:
+                if (colors_) raw_.colors[3 * row + 2] = float(v * cscale_);
+                break;
+            case Role::scale:
+                raw_.scales[row] = float(v);
+                break;
+            case Role::confidence:
+                raw_.confidences[row] = float(v);
+                break;
+            case Role::scan:  // NaN: no scan, as a negative index
+                raw_.scans[row] =
+                    std::isnan(v) ? -1 : std::int32_t(std::clamp(v, -1.0, 2147483647.0));
+                break;
+        }
+    }
+
+  private:
+    void put_coordinate(std::size_t row, int a, double v) {
+        if (float_xyz_) {
+            raw_.xyz_float[row][std::size_t(a)] = float(v);
         } else {
-            raw.xyz[3 * row + std::size_t(a)] = v;
+            raw_.xyz[3 * row + std::size_t(a)] = v;
         }
-    };
-    auto read_row = [&](Cursor& cur, std::size_t file_row) {
-        const std::size_t row = file_row - base;
-        double v;
-        for (std::size_t k = 0; k < e.props.size(); ++k) {
-            const Property& p = e.props[k];
-            if (p.list) {
-                const std::uint64_t len = read_list_count(path, e, file_row, p, cur, enc);
-                for (std::uint64_t i = 0; i < len; ++i) {
-                    if (!cur.read(p.type, v)) fail_at(path, e, file_row, cur, enc);
-                }
-                continue;
-            }
-            if (!cur.read(p.type, v)) fail_at(path, e, file_row, cur, enc);
-            switch (roles[k]) {
-                case Role::ignore: break;
-                case Role::x: put_coordinate(row, 0, v); break;
-                case Role::y: put_coordinate(row, 1, v); break;
-                case Role::z: put_coordinate(row, 2, v); break;
-                case Role::nx: if (normals) raw.normals[3 * row] = float(v); break;
-                case Role::ny: if (normals) raw.normals[3 * row + 1] = float(v); break;
-                case Role::nz: if (normals) raw.normals[3 * row + 2] = float(v); break;
-                case Role::red: if (colors) raw.colors[3 * row] = float(v * cscale); break;
-                case Role::green: if (colors) raw.colors[3 * row + 1] = float(v * cscale); break;
-                case Role::blue: if (colors) raw.colors[3 * row + 2] = float(v * cscale); break;
-                case Role::scale: raw.scales[row] = float(v); break;
-                case Role::confidence: raw.confidences[row] = float(v); break;
-                case Role::scan:  // NaN: no scan, as a negative index
-                    raw.scans[row] = std::isnan(v) ? -1 : std::int32_t(std::clamp(v, -1.0, 2147483647.0));
-                    break;
-            }
-        }
-    };
+    }
+
+    RawPoints& raw_;
+    std::vector<Role> roles_;
+    bool has_[int(Role::scan) + 1] = {};  // one per role (scan is the last)
+    bool float_xyz_ = true, normals_ = false, colors_ = false;
+    double cscale_ = 1.0;
+    std::size_t base_ = 0;
+};
+
+void read_vertices(const std::string& path, const Element& e, Cursor& c, Encoding enc,
+                   RawPoints& raw, const Consumed& consumed, const RowSink& sink) {
+    VertexColumns columns(path, e, raw);
+    const std::size_t n = std::size_t(e.count);
+    if (!sink) columns.hold(0, n);  // all of them at once
     // Binary rows without lists all have the same size: when the data holds all of them, chunks
-    // of rows are read in parallel, each from its own offset. Otherwise (ASCII, lists, a
-    // truncated file) row by row, which also finds and reports the row where the data ends.
+    // of rows are read in parallel, in place. Otherwise (ASCII, lists, a truncated file) row by
+    // row with a cursor, which also finds and reports the row where the data ends.
     bool fixed = enc != Encoding::ascii;
     std::size_t row_bytes = 0;
-    for (const Property& p : e.props) {
-        fixed = fixed && !p.list;
-        row_bytes += type_size(p.type);
+    std::vector<std::pair<std::size_t, std::size_t>> used;  // (property, offset in the row)
+    for (std::size_t k = 0; k < e.props.size(); ++k) {
+        fixed = fixed && !e.props[k].list;
+        if (columns.used(k)) used.emplace_back(k, row_bytes);
+        row_bytes += type_size(e.props[k].type);
     }
     if (fixed && c.remaining() / row_bytes >= n) {
+        const auto* data = reinterpret_cast<const unsigned char*>(c.here());
+        const bool swap = enc == Encoding::binary_be;
         // A chunk of rows at a time, each chunk's bytes then handed to `consumed` (a mapped
         // file lets their pages go: the file is not held in memory beside its rows).
         for (std::size_t first = 0; first < n; first += kStreamRows) {
             const std::size_t last = std::min(n, first + kStreamRows);
-            if (sink) hold(first, last - first);
+            if (sink) columns.hold(first, last - first);
             tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 16384),
                               [&](const tbb::blocked_range<std::size_t>& r) {
-                Cursor cur = c;
-                cur.skip(r.begin() * row_bytes);
-                for (std::size_t row = r.begin(); row < r.end(); ++row) read_row(cur, row);
-            });
+                                  for (std::size_t row = r.begin(); row < r.end(); ++row) {
+                                      const unsigned char* q = data + row * row_bytes;
+                                      for (const auto& [k, at] : used) {
+                                          const PlyType t = e.props[k].type;
+                                          columns.store(row, k,
+                                                        swap ? binary_value<true>(q + at, t)
+                                                             : binary_value<false>(q + at, t));
+                                      }
+                                  }
+                              });
             if (sink) sink(raw, first);
             if (consumed) consumed(c.here() + last * row_bytes);
         }
@@ -532,12 +570,24 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
     }
     for (std::size_t row = 0; row < n; ++row) {
         if (sink && row % kStreamRows == 0) {
-            if (row > 0) sink(raw, base);
-            hold(row, std::min(kStreamRows, n - row));
+            if (row > 0) sink(raw, columns.base());
+            columns.hold(row, std::min(kStreamRows, n - row));
         }
-        read_row(c, row);
+        double v;
+        for (std::size_t k = 0; k < e.props.size(); ++k) {
+            const Property& p = e.props[k];
+            if (p.list) {
+                const std::uint64_t len = read_list_count(path, e, row, p, c, enc);
+                for (std::uint64_t i = 0; i < len; ++i) {
+                    if (!c.read(p.type, v)) fail_at(path, e, row, c, enc);
+                }
+                continue;
+            }
+            if (!c.read(p.type, v)) fail_at(path, e, row, c, enc);
+            columns.store(row, k, v);
+        }
     }
-    if (sink && n > 0) sink(raw, base);
+    if (sink && n > 0) sink(raw, columns.base());
 }
 
 void read_faces(const std::string& path, const Element& e, Cursor& c, Encoding enc,

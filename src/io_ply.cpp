@@ -233,7 +233,7 @@ double binary_value(const unsigned char* b, PlyType t) {
 
 // Reads one scalar of type t; returns false at end of data.
 class Cursor {
-public:
+  public:
     Cursor(std::string_view content, std::size_t offset, Encoding enc)
         : p_(reinterpret_cast<const unsigned char*>(content.data()) + offset),
           end_(reinterpret_cast<const unsigned char*>(content.data()) + content.size()),

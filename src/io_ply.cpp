@@ -195,11 +195,12 @@ Header parse_header(const std::string& path, std::string_view content) {
     return h;
 }
 
-/// The value of type T at b, in the file's byte order (kSwap: big-endian, reversed).
-template <typename T, bool kSwap>
-T load(const unsigned char* b) {
+/// The value of type T at b, in the file's byte order (the reader's twin of put_binary below).
+template <typename T>
+T get_binary(const unsigned char* b, bool big_endian) {
     unsigned char bytes[sizeof(T)];
-    for (std::size_t i = 0; i < sizeof(T); ++i) bytes[i] = b[kSwap ? sizeof(T) - 1 - i : i];
+    std::memcpy(bytes, b, sizeof(T));
+    if (big_endian) std::reverse(bytes, bytes + sizeof(T));
     T v;
     std::memcpy(&v, bytes, sizeof(T));
     return v;
@@ -208,25 +209,24 @@ T load(const unsigned char* b) {
 /// The binary value of type t at b as a double. Each type's bytes are copied with their fixed
 /// size (a copy of a size known only at run time was a call per value: most of a binary row's
 /// parse).
-template <bool kSwap>
-double binary_value(const unsigned char* b, PlyType t) {
+double binary_value(const unsigned char* b, PlyType t, bool big_endian) {
     switch (t) {
         case PlyType::int8:
             return double(std::int8_t(b[0]));
         case PlyType::uint8:
             return double(b[0]);
         case PlyType::int16:
-            return double(load<std::int16_t, kSwap>(b));
+            return double(get_binary<std::int16_t>(b, big_endian));
         case PlyType::uint16:
-            return double(load<std::uint16_t, kSwap>(b));
+            return double(get_binary<std::uint16_t>(b, big_endian));
         case PlyType::int32:
-            return double(load<std::int32_t, kSwap>(b));
+            return double(get_binary<std::int32_t>(b, big_endian));
         case PlyType::uint32:
-            return double(load<std::uint32_t, kSwap>(b));
+            return double(get_binary<std::uint32_t>(b, big_endian));
         case PlyType::float32:
-            return double(load<float, kSwap>(b));
+            return double(get_binary<float>(b, big_endian));
         case PlyType::float64:
-            return load<double, kSwap>(b);
+            return get_binary<double>(b, big_endian);
     }
     return 0.0;
 }
@@ -254,7 +254,7 @@ class Cursor {
             fail = Fail::eof;
             return false;
         }
-        v = enc_ == Encoding::binary_le ? binary_value<false>(p_, t) : binary_value<true>(p_, t);
+        v = binary_value(p_, t, enc_ == Encoding::binary_be);
         p_ += n;
         return true;
     }
@@ -544,7 +544,7 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
     }
     if (fixed && c.remaining() / row_bytes >= n) {
         const auto* data = reinterpret_cast<const unsigned char*>(c.here());
-        const bool swap = enc == Encoding::binary_be;
+        const bool big_endian = enc == Encoding::binary_be;
         // A chunk of rows at a time, each chunk's bytes then handed to `consumed` (a mapped
         // file lets their pages go: the file is not held in memory beside its rows).
         for (std::size_t first = 0; first < n; first += kStreamRows) {
@@ -555,10 +555,9 @@ void read_vertices(const std::string& path, const Element& e, Cursor& c, Encodin
                                   for (std::size_t row = r.begin(); row < r.end(); ++row) {
                                       const unsigned char* q = data + row * row_bytes;
                                       for (const auto& [k, at] : used) {
-                                          const PlyType t = e.props[k].type;
-                                          columns.store(row, k,
-                                                        swap ? binary_value<true>(q + at, t)
-                                                             : binary_value<false>(q + at, t));
+                                          columns.store(
+                                              row, k,
+                                              binary_value(q + at, e.props[k].type, big_endian));
                                       }
                                   }
                               });

@@ -145,14 +145,19 @@ std::vector<std::array<std::int32_t, 2>> piece_bounds(Span<Triangle> faces) {
     return bounds;
 }
 
-/// The faces the vertices first .. last - 1 make a pass over: those of the pieces whose bounds
-/// meet the range.
+/// Whether a piece whose faces use the vertices bound[0] .. bound[1] reaches first .. last - 1.
+bool reaches(const std::array<std::int32_t, 2>& bound, std::size_t first, std::size_t last) {
+    return std::size_t(bound[1]) >= first && std::size_t(bound[0]) < last;
+}
+
+/// The faces the vertices first .. last - 1 make a pass over: those of the pieces that reach
+/// the range.
 std::size_t faces_to_scan(Span<Triangle> faces,
                           const std::vector<std::array<std::int32_t, 2>>& bounds, std::size_t first,
                           std::size_t last) {
     std::size_t n = 0;
     for (std::size_t p = 0; p < bounds.size(); ++p) {
-        if (std::size_t(bounds[p][1]) >= first && std::size_t(bounds[p][0]) < last) {
+        if (reaches(bounds[p], first, last)) {
             n += std::min(faces.size(), (p + 1) * kPiece) - p * kPiece;
         }
     }
@@ -160,7 +165,7 @@ std::size_t faces_to_scan(Span<Triangle> faces,
 }
 
 /// Adds each face's normal to sum[v - first] of its vertices v in first .. last - 1, in face
-/// order; pieces whose bounds miss the range are skipped.
+/// order; pieces that do not reach the range are skipped.
 void add_face_normals(const Mesh& mesh, const std::vector<std::array<std::int32_t, 2>>& bounds,
                       std::size_t first, std::size_t last, std::array<double, 3>* sum) {
     const auto in = [&](std::int32_t i) {
@@ -168,7 +173,7 @@ void add_face_normals(const Mesh& mesh, const std::vector<std::array<std::int32_
     };
     const Span<Triangle> faces = mesh.faces;
     for (std::size_t p = 0; p < bounds.size(); ++p) {
-        if (std::size_t(bounds[p][1]) < first || std::size_t(bounds[p][0]) >= last) continue;
+        if (!reaches(bounds[p], first, last)) continue;
         for (std::size_t f = p * kPiece, e = std::min(faces.size(), f + kPiece); f < e; ++f) {
             const Triangle& t = faces[f];
             if (!in(t[0]) && !in(t[1]) && !in(t[2])) continue;

@@ -279,8 +279,8 @@ class SampleCells {
     void summarise(Cell& cell, const Kernels& kernels, double cos_group) const {
         NormalGroups groups(cos_group);
         for (std::uint32_t j = cell.begin; j < cell.end; ++j) {
-            const Kernel k = kernels(order_[j]);
-            if (groups.add(openvdb::Vec3d(k.nx, k.ny, k.nz)) < 0 || groups.size() > 4) {
+            if (groups.add(openvdb::Vec3d(kernels.unit_normal(order_[j]))) < 0 ||
+                groups.size() > 4) {
                 cell.groups = 5;
                 return;
             }

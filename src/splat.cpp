@@ -219,16 +219,14 @@ inline bool clip_to_block(const Box& b, const openvdb::Coord& o, int lo[3], int 
 /// The block's 8^3 leaves that the block-local box [lo, hi] (clip_to_block) reaches, bit
 /// 4 x + 2 y + z for the leaf in half (x, y, z) of the block.
 inline unsigned leaf_mask(const int lo[3], const int hi[3]) {
-    unsigned halves[3];  // bit h: the box reaches half h of the block on that axis
+    // Per axis, the leaves in the halves the box reaches (index: bit 0 the low half, bit 1 the
+    // high one); a leaf is reached when it is on every axis.
+    static constexpr unsigned kAxisLeaves[3][4] = {
+        {0x00, 0x0f, 0xf0, 0xff}, {0x00, 0x33, 0xcc, 0xff}, {0x00, 0x55, 0xaa, 0xff}};
+    unsigned mask = 0xff;
     for (int a = 0; a < 3; ++a) {
-        halves[a] = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
-    }
-    unsigned mask = 0;
-    for (int leaf = 0; leaf < 8; ++leaf) {
-        if ((halves[0] >> (leaf >> 2) & 1u) && (halves[1] >> ((leaf >> 1) & 1) & 1u) &&
-            (halves[2] >> (leaf & 1) & 1u)) {
-            mask |= 1u << leaf;
-        }
+        const unsigned halves = (lo[a] < kLeafDim ? 1u : 0u) | (hi[a] >= kLeafDim ? 2u : 0u);
+        mask &= kAxisLeaves[a][halves];
     }
     return mask;
 }
@@ -477,11 +475,12 @@ struct VoxelSums {
 /// edges; 62 with min_weight / 5 everywhere). Farther out the band stays as it was (the bunny's
 /// valid voxels +1.3 %, against +17 % with min_weight / 5 everywhere); what the thin overlap
 /// adds past an open border is left to the support trims (mesh.h).
+/// Written without a branch on the common outcomes (w = 0, w >= min_weight), which the
+/// band's ragged edge mixes within a leaf's 512 tests.
 template <typename At>
 bool valid_voxel(const At& at, int v, double w, double min_weight, double voxel, float background) {
-    if (!(w > 0.0)) return false;
-    if (w >= min_weight) return true;
-    if (w < 0.2 * min_weight) return false;
+    const bool summed = w > 0.0, full = w >= min_weight;
+    if (!(summed & !full & (w >= 0.2 * min_weight))) return summed & full;
     const VoxelSums x = at(v);
     const double sdf = std::clamp(x.uphi / x.u, -double(background), double(background));
     return std::fabs(sdf) <= 2.0 * voxel;
@@ -615,7 +614,7 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
         const Kernel k = kernels(q->point);
         if (!clip_to_block(support_box(k), o, p.lo, p.hi)) continue;
         out.leaves |= std::uint8_t(leaf_mask(p.lo, p.hi));
-        const double inv_s2 = k.inv_s2, rho = k.rho;
+        const double inv_s2 = k.inv_s2, rho = std::exp(-2.0 * inv_s2);
         p.r2 = double(k.r) * double(k.r);
         p.amp = double(k.amp);
         p.point = q->point;

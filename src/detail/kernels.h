@@ -21,7 +21,6 @@ struct Kernel {
     float amp;          // (sigma_median / sigma)^2: equal kernel mass per sample
     float conf;         // the sample's confidence (1 without one): scales w and u alike
     double inv_s2;      // 1 / sigma^2
-    double rho;         // exp(-2 / sigma^2), the Gaussian recurrence's ratio step
 };
 
 /// Makes a point's kernel from the cloud each time it is needed (once per piece): the cloud
@@ -44,14 +43,21 @@ class Kernels {
     /// The median sigma, voxels: sets every kernel's amp (called before the summation).
     void set_median_sigma(double voxels) { median_sigma_ = voxels; }
 
+    /// The length of point i's normal, double.
+    double normal_length(std::size_t i) const {
+        const Vec3f& nr = cloud_.normals[i];
+        return std::sqrt(double(nr[0]) * nr[0] + double(nr[1]) * nr[1] + double(nr[2]) * nr[2]);
+    }
+    /// Point i's unit normal, as its kernel has it (a point with a usable normal).
+    openvdb::Vec3f unit_normal(std::size_t i) const { return unit_normal(i, normal_length(i)); }
+
     /// Point i's kernel. Its shape (centre, sigma, support; r = 0 for a point without a usable
-    /// normal) always; with `full` also the unit normal, inv_s2, rho and amp, which only the
-    /// summation uses.
+    /// normal) always; with `full` also the unit normal, inv_s2 and amp, which the summation
+    /// and the crease model use. (The splat's Gaussian recurrence step exp(-2 inv_s2) is made
+    /// where it is used: the crease model's evaluations do not need it.)
     Kernel operator()(std::size_t i, bool full = true) const {
         Kernel k;
-        const Vec3f& nr = cloud_.normals[i];
-        const double len =
-            std::sqrt(double(nr[0]) * nr[0] + double(nr[1]) * nr[1] + double(nr[2]) * nr[2]);
+        const double len = normal_length(i);
         const openvdb::Vec3d c = centre(i);
         k.cx = c[0];
         k.cy = c[1];
@@ -65,11 +71,11 @@ class Kernels {
         }
         k.r = float(options_.support * s);
         if (full) {
-            k.nx = float(nr[0] / len);
-            k.ny = float(nr[1] / len);
-            k.nz = float(nr[2] / len);
+            const openvdb::Vec3f n = unit_normal(i, len);
+            k.nx = n[0];
+            k.ny = n[1];
+            k.nz = n[2];
             k.inv_s2 = 1.0 / (double(k.s) * double(k.s));
-            k.rho = std::exp(-2.0 * k.inv_s2);
             const double sm = median_sigma_;
             k.amp = float((sm / double(k.s)) * (sm / double(k.s)));
         }
@@ -77,6 +83,11 @@ class Kernels {
     }
 
   private:
+    openvdb::Vec3f unit_normal(std::size_t i, double len) const {
+        const Vec3f& nr = cloud_.normals[i];
+        return {float(nr[0] / len), float(nr[1] / len), float(nr[2] / len)};
+    }
+
     const PointCloud& cloud_;
     const SplatOptions& options_;
     bool use_scale_;

@@ -140,16 +140,54 @@ __attribute__((target("avx2"))) void offer_avx2(int last, std::uint64_t* keys, c
         _mm256_storeu_si256(reinterpret_cast<__m256i*>(keys + 4 * r), a[r]);
     }
 }
+
+/// offer_avx2 with lists of 8 keys to a register (AVX-512, R <= 2, so k <= 16): a place's left
+/// neighbour comes from valignq, the comparisons are masks. The same lists as the scalar path.
+template <int R>
+__attribute__((target("avx512f"))) void offer_avx512(int last, std::uint64_t* keys, const float* d,
+                                                     const int* ids, const std::uint32_t* keep,
+                                                     std::size_t kept, int self) {
+    __m512i a[R];
+    for (int r = 0; r < R; ++r) a[r] = _mm512_loadu_si512(keys + 8 * r);
+    const __m512i pick = _mm512_set1_epi64(last % 8);
+    std::uint64_t limit = keys[last];
+    for (std::size_t i = 0; i < kept; ++i) {
+        const std::uint32_t j = keep[i];
+        const std::uint64_t key = pair_key(d[j], ids[j]);
+        if (key >= limit || ids[j] == self) continue;
+        const __m512i x = _mm512_set1_epi64(std::int64_t(key));
+        __m512i carry = x;
+        for (int r = 0; r < R; ++r) {
+            // Each place's left neighbour, [carry, a0 .. a6], and whether it and the place are
+            // above the key (compared, not shifted from one mask to the other: mask shifts go
+            // through a general register, a longer chain).
+            const __m512i left = _mm512_maskz_alignr_epi64(0xff, a[r], carry, 7);
+            const __mmask8 gt = _mm512_cmpgt_epi64_mask(a[r], x);
+            const __mmask8 left_gt = _mm512_cmpgt_epi64_mask(left, x);
+            carry = a[r];
+            a[r] = _mm512_mask_blend_epi64(gt, a[r], _mm512_mask_blend_epi64(left_gt, x, left));
+        }
+        // (The zero-masked forms: GCC 12's unmasked ones start from an "undefined" vector that
+        // -Wmaybe-uninitialized reports.)
+        limit = std::uint64_t(_mm_cvtsi128_si64(_mm512_maskz_extracti32x4_epi32(
+            0xf, _mm512_maskz_permutexvar_epi64(0xff, pick, a[R - 1]), 0)));
+    }
+    for (int r = 0; r < R; ++r) _mm512_storeu_si512(keys + 8 * r, a[r]);
+}
 #endif
 
 /// The k smallest pair keys seen so far, ascending, in a list whose empty places hold kNoKey
-/// (k rounded up to a multiple of 4 places; those past the k-th are never read).
+/// (k rounded up to a multiple of 4 places, of 8 for the AVX-512 lists; those past the k-th are
+/// never read).
 class Best {
 public:
-    explicit Best(int k)
-        : k_(k), key_(std::size_t((k + 3) / 4 * 4)), vector_(detail::vector_loops()) {
-        clear();
-    }
+  explicit Best(int k)
+      : k_(k),
+        wide_(detail::wide_vector_loops()),
+        key_(std::size_t(wide_ ? (k + 7) / 8 * 8 : (k + 3) / 4 * 4)),
+        vector_(detail::vector_loops()) {
+      clear();
+  }
     void clear() { std::fill(key_.begin(), key_.end(), kNoKey); }
     int k() const { return k_; }
     bool full() const { return key_[std::size_t(k_ - 1)] != kNoKey; }
@@ -172,6 +210,11 @@ public:
     void offer_all(const float* d, const int* ids, const std::uint32_t* keep, std::size_t kept,
                    int self) {
 #ifdef VDBRECON_HAVE_AVX2_PATHS
+        if (wide_ && key_.size() <= 16) {
+            std::uint64_t* k = key_.data();
+            return key_.size() == 8 ? offer_avx512<1>(k_ - 1, k, d, ids, keep, kept, self)
+                                    : offer_avx512<2>(k_ - 1, k, d, ids, keep, kept, self);
+        }
         if (vector_) {
             std::uint64_t* k = key_.data();
             switch (key_.size()) {
@@ -202,6 +245,7 @@ public:
 
 private:
     int k_;
+    bool wide_;  ///< offer_all() by AVX-512 (lists of up to 16)
     std::vector<std::uint64_t> key_;
     bool vector_;  ///< offer_all() by AVX2
 };
@@ -257,6 +301,35 @@ __attribute__((target("avx2"))) std::size_t keep_within_avx2(const float* bx, co
                                              _mm256_set1_epi32(int(j)));
         _mm256_storeu_si256(reinterpret_cast<__m256i*>(keep + kept), ids);
         kept += std::size_t(__builtin_popcount(unsigned(mask)));
+    }
+    return kept;
+}
+
+/// keep_within_avx2 sixteen candidates at a time (AVX-512; m a multiple of 8, the last step
+/// masked to its 8 where m is not one of 16; keep has room for m + 16): the kept indices are
+/// compressed in a register. fp-contract is off (AVX-512 implies FMA), so the distances are the
+/// other loops' bit for bit.
+__attribute__((target("avx512f"), optimize("fp-contract=off"))) std::size_t keep_within_avx512(
+    const float* bx, const float* by, const float* bz, std::size_t m, const float q[3], float bound,
+    float* d, std::uint32_t* keep) {
+    const __m512 qx = _mm512_set1_ps(q[0]), qy = _mm512_set1_ps(q[1]), qz = _mm512_set1_ps(q[2]);
+    const __m512 lim = _mm512_set1_ps(bound);
+    const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    std::size_t kept = 0;
+    for (std::size_t j = 0; j < m; j += 16) {
+        const __mmask16 lanes = m - j >= 16 ? __mmask16(0xffff) : __mmask16(0x00ff);
+        const __m512 ex = _mm512_sub_ps(_mm512_maskz_loadu_ps(lanes, bx + j), qx);
+        const __m512 ey = _mm512_sub_ps(_mm512_maskz_loadu_ps(lanes, by + j), qy);
+        const __m512 ez = _mm512_sub_ps(_mm512_maskz_loadu_ps(lanes, bz + j), qz);
+        const __m512 dd = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(ex, ex), _mm512_mul_ps(ey, ey)),
+                                        _mm512_mul_ps(ez, ez));
+        _mm512_mask_storeu_ps(d + j, lanes, dd);
+        const __mmask16 in = _mm512_mask_cmp_ps_mask(lanes, dd, lim, _CMP_LE_OQ);
+        if (in == 0) continue;
+        const __m512i ids =
+            _mm512_maskz_compress_epi32(in, _mm512_add_epi32(iota, _mm512_set1_epi32(int(j))));
+        _mm512_storeu_si512(keep + kept, ids);
+        kept += std::size_t(__builtin_popcount(unsigned(in)));
     }
     return kept;
 }
@@ -355,6 +428,7 @@ struct KnnIndex::Impl {
         std::vector<std::uint32_t> keep, near;
         std::size_t m = 0;
         bool vector = detail::vector_loops();  ///< keep_within() by AVX2
+        bool wide = detail::wide_vector_loops();  ///< ... by AVX-512
         /// Room for `count` candidates.
         void reserve(std::size_t count) {
             if (count <= x.size()) return;
@@ -364,8 +438,8 @@ struct KnnIndex::Impl {
             z.resize(count);
             id.resize(count);
             d.resize(count);
-            keep.resize(count + 8);
-            near.resize(count + 8);
+            keep.resize(count + 16);
+            near.resize(count + 16);
         }
     };
 
@@ -429,6 +503,10 @@ struct KnnIndex::Impl {
     /// `bound`, in block order (into b.keep); returns their count.
     static std::size_t keep_within(Block& b, const float q[3], float bound) {
 #ifdef VDBRECON_HAVE_AVX2_PATHS
+        if (b.wide) {
+            return keep_within_avx512(b.x.data(), b.y.data(), b.z.data(), b.m, q, bound, b.d.data(),
+                                      b.keep.data());
+        }
         if (b.vector)
             return keep_within_avx2(b.x.data(), b.y.data(), b.z.data(), b.m, q, bound, b.d.data(),
                                     b.keep.data());

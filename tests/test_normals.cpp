@@ -68,56 +68,63 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
     pts.push_back({-3000.0f, 0.0f, 0.0f});
     std::vector<Vec3f> queries = {{0.0f, 0.0f, 0.0f}, {50.0f, 50.0f, 50.0f}, {-1e4f, 3.0f, 0.0f},
                                   {0.05f, -0.02f, 0.3f}};
-  // Every list length of the AVX2 path's registers (4, 8, 12, 16 keys) and one beyond them.
-  for (const int k : {1, 6, 12, 16, 23}) {
-    INFO("k " << k);
-    // Brute force: (squared distance, index) ascending, the point itself excluded.
-    auto brute = [&](const Vec3f& q, long self) {
-        std::vector<std::pair<float, int>> all;
-        for (std::size_t j = 0; j < pts.size(); ++j) {
-            if (long(j) == self) continue;
-            const float dx = pts[j][0] - q[0], dy = pts[j][1] - q[1], dz = pts[j][2] - q[2];
-            all.push_back({dx * dx + dy * dy + dz * dz, int(j)});
+    // Every list length of the AVX2 path's registers (4, 8, 12, 16 keys), of the AVX-512 path's
+    // (8, 16) and one beyond them.
+    for (const int k : {1, 6, 12, 16, 23}) {
+        INFO("k " << k);
+        // Brute force: (squared distance, index) ascending, the point itself excluded.
+        auto brute = [&](const Vec3f& q, long self) {
+            std::vector<std::pair<float, int>> all;
+            for (std::size_t j = 0; j < pts.size(); ++j) {
+                if (long(j) == self) continue;
+                const float dx = pts[j][0] - q[0], dy = pts[j][1] - q[1], dz = pts[j][2] - q[2];
+                all.push_back({dx * dx + dy * dy + dz * dz, int(j)});
+            }
+            std::partial_sort(all.begin(), all.begin() + k, all.end());
+            all.resize(std::size_t(k));
+            return all;
+        };
+        for (KnnBackend b : {KnnBackend::grid, KnnBackend::flann}) {
+            INFO("backend " << int(b));
+            KnnResult one, two;
+            {
+                tbb::global_control c(tbb::global_control::max_allowed_parallelism, 1);
+                one = KnnIndex(pts, backend(b)).self_neighbours(k);
+            }
+            {
+                tbb::global_control c(tbb::global_control::max_allowed_parallelism, 2);
+                two = KnnIndex(pts, backend(b)).self_neighbours(k);
+            }
+            REQUIRE(one.indices == two.indices);
+            // The scalar loops, and the AVX2 ones where the default takes AVX-512's.
+            ::setenv("VDBRECON_SCALAR", "1", 1);
+            const KnnResult scalar = KnnIndex(pts, backend(b)).self_neighbours(k);
+            ::unsetenv("VDBRECON_SCALAR");
+            ::setenv("VDBRECON_NO_AVX512", "1", 1);
+            const KnnResult avx2 = KnnIndex(pts, backend(b)).self_neighbours(k);
+            ::unsetenv("VDBRECON_NO_AVX512");
+            REQUIRE(one.indices == scalar.indices);
+            REQUIRE(one.sq_distances == scalar.sq_distances);
+            REQUIRE(one.indices == avx2.indices);
+            REQUIRE(one.sq_distances == avx2.sq_distances);
+            std::size_t wrong = 0;
+            for (std::size_t i = 0; i < pts.size(); ++i) {
+                const auto expect = brute(pts[i], long(i));
+                for (int j = 0; j < k; ++j) {
+                    wrong += one.neighbours(i)[j] != expect[std::size_t(j)].second ||
+                             one.sq_dists(i)[j] != expect[std::size_t(j)].first;
+                }
+            }
+            REQUIRE(wrong == 0);
+            const KnnResult q = KnnIndex(pts, backend(b)).query(queries, k);
+            for (std::size_t i = 0; i < queries.size(); ++i) {
+                const auto expect = brute(queries[i], -1);
+                for (int j = 0; j < k; ++j) {
+                    REQUIRE(q.neighbours(i)[j] == expect[std::size_t(j)].second);
+                    REQUIRE(q.sq_dists(i)[j] == expect[std::size_t(j)].first);
+                }
+            }
         }
-        std::partial_sort(all.begin(), all.begin() + k, all.end());
-        all.resize(std::size_t(k));
-        return all;
-    };
-  for (KnnBackend b : {KnnBackend::grid, KnnBackend::flann}) {
-    INFO("backend " << int(b));
-    KnnResult one, two;
-    {
-        tbb::global_control c(tbb::global_control::max_allowed_parallelism, 1);
-        one = KnnIndex(pts, backend(b)).self_neighbours(k);
-    }
-    {
-        tbb::global_control c(tbb::global_control::max_allowed_parallelism, 2);
-        two = KnnIndex(pts, backend(b)).self_neighbours(k);
-    }
-    REQUIRE(one.indices == two.indices);
-    ::setenv("VDBRECON_SCALAR", "1", 1);  // the scalar distance loop, not the AVX2 one
-    const KnnResult scalar = KnnIndex(pts, backend(b)).self_neighbours(k);
-    ::unsetenv("VDBRECON_SCALAR");
-    REQUIRE(one.indices == scalar.indices);
-    REQUIRE(one.sq_distances == scalar.sq_distances);
-    std::size_t wrong = 0;
-    for (std::size_t i = 0; i < pts.size(); ++i) {
-        const auto expect = brute(pts[i], long(i));
-        for (int j = 0; j < k; ++j) {
-            wrong += one.neighbours(i)[j] != expect[std::size_t(j)].second ||
-                     one.sq_dists(i)[j] != expect[std::size_t(j)].first;
-        }
-    }
-    REQUIRE(wrong == 0);
-    const KnnResult q = KnnIndex(pts, backend(b)).query(queries, k);
-    for (std::size_t i = 0; i < queries.size(); ++i) {
-        const auto expect = brute(queries[i], -1);
-        for (int j = 0; j < k; ++j) {
-            REQUIRE(q.neighbours(i)[j] == expect[std::size_t(j)].second);
-            REQUIRE(q.sq_dists(i)[j] == expect[std::size_t(j)].first);
-        }
-    }
-  }
   }
 }
 

@@ -1,5 +1,5 @@
 // Whether the vectorised loops (AVX2, AVX-512) may run: the splat's rows and the kNN's distance
-// loop have an AVX2 version, the splat's rows also an AVX-512 one, chosen at run time, that give
+// loop and list insertion have an AVX2 version and an AVX-512 one, chosen at run time, that give
 // the scalar loop's results bit for bit.
 #pragma once
 
@@ -25,7 +25,7 @@ inline bool vector_loops() {
 
 /// True where vector_loops() is and the CPU has AVX-512 (F and VL), unless the environment sets
 /// VDBRECON_NO_AVX512 (the tests compare it with the AVX2 and scalar paths). The splat's rows
-/// have an AVX-512 version.
+/// and the kNN's distance loop and list insertion have an AVX-512 version.
 inline bool wide_vector_loops() {
 #ifdef VDBRECON_HAVE_AVX2_PATHS
     static const bool avx512 =

@@ -1033,6 +1033,46 @@ TEST_CASE(
     CHECK(after.sdf->activeVoxelCount() > alone.sdf->activeVoxelCount());
 }
 
+TEST_CASE("an accumulator of two clouds is the splat of both within rounding", "[fusion][splat]") {
+    // The second cloud is summed onto the first one's sums, stored in float leaves made
+    // beforehand for every leaf a kernel reaches (make_state_leaves, from each kernel's leaf
+    // mask): a leaf missed there loses the first cloud's sums. With one sigma for all (no
+    // scales) the area normalisation is 1 either way, so only the float rounding of the stored
+    // sums may differ: a few voxels at the validity threshold and sdf values within rounding.
+    const PointCloud a = coloured_sphere(30000, 0.5, {0.0, 0.0, 0.0}, {0.2f, 0.4f, 0.6f});
+    const PointCloud b = coloured_sphere(30000, 0.4, {0.3, 0.05, -0.02}, {0.8f, 0.1f, 0.3f});
+    REQUIRE(!a.has_scales());
+    const SplatOptions o = accumulator_options();
+    SplatAccumulator acc(o);
+    acc.add(a);
+    acc.add(b);
+    const Volume summed = acc.result().volume;
+    PointCloud joined;
+    for (const PointCloud* c : {&a, &b}) {
+        for (std::size_t i = 0; i < c->size(); ++i) {
+            joined.positions.push_back(c->positions[i]);
+            joined.normals.push_back(c->normals[i]);
+            joined.colors.push_back(c->colors[i]);
+        }
+    }
+    const Volume direct = splat(joined, o).volume;
+    const openvdb::Index64 n = direct.sdf->activeVoxelCount();
+    REQUIRE(n > 20000);
+    auto s = summed.sdf->getConstAccessor();
+    std::size_t only_direct = 0, far = 0;
+    for (auto it = direct.sdf->cbeginValueOn(); it; ++it) {
+        if (!s.isValueOn(it.getCoord())) {
+            ++only_direct;
+            continue;
+        }
+        far += std::fabs(s.getValue(it.getCoord()) - *it) > 1e-6 * o.voxel_size;
+    }
+    INFO(only_direct << " of " << n << " voxels only in the splat's, " << far << " differ");
+    CHECK(only_direct * 2000 < n);
+    CHECK(far == 0);
+    CHECK(summed.sdf->activeVoxelCount() <= n + n / 2000);
+}
+
 TEST_CASE("vdbrecon fuse --fusion tsdf: frames read in parallel, the library's volume, any threads", "[fusion][cli][tsdf]") {
     // The CLI reads frames in parallel and integrates them in order; the result must be what
     // the library's Fusion gives for the same images one after another, bit for bit, at 1 and

@@ -63,6 +63,32 @@ TEST_CASE("splatting a plane gives its exact signed distance", "[splat]") {
     REQUIRE(w0 == Approx(M_PI).epsilon(0.15));
 }
 
+TEST_CASE("a voxel is valid at min_weight, or at a fifth of it within two voxels of the surface",
+          "[splat]") {
+    // One sample at the origin, normal +z, sigma 2 voxels: a voxel's weight is exp(-d^2/4)
+    // and its sdf its z (voxels). min_weight 0.4, a fifth of it 0.08.
+    PointCloud one;
+    one.positions.push_back({0.0f, 0.0f, 0.0f});
+    one.normals.push_back({0.0f, 0.0f, 1.0f});
+    SplatOptions o;
+    o.voxel_size = 1.0;
+    o.sigma_voxels = 2.0;
+    o.min_weight = 0.4;
+    o.crease_angle = 0.0;
+    const SplatResult r = splat(one, o);
+    const auto acc = r.volume.sdf->getConstAccessor();
+    auto valid = [&](int x, int y, int z) { return acc.isValueOn(openvdb::Coord(x, y, z)); };
+    CHECK(valid(1, 0, 0));   // w 0.78: full weight
+    CHECK(valid(2, 0, 0));   // w 0.37, on the surface
+    CHECK(valid(0, 0, 2));   // w 0.37, two voxels off
+    CHECK(valid(3, 0, 0));   // w 0.105, on the surface
+    CHECK(!valid(0, 0, 3));  // w 0.105, three voxels off
+    CHECK(!valid(2, 0, 3));  // w 0.04: under a fifth
+    CHECK(!valid(4, 0, 0));  // w 0.018
+    REQUIRE(r.volume.weight->getConstAccessor().getValue(openvdb::Coord(3, 0, 0)) ==
+            Approx(std::exp(-9.0 / 4.0)).epsilon(1e-5));
+}
+
 TEST_CASE("splatting a sphere: sign and magnitude near the surface", "[splat]") {
     const double radius = 0.5, voxel = 0.01;
     const PointCloud s = sample_sphere(40000, radius);  // spacing ~ 0.0044

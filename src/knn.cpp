@@ -180,14 +180,14 @@ __attribute__((target("avx512f"))) void offer_avx512(int last, std::uint64_t* ke
 /// (k rounded up to a multiple of 4 places, of 8 for the AVX-512 lists; those past the k-th are
 /// never read).
 class Best {
-public:
-  explicit Best(int k)
-      : k_(k),
-        wide_(detail::wide_vector_loops()),
-        key_(std::size_t(wide_ ? (k + 7) / 8 * 8 : (k + 3) / 4 * 4)),
-        vector_(detail::vector_loops()) {
-      clear();
-  }
+  public:
+    explicit Best(int k)
+        : k_(k),
+          wide_(detail::wide_vector_loops()),
+          key_(std::size_t(wide_ ? (k + 7) / 8 * 8 : (k + 3) / 4 * 4)),
+          vector_(detail::vector_loops()) {
+        clear();
+    }
     void clear() { std::fill(key_.begin(), key_.end(), kNoKey); }
     int k() const { return k_; }
     bool full() const { return key_[std::size_t(k_ - 1)] != kNoKey; }
@@ -243,7 +243,7 @@ public:
     }
     int id(int j) const { return int(std::uint32_t(key_[std::size_t(j)])); }
 
-private:
+  private:
     int k_;
     bool wide_;  ///< offer_all() by AVX-512 (lists of up to 16)
     std::vector<std::uint64_t> key_;

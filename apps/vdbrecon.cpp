@@ -206,11 +206,12 @@ void help_close() {
 /// The reconstruction options of the stage group "mesh", with their defaults.
 void help_mesh() {
     const PipelineOptions d;
-    std::cout << "\nmesh options:\n"
+    std::cout
+        << "\nmesh options:\n"
         << "  --mesher NAME          " << choice_list(mesher_choices(), "|") << " ["
         << choice_name(mesher_choices(), d.mesh.method) << "]\n"
-        << "  --adaptivity A         volumeToMesh adaptivity 0..1 [" << fmt(d.mesh.adaptivity)
-        << "]\n"
+        << "  --adaptivity A         volumeToMesh adaptivity 0..1, --mesher vdb only ["
+        << fmt(d.mesh.adaptivity) << "]\n"
         << "  --surface-weight W     faces whose summed weight is below W times the weight at\n"
         << "                         their nearest point, reached from an open border, are\n"
         << "                         trimmed (ghost sheets past a scan's edge; 0 = off) ["
@@ -219,8 +220,8 @@ void help_mesh() {
         << "                         every point are trimmed [" << fmt(d.mesh.max_gap) << "]\n"
         << "  --min-samples N        drop pieces backed by fewer than N samples (their area in\n"
            "                         sample spacings^2, times their weight where below the\n"
-           "                         typical), 0 = keep all [" << fmt(d.clean.min_component_samples)
-        << "]\n"
+           "                         typical), 0 = keep all ["
+        << fmt(d.clean.min_component_samples) << "]\n"
         << "  --min-component R      also drop pieces with fewer faces than R x the largest's\n"
            "                         (for one object; 1 = the largest only) ["
         << fmt(d.clean.min_component_ratio) << "]\n"

@@ -3,7 +3,8 @@
 // (mesher + finish_mesh, what vdbrecon logs as "mesh") as lines "mesher threads mesher_s stage_s
 // faces". Without the point reading, splat and process start around it, so two builds can be
 // compared at the millisecond level.
-//   meshers_inprocess VOLUME.vdb [N=7] [MESHERS=vdb,mc,dc]
+//   meshers_inprocess VOLUME.vdb [N=7] [MESHERS=dual,vdb,mc,dc]  (a build without one of them
+//   skips it)
 #include <malloc.h>
 #include <tbb/task_arena.h>
 
@@ -14,13 +15,14 @@
 #include <string>
 
 #include "detail/mesh_common.h"
+#include "vdbrecon/choices.h"
 #include "vdbrecon/volume.h"
 
 int main(int argc, char** argv) {
     using namespace vdbrecon;
     using Clock = std::chrono::steady_clock;
     if (argc < 2) {
-        std::fprintf(stderr, "usage: %s VOLUME.vdb [N=7] [MESHERS=vdb,mc,dc]\n", argv[0]);
+        std::fprintf(stderr, "usage: %s VOLUME.vdb [N=7] [MESHERS=dual,vdb,mc,dc]\n", argv[0]);
         return 2;
     }
     // The heap as the CLI sets it up (apps/vdbrecon.cpp, tune_heap; meshers_inprocess.sh also
@@ -31,20 +33,21 @@ int main(int argc, char** argv) {
     mallopt(M_ARENA_MAX, 1);
     const Volume volume = read_volume(argv[1]);
     const int reps = argc > 2 ? std::atoi(argv[2]) : 7;
-    const std::string which = argc > 3 ? argv[3] : "vdb,mc,dc";
+    const std::string which = argc > 3 ? argv[3] : "dual,vdb,mc,dc";
     MeshOptions options;
     for (int threads : {1, 2}) {
         tbb::task_arena arena(threads);
         arena.execute([&] {
-            for (const std::string name : {"vdb", "mc", "dc"}) {
+            for (const std::string name : {"dual", "vdb", "mc", "dc"}) {
                 if (which.find(name) == std::string::npos) continue;
+                const Mesher* method = find_choice(mesher_choices(), name);
+                if (!method) continue;
+                options.method = *method;
                 double mesher = 1e30, stage = 1e30;
                 std::size_t faces = 0;
                 for (int r = 0; r < reps; ++r) {
                     const auto t0 = Clock::now();
-                    detail::RawSurface raw = name == "vdb"  ? detail::mesh_vdb(volume, options)
-                                             : name == "mc" ? detail::mesh_mc(volume, options)
-                                                            : detail::mesh_dc(volume, options);
+                    detail::RawSurface raw = detail::mesh_raw(volume, options);
                     const auto t1 = Clock::now();
                     const MeshResult m = detail::finish_mesh(volume, options, std::move(raw));
                     const auto t2 = Clock::now();

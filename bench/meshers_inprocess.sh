@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # In-process mesher timing (bench/meshers_inprocess.cpp) on the bunny scans at --voxel 0.0005:
-# splats the volume once (with $BIN, default build/vdbrecon; kept in bench/out), then meshes it with vdb, mc and dc at 1 and 2
+# splats the volume once (with $BIN, default build/vdbrecon; kept in bench/out), then meshes it with dual, vdb, mc and dc at 1 and 2
 # threads, mesher alone and whole mesh stage, with the library of each build directory given.
 # With two build directories the runs alternate (A, B, A, B, ...; 3 rounds of best-of-N), for an
 # A/B comparison on a busy machine. Prints the best time of each over all rounds.

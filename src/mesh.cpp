@@ -34,6 +34,10 @@ void MeshOptions::validate() const {
         throw InvalidArgument("mesh.adaptivity = " + std::to_string(adaptivity) +
                               ": must be in 0..1");
     }
+    if (adaptivity > 0.0 && method != Mesher::vdb) {
+        throw InvalidArgument("mesh.adaptivity = " + std::to_string(adaptivity) +
+                              ": only the vdb mesher adapts (--mesher vdb)");
+    }
     if (!(max_gap > 0.0)) {
         throw InvalidArgument("mesh.max_gap = " + std::to_string(max_gap) +
                               ": must be positive (infinity disables the test)");
@@ -537,6 +541,8 @@ MeshResult finish_mesh(const Volume& volume, const MeshOptions& options, RawSurf
 
 RawSurface mesh_raw(const Volume& volume, const MeshOptions& options) {
     switch (options.method) {
+        case Mesher::dual:
+            return mesh_dual(volume, options);
         case Mesher::vdb: return mesh_vdb(volume, options);
         case Mesher::mc: return mesh_mc(volume, options);
         case Mesher::dc: return mesh_dc(volume, options);

@@ -38,6 +38,7 @@
 #include <numeric>
 
 #include "detail/crossings.h"
+#include "detail/dual_surface.h"
 #include "detail/mesh_common.h"
 #include "detail/release.h"
 
@@ -541,120 +542,6 @@ struct PatchVertex {
     float level;            ///< the trilinear sdf minus the iso-value at the vertex, in voxels
 };
 
-/// A growing array in fixed blocks: no copy when it grows and at most one block unused, where a
-/// vector doubling its capacity copies everything and can leave half of it unused (memory that
-/// is touched afresh costs about 1 ms per MB on the 2-core VM).
-class VertexBlocks {
-  public:
-    void push_back(const PatchVertex& v) {
-        if (size_ % kBlock == 0) blocks_.emplace_back(new PatchVertex[kBlock]);
-        blocks_.back()[size_++ % kBlock] = v;
-    }
-    std::size_t size() const { return size_; }
-    const PatchVertex& operator[](std::size_t i) const { return blocks_[i / kBlock][i % kBlock]; }
-
-  private:
-    static constexpr std::size_t kBlock = 8192;  ///< 224 kB
-    std::vector<std::unique_ptr<PatchVertex[]>> blocks_;
-    std::size_t size_ = 0;
-};
-
-/// The face (kFaceCorner index) on which two cube edges meet, or -1.
-int common_face(int a, int b) {
-    const unsigned m = edge_faces(a) & edge_faces(b);
-    return m ? __builtin_ctz(m) : -1;
-}
-
-/// Bit mask of the faces loop l walks across twice. A face holds at most four crossings, so a
-/// loop crosses it at most twice; a loop of a cell with no ambiguous face crosses every face at
-/// most once, the common case.
-unsigned twice_visited_faces(const CellLoops& loops, int l) {
-    const int n = loops.size[l];
-    unsigned once = 0, twice = 0;
-    for (int k = 0; k < n; ++k) {
-        const unsigned bit = 1u << common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]);
-        twice |= once & bit;
-        once |= bit;
-    }
-    return twice;
-}
-
-/// Splits a loop into the chains that get one vertex each. A loop that crosses a face twice, while
-/// the loop on the other side of that face crosses it twice too, would give the two cells' vertices
-/// an edge shared by four quads; cutting both loops at that face's two segments gives each
-/// (chain, chain) pair exactly two quads -- the vertex split of manifold dual contouring. Returns
-/// the number of chains; chain c holds loop positions [start[c], start[c] + size[c]) (mod n).
-template <typename Field>
-int loop_chains(const SurfaceCell& cell, int l, Field& acc, float iso, int start[12],
-                int size[12]) {
-    const CellLoops& loops = cell.loops;
-    const int n = loops.size[l];
-    bool cut[12] = {};  // cut after position k (between edge k and k + 1)
-    int cuts = 0;
-    const unsigned twice_faces = loops.ambiguous ? twice_visited_faces(loops, l) : 0u;
-    for (int f = 0; f < 6; ++f) {
-        if (!((twice_faces >> f) & 1u)) continue;
-        // The neighbour across face f, and the loop there that holds one of this face's crossings.
-        const int axis = f / 2, dir = f % 2 ? 1 : -1;
-        openvdb::Coord nb = cell.origin;
-        nb[axis] += dir;
-        float values[8];
-        bool valid = true;
-        for (int k = 0; k < 8 && valid; ++k) {
-            valid = acc.probeValue(
-                nb.offsetBy(kCubeCorner[k][0], kCubeCorner[k][1], kCubeCorner[k][2]), values[k]);
-        }
-        if (!valid) continue;
-        CellLoops other;
-        if (!cell_loops(values, iso, other)) continue;
-        int mine = -1;  // one of our edges on face f
-        for (int k = 0; k < n && mine < 0; ++k) {
-            if (common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]) == f)
-                mine = loops.edge[l][k];
-        }
-        // The same grid edge in the neighbour's numbering: start corner shifted by -dir.
-        int s[3] = {kCubeCorner[kEdgeCorner[mine][0]][0], kCubeCorner[kEdgeCorner[mine][0]][1],
-                    kCubeCorner[kEdgeCorner[mine][0]][2]};
-        s[axis] -= dir;
-        int theirs = -1;
-        for (int e = 0; e < 12; ++e) {
-            const int* t = kCubeCorner[kEdgeCorner[e][0]];
-            if (kEdgeAxis[e] == kEdgeAxis[mine] && t[0] == s[0] && t[1] == s[1] && t[2] == s[2]) {
-                theirs = e;
-            }
-        }
-        bool twice = false;
-        for (int m = 0; m < other.count && !twice; ++m) {
-            for (int k = 0; k < other.size[m]; ++k) {
-                if (other.edge[m][k] == theirs) twice = (twice_visited_faces(other, m) >> (f ^ 1)) & 1u;
-            }
-        }
-        if (!twice) continue;
-        for (int k = 0; k < n; ++k) {
-            if (common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]) == f && !cut[k]) {
-                cut[k] = true;
-                ++cuts;
-            }
-        }
-    }
-    if (cuts == 0) {
-        start[0] = 0;
-        size[0] = n;
-        return 1;
-    }
-    int chains = 0;
-    for (int k = 0; k < n; ++k) {
-        if (!cut[k]) continue;
-        // A chain starts after a cut and runs to the next cut.
-        int len = 1;
-        while (!cut[(k + len) % n]) ++len;
-        start[chains] = (k + 1) % n;
-        size[chains] = len;
-        ++chains;
-    }
-    return chains;
-}
-
 /// How far a vertex may leave its cell, in voxels. Where a corner or edge of the shape is thinner
 /// than the grid (a rotated box's corner), no cell around it changes sign and its vertex has to
 /// come from a neighbouring cell. The corner of a rotated box can lie up to about a voxel from
@@ -1082,96 +969,34 @@ FillLater<HermiteSample> hermite_data(
     return data;
 }
 
-/// A vertex slot of a crossing's cell that has no vertex (mesh_dc's `around`).
-constexpr std::uint64_t kNone = ~std::uint64_t(0);
-
-/// The triangles: one quad per crossing whose four cells all have a vertex (`around`, as (leaf,
-/// index) ids numbered from base), split along the diagonal that follows a sharp edge; counted
-/// per leaf first, so each leaf writes its triangles straight into place.
-void emit_quads(RawSurface& raw, const Crossings& crossings,
-                const FillLater<std::array<std::uint64_t, 4>>& around,
-                const std::vector<std::size_t>& base, const FillLater<float>& level) {
-    const std::size_t leaf_count =
-        crossings.leaf_begin.empty() ? 0 : crossings.leaf_begin.size() - 1;
-    const std::vector<openvdb::Vec3f>& patch_normal = raw.normals;
-    const auto has_quad = [&](std::size_t c) {
-        const auto& q = around[c];
-        return q[0] != kNone && q[1] != kNone && q[2] != kNone && q[3] != kNone;
+/// Which diagonal splits a quad (vertices v, counter-clockwise seen from outside): true for
+/// v[0]-v[2]. Next to a sharp edge the diagonal must run along it, between the two vertices
+/// whose patch normals agree, not across it (which cuts the edge off). The field cannot tell: it
+/// is rounded at the edge. Where the normals do not discriminate, the field decides.
+bool dc_diagonal02(const RawSurface& raw, const FillLater<float>& level,
+                   const std::array<std::int32_t, 4>& v) {
+    const openvdb::Vec3f* x[4];
+    const openvdb::Vec3f* n[4];
+    double e[4];
+    for (int k = 0; k < 4; ++k) {
+        x[k] = &raw.points[std::size_t(v[k])];
+        n[k] = &raw.normals[std::size_t(v[k])];
+        e[k] = double(level[std::size_t(v[k])]);
+    }
+    const double agree02 = double(n[0]->dot(*n[2])), agree13 = double(n[1]->dot(*n[3]));
+    if (std::fabs(agree02 - agree13) > 0.05) return agree02 > agree13;
+    // The diagonal whose triangles stay closer to the zero level: the field at each triangle's
+    // centroid, estimated to second order from its vertices. For a quadratic f with Hessian H,
+    // f at the centroid of x_1..x_3 is sum_i f(x_i) / 3 - sum_{i<j} d_ij^T H d_ij / 18 with
+    // d_ij = x_j - x_i, and d_ij^T H d_ij = d_ij . (grad f(x_j) - grad f(x_i)). f(x_i) is the
+    // vertex's level; the gradient of a distance field (voxels per voxel) is its unit normal,
+    // taken as the patch normal. This replaces four trilinear lookups per quad.
+    const auto bend = [&](int a, int b) { return double((*x[b] - *x[a]).dot(*n[b] - *n[a])); };
+    const auto off = [&](int a, int b, int d) {
+        return std::fabs((e[a] + e[b] + e[d]) / 3.0 -
+                         (bend(a, b) + bend(b, d) + bend(a, d)) / 18.0);
     };
-    std::vector<std::size_t> first(leaf_count + 1, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaf_count, 64),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                              std::size_t n = 0;
-                              for (std::size_t c = crossings.leaf_begin[L];
-                                   c < crossings.leaf_begin[L + 1]; ++c) {
-                                  n += has_quad(c) ? 2 : 0;
-                              }
-                              first[L + 1] = n;
-                          }
-                      });
-    std::partial_sum(first.begin(), first.end(), first.begin());
-    raw.triangles.resize(first.back());
-    tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, leaf_count, 8),
-        [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                Triangle* out = raw.triangles.data() + first[L];
-                for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1];
-                     ++c) {
-                    if (!has_quad(c)) continue;
-                    const auto& q = around[c];
-                    const auto global = [&](std::uint64_t id) {
-                        return std::int32_t(base[id >> 32] + (id & 0xffffffffu));
-                    };
-                    // Counter-clockwise around +axis: slots 0, 1, 3, 2. Outward is +axis when the
-                    // edge starts inside.
-                    std::array<std::int32_t, 4> v = {global(q[0]), global(q[1]), global(q[3]),
-                                                     global(q[2])};
-                    if (!crossings.start_inside[c]) std::reverse(v.begin(), v.end());
-                    const openvdb::Vec3f* x[4];
-                    const openvdb::Vec3f* n[4];
-                    double e[4];
-                    for (int k = 0; k < 4; ++k) {
-                        x[k] = &raw.points[std::size_t(v[k])];
-                        n[k] = &patch_normal[std::size_t(v[k])];
-                        e[k] = double(level[std::size_t(v[k])]);
-                    }
-                    // Next to a sharp edge the diagonal must run along it, between the two
-                    // vertices whose patch normals agree, not across it (which cuts the edge
-                    // off). The field cannot tell: it is rounded at the edge. Where the normals
-                    // do not discriminate, the field decides.
-                    const double agree02 = double(n[0]->dot(*n[2])),
-                                 agree13 = double(n[1]->dot(*n[3]));
-                    bool use02 = agree02 > agree13;
-                    if (std::fabs(agree02 - agree13) <= 0.05) {
-                        // The diagonal whose triangles stay closer to the zero level: the field
-                        // at each triangle's centroid, estimated to second order from its
-                        // vertices. For a quadratic f with Hessian H, f at the centroid of
-                        // x_1..x_3 is sum_i f(x_i) / 3 - sum_{i<j} d_ij^T H d_ij / 18 with
-                        // d_ij = x_j - x_i, and d_ij^T H d_ij = d_ij . (grad f(x_j) - grad f(x_i)).
-                        // f(x_i) is the vertex's level; the gradient of a distance field (voxels
-                        // per voxel) is its unit normal, taken as the patch normal. This replaces
-                        // four trilinear lookups per quad.
-                        const auto bend = [&](int a, int b) {
-                            return double((*x[b] - *x[a]).dot(*n[b] - *n[a]));
-                        };
-                        const auto off = [&](int a, int b, int d) {
-                            return std::fabs((e[a] + e[b] + e[d]) / 3.0 -
-                                             (bend(a, b) + bend(b, d) + bend(a, d)) / 18.0);
-                        };
-                        use02 = off(0, 1, 2) + off(0, 2, 3) <= off(0, 1, 3) + off(1, 2, 3);
-                    }
-                    if (use02) {
-                        *out++ = {v[0], v[1], v[2]};
-                        *out++ = {v[0], v[2], v[3]};
-                    } else {
-                        *out++ = {v[0], v[1], v[3]};
-                        *out++ = {v[1], v[2], v[3]};
-                    }
-                }
-            }
-        });
+    return off(0, 1, 2) + off(0, 2, 3) <= off(0, 1, 3) + off(1, 2, 3);
 }
 
 RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
@@ -1183,30 +1008,12 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     tree.getNodes(leaves);
     FillLater<HermiteSample> data = hermite_data(tree, crossings, leaves, iso);
     repair_hermite(crossings, tree, leaves, volume.sdf->voxelSize()[0], iso, data);
-    // One vertex per chain. Each crossing learns the vertices of its four cells as (leaf, index
-    // in the leaf): every (crossing, slot) belongs to exactly one cell, so there are no two
-    // writers. The vertices go to one growing array of blocks per thread, a leaf's in a row (one
-    // thread visits all cells of a leaf): an array per leaf meant an allocation and a free per
-    // leaf, which two threads sharing one heap make slower than one.
+    // One vertex per chain, at the minimiser of its quadric.
     const QefData qef{data, options.dc_truncation, options.dc_bias};
     const double inv_voxel = 1.0 / volume.sdf->voxelSize()[0];
-    tbb::enumerable_thread_specific<VertexBlocks> buffers;
-    std::vector<VertexBlocks*> leaf_buffer(leaves.size(), nullptr);
-    std::vector<std::size_t> leaf_first(leaves.size(), 0), leaf_count(leaves.size() + 1, 0);
-    FillLater<std::array<std::uint64_t, 4>> around(crossings.size());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, around.size(), 4096),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                          std::fill(around.begin() + std::ptrdiff_t(r.begin()),
-                                    around.begin() + std::ptrdiff_t(r.end()),
-                                    std::array<std::uint64_t, 4>{kNone, kNone, kNone, kNone});
-                      });
+    DualVertices<PatchVertex> vertices(leaves.size(), crossings.size());
     for_each_surface_cell(
         tree, crossings, iso, [&](std::size_t L, const SurfaceCell& cell, FloatAccessor& acc) {
-            if (!leaf_buffer[L]) {  // the leaf's first cell
-                leaf_buffer[L] = &buffers.local();
-                leaf_first[L] = leaf_buffer[L]->size();
-            }
-            VertexBlocks& out = *leaf_buffer[L];
             for (int l = 0; l < cell.loops.count; ++l) {
                 int start[12], size[12];
                 const int chains = loop_chains(cell, l, acc, iso, start, size);
@@ -1221,17 +1028,7 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
                     v.level = smooth ? onto_level_set(cell, v.normal, acc, iso, inv_voxel, x)
                                      : level_at(cell, x, acc, iso, inv_voxel);
                     v.position = openvdb::Vec3f(x);
-                    const std::uint64_t id = (std::uint64_t(L) << 32) | leaf_count[L + 1]++;
-                    out.push_back(v);
-                    for (int i = 0; i < size[c]; ++i) {
-                        const int e = chain[i];
-                        const int a = kEdgeAxis[e];
-                        const int* s = kCubeCorner[kEdgeCorner[e][0]];
-                        // Which of the four cells around the edge this one is: its offset from the
-                        // edge's start voxel along the two other axes (b, c) = (a + 1, a + 2).
-                        const int slot = s[(a + 1) % 3] + 2 * s[(a + 2) % 3];
-                        around[std::size_t(cell.edge_id[e])][std::size_t(slot)] = id;
-                    }
+                    vertices.add(L, cell, l, start[c], size[c], v);
                 }
             }
         });
@@ -1242,32 +1039,22 @@ RawSurface mesh_dc(const Volume& volume, const MeshOptions& options) {
     release(crossings.start);
     release(crossings.axis);
 
-    // Global vertex numbers in leaf order.
-    std::vector<std::size_t>& base = leaf_count;
-    std::partial_sum(base.begin(), base.end(), base.begin());
     RawSurface raw;
-    raw.points.resize(base.back());
     // The patch normals are the vertex normals too: a mean of the crossings' robust gradients,
     // they stay true next to sharp edges, where the SDF's gradient at the vertex is smeared.
+    const std::size_t count = vertices.number();
+    raw.points.resize(count);
     std::vector<openvdb::Vec3f>& patch_normal = raw.normals;
-    patch_normal.resize(base.back());
-    FillLater<float> level(base.back());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 16),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                              if (!leaf_buffer[L]) continue;
-                              const VertexBlocks& in = *leaf_buffer[L];
-                              for (std::size_t k = 0; k < base[L + 1] - base[L]; ++k) {
-                                  const PatchVertex& v = in[leaf_first[L] + k];
-                                  raw.points[base[L] + k] = v.position;
-                                  patch_normal[base[L] + k] = v.normal;
-                                  level[base[L] + k] = v.level;
-                              }
-                          }
-                      });
-    buffers.clear();
-
-    emit_quads(raw, crossings, around, base, level);
+    patch_normal.resize(count);
+    FillLater<float> level(count);
+    vertices.gather([&](std::size_t i, const PatchVertex& v) {
+        raw.points[i] = v.position;
+        patch_normal[i] = v.normal;
+        level[i] = v.level;
+    });
+    vertices.emit_quads(crossings, raw.triangles, [&](const std::array<std::int32_t, 4>& v) {
+        return dc_diagonal02(raw, level, v);
+    });
     return raw;
 }
 

@@ -31,7 +31,11 @@ double radial_error(const Mesh& m, const Vec3d& c, double r) {
 
 TEST_CASE("level-set sphere: closed, genus 0, outward, right volume", "[mesh]") {
     const Volume v = sphere_volume(1.0f, {0.2f, -0.3f, 0.1f}, 0.05f);
-    const MeshResult r = extract_mesh(v);
+    const auto method = GENERATE(Mesher::dual, Mesher::vdb);
+    CAPTURE(int(method));
+    MeshOptions o;
+    o.method = method;
+    const MeshResult r = extract_mesh(v, o);
     const TopologyStats t = mesh_topology(r.mesh);
     REQUIRE(t.faces > 1000);
     REQUIRE(t.boundary_edges == 0);
@@ -110,12 +114,18 @@ TEST_CASE("faces never cross invalid voxels", "[mesh]") {
     for (auto it = v.sdf->beginValueOn(); it; ++it) {
         if (v.sdf->indexToWorld(it.getCoord()).x() > 0.5) it.setValueOff();
     }
-    const MeshResult r = extract_mesh(v);
-    REQUIRE(r.dropped_faces > 0);
-    for (const Vec3f& p : r.mesh.vertices) REQUIRE(p[0] < 0.5);
-    const TopologyStats t = mesh_topology(r.mesh);
-    REQUIRE(t.boundary_edges > 0);
-    REQUIRE(t.nonmanifold_edges == 0);
+    // The dual mesher makes no face there; volumeToMesh does, and its faces are dropped.
+    for (Mesher m : {Mesher::dual, Mesher::vdb}) {
+        CAPTURE(int(m));
+        MeshOptions o;
+        o.method = m;
+        const MeshResult r = extract_mesh(v, o);
+        REQUIRE((r.dropped_faces > 0) == (m == Mesher::vdb));
+        for (const Vec3f& p : r.mesh.vertices) REQUIRE(p[0] < 0.5);
+        const TopologyStats t = mesh_topology(r.mesh);
+        REQUIRE(t.boundary_edges > 0);
+        REQUIRE(t.nonmanifold_edges == 0);
+    }
 }
 
 TEST_CASE("meshing far from the origin keeps precision", "[mesh]") {
@@ -137,6 +147,11 @@ TEST_CASE("mesh options are validated", "[mesh]") {
     MeshOptions o;
     o.adaptivity = 2.0;
     REQUIRE_THROWS_AS(extract_mesh(v, o), InvalidArgument);
+    o = {};
+    o.adaptivity = 0.5;  // only volumeToMesh adapts
+    REQUIRE_THROWS_WITH(extract_mesh(v, o), Catch::Contains("--mesher vdb"));
+    o.method = Mesher::vdb;
+    REQUIRE(mesh_topology(extract_mesh(v, o).mesh).faces > 100);
     o = {};
     o.max_gap = 0.0;
     REQUIRE_THROWS_AS(extract_mesh(v, o), InvalidArgument);

@@ -1,12 +1,16 @@
-// Our marching cubes and dual contouring against shapes with known answers: level-set sphere and
-// torus (topology, volume), boxes and a drilled block (sharp features), an open splatted patch,
-// thread-count independence and colour.
+// Our dual marching cubes, marching cubes and dual contouring against shapes with known answers:
+// level-set sphere and torus (topology, volume), volumeToMesh's surface, random fields (manifold),
+// boxes and a drilled block (sharp features), an open splatted patch, thread-count independence
+// and colour.
 #include <openvdb/tools/SignedFloodFill.h>
 #include <tbb/global_control.h>
 
+#include <atomic>
 #include <functional>
 #include <map>
+#include <random>
 
+#include "detail/crossings.h"
 #include "support.h"
 #include "support_volume.h"
 #include "vdbrecon/eval.h"
@@ -160,14 +164,14 @@ Mesh mesh_with(const Volume& v, Mesher method) {
 
 }  // namespace
 
-TEST_CASE("mc and dc: level-set sphere and torus are closed with the right genus and volume",
+TEST_CASE("dual, mc and dc: level-set sphere and torus are closed with the right genus and volume",
           "[mesh]") {
     const double voxel = 0.04;
     const Volume sphere = sphere_volume(1.0f, {0.13f, -0.21f, 0.05f}, float(voxel));
     const double R = 0.8, r = 0.3;
     const Volume torus = analytic_volume(
         [&](const V3& p) { return std::hypot(std::hypot(p[0], p[2]) - R, p[1]) - r; }, 1.3, voxel);
-    for (Mesher m : {Mesher::mc, Mesher::dc}) {
+    for (Mesher m : {Mesher::dual, Mesher::mc, Mesher::dc}) {
         CAPTURE(int(m));
         const TopologyStats s = mesh_topology(mesh_with(sphere, m));
         REQUIRE(s.faces > 5000);
@@ -182,6 +186,69 @@ TEST_CASE("mc and dc: level-set sphere and torus are closed with the right genus
         REQUIRE(t.components == 1);
         REQUIRE(t.euler == 0);
         REQUIRE(t.signed_volume == Approx(2.0 * M_PI * M_PI * R * r * r).epsilon(0.01));
+    }
+}
+
+TEST_CASE("dual makes volumeToMesh's surface: the same vertices and as many faces", "[mesh]") {
+    // Smooth shapes (no ambiguous cell): one vertex per surface cell, at the mean of its
+    // crossings, in both; and one quad per crossed edge.
+    const double voxel = 0.1, R = 0.8, r = 0.3;
+    const Volume sphere = sphere_volume(0.9f, {0.13f, -0.21f, 0.05f}, float(voxel));
+    const Volume torus = analytic_volume(
+        [&](const V3& p) { return std::hypot(std::hypot(p[0], p[2]) - R, p[1]) - r; }, 1.3, voxel);
+    for (const Volume* v : {&sphere, &torus}) {
+        const Mesh dual = mesh_with(*v, Mesher::dual), vdb = mesh_with(*v, Mesher::vdb);
+        REQUIRE(dual.vertices.size() > 500);
+        REQUIRE(dual.vertices.size() == vdb.vertices.size());
+        REQUIRE(dual.faces.size() == vdb.faces.size());
+        for (const Vec3f& p : dual.vertices) {
+            REQUIRE(nearest_vertex(vdb, V3(p[0], p[1], p[2])) < 1e-5 * voxel);
+        }
+    }
+}
+
+TEST_CASE("dual and dc are manifold on random fields, where cells' ambiguous faces meet",
+          "[mesh]") {
+    // Values uniform in [-1, 1] on a 24^3 block: most cells are ambiguous. Where two cells'
+    // loops both cross their shared face twice, one vertex per loop would give their two
+    // vertices an edge of four quads; the loops are split there (loop_chains).
+    for (unsigned seed : {1u, 2u, 3u}) {
+        CAPTURE(seed);
+        std::mt19937 rng(seed);
+        std::uniform_real_distribution<float> value(-1.0f, 1.0f);
+        Volume v;
+        v.sdf = openvdb::FloatGrid::create(2.0f);
+        v.sdf->setGridClass(openvdb::GRID_LEVEL_SET);
+        v.sdf->setTransform(openvdb::math::Transform::createLinearTransform(0.1));
+        auto acc = v.sdf->getAccessor();
+        for (int x = 0; x < 24; ++x)
+            for (int y = 0; y < 24; ++y)
+                for (int z = 0; z < 24; ++z) acc.setValueOn({x, y, z}, value(rng));
+        std::size_t loops = 0;
+        {
+            const auto& tree = v.sdf->tree();
+            const detail::Crossings c = detail::find_crossings(tree, 0.0f, false);
+            std::atomic<std::size_t> n{0};
+            detail::for_each_surface_cell(
+                tree, c, 0.0f,
+                [&](std::size_t, const detail::SurfaceCell& cell, detail::FloatAccessor&) {
+                    n += std::size_t(cell.loops.count);
+                });
+            loops = n;
+        }
+        MeshOptions o;
+        o.min_surface_weight = 0.0;  // no weight grid: keep every face
+        o.max_gap = std::numeric_limits<double>::infinity();
+        for (Mesher m : {Mesher::dual, Mesher::dc}) {
+            CAPTURE(int(m));
+            o.method = m;
+            const MeshResult r = extract_mesh(v, o);
+            const TopologyStats t = mesh_topology(r.mesh);
+            REQUIRE(t.faces > 10000);
+            REQUIRE(t.nonmanifold_edges == 0);
+            // Not vacuous: some loops were split (more vertices than loops).
+            REQUIRE(r.mesh.vertices.size() > loops);
+        }
     }
 }
 
@@ -317,14 +384,14 @@ TEST_CASE("dc keeps the edges of a drilled block (box minus cylinder)", "[mesh]"
     }
 }
 
-TEST_CASE("mc and dc on an open splatted patch: one boundary loop, nothing outside the data",
+TEST_CASE("dual, mc and dc on an open splatted patch: one boundary loop, nothing outside the data",
           "[mesh]") {
     const PointCloud plane = sample_plane(61, 0.3);  // [-0.3, 0.3]^2, spacing 0.01
     SplatOptions so;
     so.voxel_size = 0.01;
     const SplatResult sr = splat(plane, so);
     const double gap = MeshOptions{}.max_gap * so.voxel_size;
-    for (Mesher m : {Mesher::mc, Mesher::dc}) {
+    for (Mesher m : {Mesher::dual, Mesher::mc, Mesher::dc}) {
         CAPTURE(int(m));
         const MeshResult r = extract_mesh(sr.volume, [&] {
             MeshOptions o;
@@ -345,12 +412,12 @@ TEST_CASE("mc and dc on an open splatted patch: one boundary loop, nothing outsi
     }
 }
 
-TEST_CASE("mc and dc drop faces in invalid cells", "[mesh]") {
+TEST_CASE("dual, mc and dc drop faces in invalid cells", "[mesh]") {
     Volume v = analytic_volume([](const V3& p) { return p.length() - 0.8; }, 1.0, 0.05);
     for (auto it = v.sdf->beginValueOn(); it; ++it) {
         if (v.sdf->indexToWorld(it.getCoord()).x() > 0.4) it.setValueOff();
     }
-    for (Mesher m : {Mesher::mc, Mesher::dc}) {
+    for (Mesher m : {Mesher::dual, Mesher::mc, Mesher::dc}) {
         CAPTURE(int(m));
         const Mesh mesh = mesh_with(v, m);
         for (const Vec3f& p : mesh.vertices) REQUIRE(p[0] <= 0.4 + 1e-6);
@@ -361,7 +428,7 @@ TEST_CASE("mc and dc drop faces in invalid cells", "[mesh]") {
     }
 }
 
-TEST_CASE("mc and dc are identical for any thread count and carry colours", "[mesh]") {
+TEST_CASE("every mesher is identical for any thread count and carries colours", "[mesh]") {
     PointCloud s = sample_sphere(30000, 0.5);
     for (const Vec3f& p : s.positions) {
         s.colors.push_back(p[1] > 0 ? Vec3f{1.0f, 0.0f, 0.0f} : Vec3f{0.0f, 0.0f, 1.0f});
@@ -370,7 +437,7 @@ TEST_CASE("mc and dc are identical for any thread count and carry colours", "[me
     so.voxel_size = 0.02;
     const SplatResult sr = splat(s, so);
     REQUIRE(sr.volume.color);
-    for (Mesher m : {Mesher::vdb, Mesher::mc, Mesher::dc}) {
+    for (Mesher m : {Mesher::dual, Mesher::vdb, Mesher::mc, Mesher::dc}) {
         CAPTURE(int(m));
         MeshOptions o;
         o.method = m;

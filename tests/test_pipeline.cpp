@@ -51,10 +51,10 @@ TEST_CASE("file-to-file run is byte-identical for 1 and 2 threads", "[pipeline]"
 
 TEST_CASE("every mesher and closing mode is byte-identical for 1 and 2 threads", "[pipeline]") {
     // Issue 6 point 6: the mesh file, the splatted and the closed volume do not depend on the
-    // thread count, whatever the mesher (vdb, mc, dc) and closing (none, hole, solid, both).
+    // thread count, whatever the mesher (dual, vdb, mc, dc) and closing (none, hole, solid, both).
     TempDir dir;
     write_points(dir.file("in.ply"), sample_sphere(20000, 1.0));
-    for (const Mesher method : {Mesher::vdb, Mesher::mc, Mesher::dc}) {
+    for (const Mesher method : {Mesher::dual, Mesher::vdb, Mesher::mc, Mesher::dc}) {
         for (const auto& [hole, solid] : {std::pair{0, 0}, {3, 0}, {0, 2}, {3, 2}}) {
             PipelineOptions o;
             o.splat.voxel_size = 0.05;

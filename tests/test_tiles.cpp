@@ -105,9 +105,10 @@ TEST_CASE("tiles give the untiled mesh on CAD parts and smooth shapes with every
         Mesher mesher;
         double factor;
         int tile;
-    } cases[] = {{"cube", Mesher::dc, 1.0, 32}, {"fan", Mesher::dc, 1.0, 40},
+    } cases[] = {{"cube", Mesher::dc, 1.0, 32},    {"fan", Mesher::dc, 1.0, 40},
                  {"lbracket", Mesher::mc, 2.0, 8}, {"torus", Mesher::mc, 1.0, 24},
-                 {"blob", Mesher::vdb, 1.0, 40}, {"drilled", Mesher::vdb, 2.0, 16}};
+                 {"blob", Mesher::dual, 1.0, 40},  {"boss", Mesher::dual, 1.0, 16},
+                 {"drilled", Mesher::vdb, 2.0, 16}};
     for (const auto& c : cases) {
         const Shape shape = make_shape(c.shape);
         PointCloud sample = sample_uniform(shape.mesh, kPoints, 11);
@@ -132,7 +133,7 @@ TEST_CASE("tiles with hole closing give the untiled mesh", "[tiles][close]") {
     PointCloud sample = sample_sphere(8000, 1.0);
     punch_holes(sample, 4, 0.1, 5);
     const double voxel = 0.05;  // holes 4 voxels across
-    for (const Mesher m : {Mesher::vdb, Mesher::dc}) {
+    for (const Mesher m : {Mesher::dual, Mesher::vdb, Mesher::dc}) {
         PipelineOptions o = options_at(voxel, m, 0);
         o.close.hole_radius = 2;
         const PipelineResult whole = run_on(sample, o);
@@ -165,7 +166,7 @@ TEST_CASE("tiles: estimated normals and outlier removal run on the whole cloud",
     std::uniform_real_distribution<float> u(-1.5f, 1.5f);
     std::vector<Vec3f>& p = sample.positions.edit();
     for (int i = 0; i < 200; ++i) p.push_back({u(rng), u(rng), u(rng)});
-    PipelineOptions o = options_at(0.04, Mesher::vdb, 0);
+    PipelineOptions o = options_at(0.04, Mesher::dual, 0);
     const PipelineResult whole = run_on(sample, o);
     o.tile = 16;
     const PipelineResult tiled = run_on(sample, o);
@@ -176,7 +177,7 @@ TEST_CASE("tiles: estimated normals and outlier removal run on the whole cloud",
 
 TEST_CASE("tiles are refused with a solid closing and out of range", "[tiles]") {
     PointCloud sample = sample_sphere(2000, 1.0);
-    PipelineOptions o = options_at(0.1, Mesher::vdb, 16);
+    PipelineOptions o = options_at(0.1, Mesher::dual, 16);
     o.close.solid_radius = 2;
     CHECK_THROWS_AS(run_on(sample, o), InvalidArgument);
     o.close.solid_radius = 0;
@@ -198,7 +199,7 @@ TEST_CASE("tiles: no temporary directory for the pieces is a clear error", "[til
 TEST_CASE("bunny scans: tiles of 48 voxels give the untiled mesh", "[tiles][data]") {
     const std::string path = shared_data("stanford_bunny/bun_scans_aligned.ply");
     if (path.empty()) return;
-    PipelineOptions o = options_at(0.001, Mesher::vdb, 0);
+    PipelineOptions o = options_at(0.001, Mesher::dual, 0);
     ReadResult read = read_points(path);
     const PipelineResult whole = run_on(read.cloud, o);
     o.tile = 48;
@@ -209,7 +210,7 @@ TEST_CASE("bunny scans: tiles of 48 voxels give the untiled mesh", "[tiles][data
 
 TEST_CASE("tile auto fits the memory budget that refuses the untiled run", "[tiles]") {
     const PointCloud sample = sample_sphere(20000, 1.0);
-    PipelineOptions o = options_at(0.01, Mesher::vdb, 0);  // 200 voxels across
+    PipelineOptions o = options_at(0.01, Mesher::dual, 0);  // 200 voxels across
     o.splat.max_memory = std::size_t(100) << 20;
     o.auto_tile = false;  // --tile 0: refuse, do not tile
     try {
@@ -244,7 +245,7 @@ TEST_CASE("a file whose points would not fit the memory budget tiles itself befo
     PointCloud bare = sample_sphere(100000, 1.0);
     bare.normals.clear();
     write_points(dir.file("in.ply"), bare);
-    PipelineOptions o = options_at(0.05, Mesher::vdb, 0);
+    PipelineOptions o = options_at(0.05, Mesher::dual, 0);
     // The file is 1.2 MB: its points take about six times that in memory with the neighbour
     // lists for their normals, more than half of 12 MB.
     o.splat.max_memory = std::size_t(12) << 20;

@@ -19,7 +19,10 @@ namespace {
 constexpr std::size_t kPoints = 60000;
 
 Mesher mesher_named(const std::string& m) {
-    return m == "vdb" ? Mesher::vdb : m == "mc" ? Mesher::mc : Mesher::dc;
+    return m == "dual"  ? Mesher::dual
+           : m == "vdb" ? Mesher::vdb
+           : m == "mc"  ? Mesher::mc
+                        : Mesher::dc;
 }
 
 PipelineResult reconstruct_at(PointCloud cloud, double voxel, const std::string& mesher,
@@ -39,7 +42,7 @@ TEST_CASE("closed shapes come out closed with every mesher at 1x to 3x the spaci
         const PointCloud sample = sample_uniform(shape.mesh, kPoints, 3);
         const double h = spacing_of(shape.area, kPoints);
         for (double factor : {1.0, 3.0}) {
-            for (const std::string mesher : {"vdb", "mc", "dc"}) {
+            for (const std::string mesher : {"dual", "vdb", "mc", "dc"}) {
                 const PipelineResult r = reconstruct_at(sample, factor * h, mesher);
                 const TopologyStats t = mesh_topology(r.mesh);
                 INFO(name << " at " << factor << "x the spacing, " << mesher);
@@ -101,7 +104,7 @@ TEST_CASE("CAD parts with estimated normals come out closed", "[watertight][norm
         const double h = spacing_of(shape.area, c.points);
         for (double factor : {1.0, 1.5}) {
             if (c.one_factor && factor != 1.0) continue;
-            for (const std::string mesher : {"vdb", "mc", "dc"}) {
+            for (const std::string mesher : {"dual", "vdb", "mc", "dc"}) {
                 if (c.points != 200000 && mesher == "vdb") continue;
                 const TopologyStats t = mesh_topology(reconstruct_at(sample, factor * h, mesher).mesh);
                 INFO(c.name << " (" << c.points << " samples, seed " << c.seed << ") at " << factor

@@ -44,7 +44,8 @@ inline const Choices<KnnBackend>& knn_backend_choices() {
     return c;
 }
 inline const Choices<Mesher>& mesher_choices() {
-    static const Choices<Mesher> c = {{"vdb", Mesher::vdb}, {"mc", Mesher::mc}, {"dc", Mesher::dc}};
+    static const Choices<Mesher> c = {
+        {"dual", Mesher::dual}, {"vdb", Mesher::vdb}, {"mc", Mesher::mc}, {"dc", Mesher::dc}};
     return c;
 }
 inline const Choices<DepthKind>& depth_kind_choices() {

@@ -1,7 +1,12 @@
-// Surface extraction from a Volume, with three meshers behind one interface.
+// Surface extraction from a Volume, with four meshers behind one interface.
 //
-// `vdb`: OpenVDB's tools::volumeToMesh (dual marching cubes); quads are split into triangles
-// along the shorter diagonal.
+// `dual` (the default): dual marching cubes (G. M. Nielson, "Dual marching cubes", IEEE
+// Visualization 2004): one vertex per connected surface patch of a cell, at the mean of its edge
+// crossings, and one quad per crossed edge, split along its shorter diagonal. The surface
+// volumeToMesh makes at adaptivity 0, without its trees (2.6x faster), and manifold where two
+// cells' ambiguous faces meet (the vertex split of `dc`, below).
+// `vdb`: OpenVDB's tools::volumeToMesh (dual marching cubes), for its adaptivity; quads are
+// split into triangles along the shorter diagonal.
 // `mc`:  marching cubes (W. Lorensen and H. Cline, "Marching cubes", SIGGRAPH 1987) over the
 // valid cells: vertices on grid edges shared between cells, ambiguous faces resolved by the
 // asymptotic decider, so the mesh has no cracks.
@@ -33,17 +38,19 @@
 namespace vdbrecon {
 
 enum class Mesher {
-    vdb,  ///< OpenVDB volumeToMesh
-    mc,   ///< our marching cubes
-    dc,   ///< our dual contouring
+    dual,  ///< our dual marching cubes (mass-point vertices)
+    vdb,   ///< OpenVDB volumeToMesh
+    mc,    ///< our marching cubes
+    dc,    ///< our dual contouring
 };
 
 struct MeshOptions {
     /// Which mesher extracts the surface.
-    Mesher method = Mesher::vdb;
+    Mesher method = Mesher::dual;
     /// Iso-value of the surface, world units (0 = the zero crossing of the SDF).
     double isovalue = 0.0;
-    /// volumeToMesh adaptivity, 0 (uniform) .. 1 (coarsest); keep 0 for open scans.
+    /// volumeToMesh adaptivity, 0 (uniform) .. 1 (coarsest); only the vdb mesher adapts.
+    /// Keep 0 for open scans.
     double adaptivity = 0.0;
     /// Relative support: a vertex is unsupported where its summed weight (the "weight" grid) is
     /// below this times the weight at its nearest sample (dimensionless; 0 disables the test).

@@ -6,17 +6,17 @@ namespace vdbrecon::python {
 
 void bind_mesh(py::module_& m) {
     OptionsClass<MeshOptions> o(m, "MeshOptions",
-                                "Surface extraction from the volume's sdf grid: 'vdb' OpenVDB "
-                                "volumeToMesh, 'mc' marching cubes (Lorensen 87), 'dc' dual "
-                                "contouring (Ju 02).");
-    o.choice("method", &MeshOptions::method,
-             mesher_choices(),
+                                "Surface extraction from the volume's sdf grid: 'dual' dual "
+                                "marching cubes (Nielson 04; volumeToMesh's surface, faster), "
+                                "'vdb' OpenVDB volumeToMesh, 'mc' marching cubes (Lorensen 87), "
+                                "'dc' dual contouring (Ju 02).");
+    o.choice("method", &MeshOptions::method, mesher_choices(),
              "Which mesher extracts the surface (CLI --mesher).")
         .field("isovalue", &MeshOptions::isovalue,
                "Iso-value of the surface, world units (0 = the zero crossing of the SDF).")
         .field("adaptivity", &MeshOptions::adaptivity,
-               "volumeToMesh adaptivity, 0 (uniform) .. 1 (coarsest); keep 0 for open scans "
-               "(CLI --adaptivity).")
+               "volumeToMesh adaptivity, 0 (uniform) .. 1 (coarsest), method 'vdb' only; keep 0 "
+               "for open scans (CLI --adaptivity).")
         .field("min_surface_weight", &MeshOptions::min_surface_weight,
                "Relative support: a vertex whose summed weight is below this times the weight "
                "at its nearest sample is unsupported; unsupported faces reached from an open "

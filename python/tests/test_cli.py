@@ -50,7 +50,7 @@ def test_run_writes_the_same_files_as_the_cli(cli, tmp_path):
     assert_same_mesh(a, b)
     # ... and reconstruct() on the cloud read in Python gives that mesh too.
     cloud = vdbrecon.read_points(src).cloud
-    m = vdbrecon.reconstruct(cloud, mode="estimate", threads=1)
+    m = vdbrecon.reconstruct(cloud, mode="estimate", method="vdb", threads=1)
     np.testing.assert_array_equal(m.faces, b.faces)
     np.testing.assert_allclose(m.vertices + np.asarray(m.origin, np.float32), b.vertices +
                                np.asarray(b.origin, np.float32), atol=1e-6)

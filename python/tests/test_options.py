@@ -97,7 +97,7 @@ def test_help_shows_options_with_units_and_defaults():
     d = vdbrecon.PipelineOptions()
     assert f"min_weight = {d.splat.min_weight!r}" in text
     assert f"k = {d.normals.k!r}" in text
-    assert "method = 'vdb'  ('vdb' | 'mc' | 'dc')" in text
+    assert "method = 'dual'  ('dual' | 'vdb' | 'mc' | 'dc')" in text
     assert "voxels" in text and "world units" in text
     sig = inspect.signature(vdbrecon.reconstruct)
     assert list(sig.parameters)[:3] == ["points", "normals", "colors"]
@@ -132,7 +132,7 @@ def test_unknown_option_lists_the_valid_ones():
 
 def test_bad_values():
     points, normals = sphere(100)
-    with pytest.raises(ValueError, match="'xx' is not one of 'vdb', 'mc', 'dc'"):
+    with pytest.raises(ValueError, match="'xx' is not one of 'dual', 'vdb', 'mc', 'dc'"):
         vdbrecon.reconstruct(points, normals, voxel=0.1, method="xx")
     with pytest.raises(TypeError, match="'k' expects int"):
         vdbrecon.reconstruct(points, normals, voxel=0.1, k="ten")

@@ -251,6 +251,103 @@ struct SurfaceCell {
     std::int64_t edge_id[12];  ///< crossing id of each cube edge (-1 when it does not cross)
 };
 
+/// The face (kFaceCorner index) on which two cube edges meet, or -1.
+inline int common_face(int a, int b) {
+    const unsigned m = edge_faces(a) & edge_faces(b);
+    return m ? __builtin_ctz(m) : -1;
+}
+
+/// Bit mask of the faces loop l walks across twice. A face holds at most four crossings, so a
+/// loop crosses it at most twice; a loop of a cell with no ambiguous face crosses every face at
+/// most once, the common case.
+inline unsigned twice_visited_faces(const CellLoops& loops, int l) {
+    const int n = loops.size[l];
+    unsigned once = 0, twice = 0;
+    for (int k = 0; k < n; ++k) {
+        const unsigned bit = 1u << common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]);
+        twice |= once & bit;
+        once |= bit;
+    }
+    return twice;
+}
+
+/// Splits a loop into the chains that get one vertex each. A loop that crosses a face twice, while
+/// the loop on the other side of that face crosses it twice too, would give the two cells' vertices
+/// an edge shared by four quads; cutting both loops at that face's two segments gives each
+/// (chain, chain) pair exactly two quads -- the vertex split of manifold dual contouring. Returns
+/// the number of chains; chain c holds loop positions [start[c], start[c] + size[c]) (mod n).
+template <typename Field>
+int loop_chains(const SurfaceCell& cell, int l, Field& acc, float iso, int start[12],
+                int size[12]) {
+    const CellLoops& loops = cell.loops;
+    const int n = loops.size[l];
+    bool cut[12] = {};  // cut after position k (between edge k and k + 1)
+    int cuts = 0;
+    const unsigned twice_faces = loops.ambiguous ? twice_visited_faces(loops, l) : 0u;
+    for (int f = 0; f < 6; ++f) {
+        if (!((twice_faces >> f) & 1u)) continue;
+        // The neighbour across face f, and the loop there that holds one of this face's crossings.
+        const int axis = f / 2, dir = f % 2 ? 1 : -1;
+        openvdb::Coord nb = cell.origin;
+        nb[axis] += dir;
+        float values[8];
+        bool valid = true;
+        for (int k = 0; k < 8 && valid; ++k) {
+            valid = acc.probeValue(
+                nb.offsetBy(kCubeCorner[k][0], kCubeCorner[k][1], kCubeCorner[k][2]), values[k]);
+        }
+        if (!valid) continue;
+        CellLoops other;
+        if (!cell_loops(values, iso, other)) continue;
+        int mine = -1;  // one of our edges on face f
+        for (int k = 0; k < n && mine < 0; ++k) {
+            if (common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]) == f)
+                mine = loops.edge[l][k];
+        }
+        // The same grid edge in the neighbour's numbering: start corner shifted by -dir.
+        int s[3] = {kCubeCorner[kEdgeCorner[mine][0]][0], kCubeCorner[kEdgeCorner[mine][0]][1],
+                    kCubeCorner[kEdgeCorner[mine][0]][2]};
+        s[axis] -= dir;
+        int theirs = -1;
+        for (int e = 0; e < 12; ++e) {
+            const int* t = kCubeCorner[kEdgeCorner[e][0]];
+            if (kEdgeAxis[e] == kEdgeAxis[mine] && t[0] == s[0] && t[1] == s[1] && t[2] == s[2]) {
+                theirs = e;
+            }
+        }
+        bool twice = false;
+        for (int m = 0; m < other.count && !twice; ++m) {
+            for (int k = 0; k < other.size[m]; ++k) {
+                if (other.edge[m][k] == theirs)
+                    twice = (twice_visited_faces(other, m) >> (f ^ 1)) & 1u;
+            }
+        }
+        if (!twice) continue;
+        for (int k = 0; k < n; ++k) {
+            if (common_face(loops.edge[l][k], loops.edge[l][(k + 1) % n]) == f && !cut[k]) {
+                cut[k] = true;
+                ++cuts;
+            }
+        }
+    }
+    if (cuts == 0) {
+        start[0] = 0;
+        size[0] = n;
+        return 1;
+    }
+    int chains = 0;
+    for (int k = 0; k < n; ++k) {
+        if (!cut[k]) continue;
+        // A chain starts after a cut and runs to the next cut.
+        int len = 1;
+        while (!cut[(k + len) % n]) ++len;
+        start[chains] = (k + 1) % n;
+        size[chains] = len;
+        ++chains;
+    }
+    return chains;
+}
+
 /// Calls visit(leaf_index, cell, acc) for every valid cell (eight active corners) that the surface
 /// crosses, in parallel over the sdf's leaves; `acc` is an accessor to the sdf for the visitor's
 /// own lookups. Each leaf visits its cells in index order, so a visitor that appends to per-leaf

@@ -212,5 +212,6 @@ RawSurface mesh_raw(const Volume& volume, const MeshOptions& options);
 RawSurface mesh_vdb(const Volume& volume, const MeshOptions& options);
 RawSurface mesh_mc(const Volume& volume, const MeshOptions& options);
 RawSurface mesh_dc(const Volume& volume, const MeshOptions& options);
+RawSurface mesh_dual(const Volume& volume, const MeshOptions& options);
 
 }  // namespace vdbrecon::detail

@@ -1,5 +1,6 @@
 // Edge crossings of the iso-surface and a walk over the cells it passes through, shared by our
-// marching cubes and dual contouring.
+// marching cubes, dual marching cubes and dual contouring; and the split of a cell's loops into
+// the chains that get a vertex each in the two dual meshers (loop_chains).
 //
 // A crossing is a grid edge (voxel v, axis a) from v to v + e_a whose end voxels are both valid
 // (active) and on opposite sides of the iso-value. Crossings are numbered leaf by leaf in the

@@ -1,5 +1,5 @@
-// Internals shared by the meshers (vdb, mc, dc): grid sampling helpers and the raw surface each
-// mesher hands to finish_mesh().
+// Internals shared by the meshers (dual, vdb, mc, dc): grid sampling helpers and the raw surface
+// each mesher hands to finish_mesh().
 #pragma once
 
 #include <openvdb/openvdb.h>

@@ -124,15 +124,29 @@ double median_edge(const Mesh& m) {
     return median_of(len);
 }
 
-/// Per component (indexed by its label, as `label` gives it per face): the samples' worth of
+/// Renumbers face_components()' labels (each set's smallest face) in place as 0, 1, ... in
+/// order of that face; returns the number of components. Arrays per component then take a
+/// slot per component, not per face (on a 24.5M-face terrain, 300 MB less at the clean
+/// stage's peak).
+std::size_t number_components(std::vector<std::int32_t>& label) {
+    std::int32_t next = 0;
+    for (std::size_t f = 0; f < label.size(); ++f) {
+        // A set's smallest face comes first and is renumbered before the rest of its faces.
+        const auto root = std::size_t(label[f]);
+        label[f] = root == f ? next++ : label[root];
+    }
+    return std::size_t(next);
+}
+
+/// Per component (indexed by its number, as `label` gives it per face): the samples' worth of
 /// supported surface that built it, sum area_f * min(1, w_f / w_typical) / h^2 (see clean.h).
 std::vector<double> component_evidence(const Mesh& m, const std::vector<std::int32_t>& label,
-                                       const std::vector<float>& support, double h,
-                                       double& typical) {
+                                       std::size_t components, const std::vector<float>& support,
+                                       double h, double& typical) {
     const bool weighted = !support.empty();
     typical = weighted ? median_of(support) : 0.0;
     const double inv_h2 = 1.0 / (h * h);
-    std::vector<double> evidence(m.faces.size(), 0.0);
+    std::vector<double> evidence(components, 0.0);
     for (std::size_t f = 0; f < m.faces.size(); ++f) {
         const Triangle& t = m.faces[f];
         const Vec3f& a = m.vertices[std::size_t(t[0])];
@@ -153,31 +167,28 @@ std::vector<double> component_evidence(const Mesh& m, const std::vector<std::int
     return evidence;
 }
 
-/// Per component (by its label): 0 kept, 1 backed by too few samples, 2 too small beside the
+/// Per component (by its number): 0 kept, 1 backed by too few samples, 2 too small beside the
 /// largest; the counts go into r.
 std::vector<char> verdicts(const Mesh& mesh, const std::vector<std::int32_t>& label,
-                           const std::vector<float>& support, const CleanOptions& options,
-                           CleanResult& r) {
+                           std::size_t components, const std::vector<float>& support,
+                           const CleanOptions& options, CleanResult& r) {
     const std::size_t nf = mesh.faces.size();
-    std::vector<std::int32_t> size(nf, 0);
+    std::vector<std::int32_t> size(components, 0);
     for (std::size_t f = 0; f < nf; ++f) ++size[std::size_t(label[f])];
+    r.components_before = components;
     std::size_t largest = 0;
-    for (std::size_t f = 0; f < nf; ++f) {
-        if (size[f] > 0) {
-            ++r.components_before;
-            largest = std::max(largest, std::size_t(size[f]));
-        }
-    }
+    for (std::size_t c = 0; c < components; ++c) largest = std::max(largest, std::size_t(size[c]));
     const double min_faces = std::max(double(options.min_component_faces),
                                       options.min_component_ratio * double(largest));
     std::vector<double> evidence;
     if (options.min_component_samples > 0.0 && nf > 0) {
         const double h = options.sample_spacing > 0.0 ? options.sample_spacing : median_edge(mesh);
-        if (h > 0.0) evidence = component_evidence(mesh, label, support, h, r.typical_support);
+        if (h > 0.0) {
+            evidence = component_evidence(mesh, label, components, support, h, r.typical_support);
+        }
     }
-    std::vector<char> verdict(nf, 0);
-    for (std::size_t c = 0; c < nf; ++c) {
-        if (size[c] == 0) continue;
+    std::vector<char> verdict(components, 0);
+    for (std::size_t c = 0; c < components; ++c) {
         if (!evidence.empty() && evidence[c] < options.min_component_samples) {
             verdict[c] = 1;
             ++r.removed_unsupported;
@@ -216,7 +227,8 @@ CleanResult clean_mesh(Mesh&& mesh, const CleanOptions& options,
 
     // Edge-connected components, and the verdict on each.
     std::vector<std::int32_t> label = detail::face_components(mesh.faces, mesh.vertices.size());
-    std::vector<char> verdict = verdicts(mesh, label, support, options, r);
+    const std::size_t components = number_components(label);
+    std::vector<char> verdict = verdicts(mesh, label, components, support, options, r);
 
     // Keep the faces of kept components, then the vertices they use, in input order:
     // compacted in place (the kept ones only move down), so no second copy of the mesh joins

@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <random>
 
 #include "support.h"
@@ -91,6 +92,17 @@ TEST_CASE("clean: pieces too few samples built are removed, exactly those", "[cl
     CleanOptions absolute = keep;
     absolute.min_component_faces = 5;
     REQUIRE(clean_mesh(m, absolute).removed_components == 3);
+    // The pieces' faces interleaved (shuffled): the same verdicts, each piece whole.
+    Mesh shuffled = m;
+    std::vector<Triangle>& faces = shuffled.faces.edit();
+    std::shuffle(faces.begin(), faces.end(), std::mt19937(7));
+    const CleanResult s = clean_mesh(shuffled, by_samples);
+    REQUIRE(s.components_before == 5);
+    REQUIRE(s.removed_unsupported == 3);
+    REQUIRE(s.removed_faces == 12);
+    REQUIRE(s.mesh.faces.size() == big_faces + small_faces);
+    REQUIRE(mesh_topology(s.mesh).components == 2);
+    REQUIRE(clean_mesh(shuffled, strict).mesh.faces.size() == big_faces);
 }
 
 TEST_CASE("clean: the evidence weighs a piece's area by its support, in the data's own scale",

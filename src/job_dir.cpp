@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "detail/io_common.h"
+#include "vdbrecon/choices.h"
 #include "vdbrecon/error.h"
 
 namespace vdbrecon::detail {
@@ -79,11 +80,18 @@ std::string job_options_text(const PipelineOptions& o) {
         .add("auto_voxel_max_cells", o.auto_voxel_max_cells);
     l.add("close.hole_radius", o.close.hole_radius).add("close.solid_radius", o.close.solid_radius);
     const MeshOptions& m = o.mesh;
-    l.add("mesh.method", int(m.method)).add("mesh.isovalue", m.isovalue)
-        .add("mesh.adaptivity", m.adaptivity).add("mesh.min_surface_weight", m.min_surface_weight)
-        .add("mesh.max_gap", m.max_gap).add("mesh.max_gap_spacings", m.max_gap_spacings)
-        .add("mesh.sample_spacing", m.sample_spacing).add("mesh.dc_truncation", m.dc_truncation)
-        .add("mesh.dc_bias", m.dc_bias).add("mesh.normals", m.normals);
+    // By name: the enum's numbers changed when the dual mesher came first (a job made before
+    // then recorded vdb as 0, which is dual's number now).
+    l.add("mesh.method", choice_name(mesher_choices(), m.method))
+        .add("mesh.isovalue", m.isovalue)
+        .add("mesh.adaptivity", m.adaptivity)
+        .add("mesh.min_surface_weight", m.min_surface_weight)
+        .add("mesh.max_gap", m.max_gap)
+        .add("mesh.max_gap_spacings", m.max_gap_spacings)
+        .add("mesh.sample_spacing", m.sample_spacing)
+        .add("mesh.dc_truncation", m.dc_truncation)
+        .add("mesh.dc_bias", m.dc_bias)
+        .add("mesh.normals", m.normals);
     l.add("tile", o.tile).add("stream", int(o.stream));
     return l.str();
 }

@@ -911,6 +911,12 @@ TEST_CASE("job directory (--job-dir): a changed input, a foreign directory and a
     const CliRun changed = run_cli("'" + in + "' -o '" + dir.file("b.ply") + "'" + common);
     CHECK(changed.code != 0);
     CHECK(changed.err.find("has changed") != std::string::npos);
+    // The same input with another mesher: refused, the option named (the mesher by its name).
+    write_points(in, sample_uniform(shape.mesh, 8000, 5));
+    const CliRun other =
+        run_cli("'" + in + "' -o '" + dir.file("b.ply") + "'" + common + " --mesher dc");
+    CHECK(other.code != 0);
+    CHECK(other.err.find("made with mesh.method dual, this run has dc") != std::string::npos);
     // A directory of other files is not taken for a job.
     ::mkdir(dir.file("mine").c_str(), 0755);
     write_bytes(dir.file("mine/notes.txt"), "keep me");

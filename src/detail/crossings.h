@@ -31,6 +31,10 @@
 namespace vdbrecon::detail {
 
 constexpr std::uint32_t kIdBits = 29;
+
+/// The number of bits set in a 3-bit axis mask. Not __builtin_popcount: the library is built for
+/// baseline x86-64, where that is a call into libgcc (3 % of the mesh stage).
+inline std::uint32_t bits3(std::uint32_t m) { return (m & 1u) + ((m >> 1) & 1u) + (m >> 2); }
 constexpr std::uint32_t kIdMask = (1u << kIdBits) - 1;
 
 /// Which voxels of a leaf have a crossing edge along each axis (bit b of word w: voxel offset
@@ -113,7 +117,7 @@ struct Crossings {
                                        std::uint32_t((a1 >> bit) & 1u) << 1 |
                                        std::uint32_t((a2 >> bit) & 1u) << 2;
             out[k] = mask ? id | (mask << kIdBits) : 0u;
-            id += std::uint32_t(__builtin_popcount(mask));
+            id += bits3(mask);
         }
     }
 };
@@ -215,7 +219,7 @@ class CellBlock {
     std::int64_t crossing_id(int i, int axis) const {
         const std::uint32_t mask = id_[i] >> kIdBits;
         if (!((mask >> axis) & 1u)) return -1;
-        return std::int64_t(id_[i] & kIdMask) + __builtin_popcount(mask & ((1u << axis) - 1u));
+        return std::int64_t(id_[i] & kIdMask) + bits3(mask & ((1u << axis) - 1u));
     }
 
   private:

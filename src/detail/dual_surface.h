@@ -115,20 +115,12 @@ class DualVertices {
     void emit_quads(const Crossings& crossings, std::vector<Triangle>& triangles,
                     Diagonal&& diagonal02) const {
         const std::size_t leaves = leaf_buffer_.size();
-        const auto has_quad = [&](std::size_t c) {
-            const auto& q = around_[c];
-            return q[0] != kNone && q[1] != kNone && q[2] != kNone && q[3] != kNone;
-        };
         std::vector<std::size_t> first(leaves + 1, 0);
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves, 64),
                           [&](const tbb::blocked_range<std::size_t>& r) {
                               for (std::size_t L = r.begin(); L < r.end(); ++L) {
-                                  std::size_t n = 0;
-                                  for (std::size_t c = crossings.leaf_begin[L];
-                                       c < crossings.leaf_begin[L + 1]; ++c) {
-                                      n += has_quad(c) ? 2 : 0;
-                                  }
-                                  first[L + 1] = n;
+                                  first[L + 1] =
+                                      2 * quads_of_leaf(crossings, L, [](std::size_t) {});
                               }
                           });
         std::partial_sum(first.begin(), first.end(), first.begin());
@@ -137,9 +129,7 @@ class DualVertices {
                           [&](const tbb::blocked_range<std::size_t>& r) {
                               for (std::size_t L = r.begin(); L < r.end(); ++L) {
                                   Triangle* out = triangles.data() + first[L];
-                                  for (std::size_t c = crossings.leaf_begin[L];
-                                       c < crossings.leaf_begin[L + 1]; ++c) {
-                                      if (!has_quad(c)) continue;
+                                  quads_of_leaf(crossings, L, [&](std::size_t c) {
                                       const auto& q = around_[c];
                                       // Counter-clockwise around +axis: slots 0, 1, 3, 2. Outward
                                       // is +axis when the edge starts inside.
@@ -154,12 +144,26 @@ class DualVertices {
                                           *out++ = {v[0], v[1], v[3]};
                                           *out++ = {v[1], v[2], v[3]};
                                       }
-                                  }
+                                  });
                               }
                           });
     }
 
   private:
+    /// Calls quad(c) for each crossing c of leaf L whose four cells all have a vertex, in
+    /// order; returns how many there are.
+    template <typename Quad>
+    std::size_t quads_of_leaf(const Crossings& crossings, std::size_t L, Quad&& quad) const {
+        std::size_t n = 0;
+        for (std::size_t c = crossings.leaf_begin[L]; c < crossings.leaf_begin[L + 1]; ++c) {
+            const auto& q = around_[c];
+            if (q[0] == kNone || q[1] == kNone || q[2] == kNone || q[3] == kNone) continue;
+            quad(c);
+            ++n;
+        }
+        return n;
+    }
+
     std::int32_t global(std::uint64_t id) const {
         return std::int32_t(base_[id >> 32] + (id & 0xffffffffu));
     }

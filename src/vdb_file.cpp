@@ -34,6 +34,10 @@
 #include <sstream>
 #include <vector>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "detail/io_common.h"
 #include "vdbrecon/error.h"
 
@@ -196,6 +200,60 @@ void for_each_bit(const std::uint64_t* words, bool off, F&& f) {
     }
 }
 
+/// The number of set bits of a leaf's 8 mask words.
+std::size_t count_on(const std::uint64_t* words) {
+    std::size_t count = 0;
+    for (int w = 0; w < 8; ++w) count += openvdb::util::CountOn(words[w]);
+    return count;
+}
+
+/// The bits of a leaf's voxels whose value equals v (==, as classify_leaf compares), as 8
+/// mask words. (The vector forms below where SSE2 is there: x86-64 always.)
+template <typename T>
+void equal_bits(const T* values, const T& v, std::uint64_t* out) {
+    for (int w = 0; w < 8; ++w) {
+        std::uint64_t bits = 0;
+        for (int j = 0; j < 64; ++j) bits |= std::uint64_t(values[w * 64 + j] == v) << j;
+        out[w] = bits;
+    }
+}
+
+#if defined(__SSE2__)
+void equal_bits(const float* values, float v, std::uint64_t* out) {
+    const __m128 b = _mm_set1_ps(v);
+    for (int w = 0; w < 8; ++w) {
+        std::uint64_t bits = 0;
+        for (int j = 0; j < 64; j += 4) {
+            const __m128 x = _mm_loadu_ps(values + w * 64 + j);
+            bits |= std::uint64_t(_mm_movemask_ps(_mm_cmpeq_ps(x, b))) << j;
+        }
+        out[w] = bits;
+    }
+}
+
+void equal_bits(const openvdb::Vec3f* values, const openvdb::Vec3f& v, std::uint64_t* out) {
+    // Four voxels are three vectors of four floats; of the 12 compare bits, voxel j's are 3j,
+    // 3j + 1 and 3j + 2.
+    const __m128 b0 = _mm_setr_ps(v[0], v[1], v[2], v[0]);
+    const __m128 b1 = _mm_setr_ps(v[1], v[2], v[0], v[1]);
+    const __m128 b2 = _mm_setr_ps(v[2], v[0], v[1], v[2]);
+    const float* f = values[0].asPointer();
+    for (int w = 0; w < 8; ++w) {
+        std::uint64_t bits = 0;
+        for (int j = 0; j < 64; j += 4, f += 12) {
+            const unsigned m =
+                unsigned(_mm_movemask_ps(_mm_cmpeq_ps(_mm_loadu_ps(f), b0))) |
+                unsigned(_mm_movemask_ps(_mm_cmpeq_ps(_mm_loadu_ps(f + 4), b1))) << 4 |
+                unsigned(_mm_movemask_ps(_mm_cmpeq_ps(_mm_loadu_ps(f + 8), b2))) << 8;
+            const unsigned all = m & m >> 1 & m >> 2;
+            const unsigned four = (all & 1) | (all >> 2 & 2) | (all >> 4 & 4) | (all >> 6 & 8);
+            bits |= std::uint64_t(four) << j;
+        }
+        out[w] = bits;
+    }
+}
+#endif
+
 /// How one leaf goes into the file: OpenVDB's per-node indicator (the enum in Compression.h),
 /// the inactive values it stores (codes 2, 4, 5; inactive[1] is the one a selection mask marks)
 /// and the leaf's size in bytes.
@@ -220,6 +278,36 @@ int stored_inactive_values(const LeafCode<T>& c) {
                : 0;
 }
 
+/// What classify_leaf's walk over the inactive voxels finds (their distinct values in `seen`,
+/// their number in `n`) when those values are only bg and -bg, as in nearly every leaf of the
+/// splat's grids: found from the voxels equal to each, a few vector compares, instead of a walk
+/// over every inactive voxel, which went to the end of 7,262 of each grid's 7,278 leaves on the
+/// bunny at 0.5 mm (its volume written at 1 thread: 0.081 -> 0.064 s). False, with nothing set,
+/// for other leaves.
+template <typename T>
+bool inactive_of_background(const std::uint64_t* on, const T* values, const T& bg, T* seen,
+                            int& n) {
+    std::uint64_t plus[8], minus[8];
+    equal_bits(values, bg, plus);
+    const T minus_bg = -bg;
+    const bool symmetric = minus_bg == bg;  // a zero background
+    if (!symmetric) equal_bits(values, minus_bg, minus);
+    std::uint64_t any_plus = 0, any_minus = 0;
+    for (int w = 0; w < 8; ++w) {
+        const std::uint64_t off = ~on[w];
+        const std::uint64_t m = symmetric ? 0 : off & minus[w];
+        if (off & ~plus[w] & ~m) return false;  // another value
+        any_plus |= off & plus[w];
+        any_minus |= m;
+    }
+    // The walk's order of first meeting does not matter: one value is taken as it is, and of
+    // two, bg is put second.
+    n = 0;
+    if (any_minus) seen[n++] = minus_bg;
+    if (any_plus) seen[n++] = bg;
+    return true;
+}
+
 /// The indicator of a leaf from its distinct inactive values (compared with ==, in the order
 /// met, at most three counted) and the tree's background bg: none or only +bg need nothing;
 /// one other value is stored (or flagged, for -bg); two values need a selection mask (bit set
@@ -230,14 +318,16 @@ LeafCode<T> classify_leaf(const std::uint64_t* on, const T* values, const T& bg)
     LeafCode<T> c;
     T seen[2] = {bg, bg};
     int n = 0;
-    for_each_bit(on, /*off=*/true, [&](int i) {
-        const T& v = values[i];
-        if (!((n > 0 && v == seen[0]) || (n > 1 && v == seen[1]))) {
-            if (n < 2) seen[n] = v;
-            ++n;
-        }
-        return n < 3;
-    });
+    if (!inactive_of_background(on, values, bg, seen, n)) {
+        for_each_bit(on, /*off=*/true, [&](int i) {
+            const T& v = values[i];
+            if (!((n > 0 && v == seen[0]) || (n > 1 && v == seen[1]))) {
+                if (n < 2) seen[n] = v;
+                ++n;
+            }
+            return n < 3;
+        });
+    }
     const T minus_bg = -bg;
     if (n == 1 && !(seen[0] == bg)) {
         c.code =
@@ -253,11 +343,7 @@ LeafCode<T> classify_leaf(const std::uint64_t* on, const T* values, const T& bg)
     }
     c.inactive[0] = seen[0];
     c.inactive[1] = seen[1];
-    std::size_t count = kLeafValues;
-    if (c.code != vio::NO_MASK_AND_ALL_VALS) {
-        count = 0;
-        for (int w = 0; w < 8; ++w) count += openvdb::util::CountOn(on[w]);
-    }
+    const std::size_t count = c.code == vio::NO_MASK_AND_ALL_VALS ? kLeafValues : count_on(on);
     c.bytes = kMaskBytes + 1 + sizeof(T) * (std::size_t(stored_inactive_values(c)) + count) +
               (has_selection_mask(c) ? kMaskBytes : 0);
     return c;
@@ -277,11 +363,9 @@ void write_leaf(const std::uint64_t* on, const T* values, const LeafCode<T>& c, 
         return;
     }
     if (has_selection_mask(c)) {
-        std::uint64_t selection[8] = {};
-        for_each_bit(on, /*off=*/true, [&](int i) {
-            if (values[i] == c.inactive[1]) selection[i >> 6] |= std::uint64_t(1) << (i & 63);
-            return true;
-        });
+        std::uint64_t selection[8];  // the inactive voxels of the second value
+        equal_bits(values, c.inactive[1], selection);
+        for (int w = 0; w < 8; ++w) selection[w] &= ~on[w];
         std::memcpy(out, selection, kMaskBytes);
         out += kMaskBytes;
     }

@@ -594,7 +594,8 @@ TEST_CASE("vdb files: the density grid is the sdf's valid voxels' ramp, pruned",
 TEST_CASE("vdb files: the bytes openvdb::io::File writes, with a UUID from the content", "[io]") {
     // write_volume writes the leaf buffers itself (src/vdb_file.cpp). Leaves are made to take
     // every one of the format's seven ways of storing inactive values, in both orders where the
-    // order matters, with NaN and -0, in float and Vec3f grids, beside tiles and an empty grid.
+    // order matters, with NaN and -0, in float and Vec3f grids (backgrounds 0 and not), beside
+    // tiles and an empty grid.
     initialize_openvdb();
     const float bg = 0.3f;
     Volume v;
@@ -637,11 +638,25 @@ TEST_CASE("vdb files: the bytes openvdb::io::File writes, with a UUID from the c
     nacc.setValueOff(openvdb::Coord(16, 0, 1), openvdb::Vec3f(0, 1, 0));
     nacc.setValueOff(openvdb::Coord(16, 0, 2), openvdb::Vec3f(0, 2, 0));
     nacc.setValueOff(openvdb::Coord(16, 0, 3), openvdb::Vec3f(0, 3, 0));
-    v.color = openvdb::Vec3fGrid::create();
-    v.color->setName("color");  // empty
+    // Vec3f leaves beside a background other than 0: inactive values -bg only, +bg and -bg
+    // in both orders, and -bg with another value.
+    const openvdb::Vec3f cbg(0.5f, -1.0f, 2.0f);
+    v.color = openvdb::Vec3fGrid::create(cbg);
+    v.color->setName("color");
+    auto cacc = v.color->getAccessor();
+    const std::vector<std::vector<openvdb::Vec3f>> cleaves = {
+        {-cbg}, {cbg, -cbg}, {-cbg, cbg}, {-cbg, openvdb::Vec3f(0.5f, 1.0f, 2.0f)}};
+    for (std::size_t l = 0; l < cleaves.size(); ++l) {
+        const openvdb::Coord o(int(8 * l), 0, 0);
+        cacc.setValueOn(o, openvdb::Vec3f(1, 1, 1));
+        for (int i = 1; i < 512; ++i) {
+            const std::vector<openvdb::Vec3f>& vals = cleaves[l];
+            cacc.setValueOff(o + openvdb::Coord(i >> 6, (i >> 3) & 7, i & 7),
+                             vals[std::size_t(i) % vals.size()]);
+        }
+    }
     v.fill = openvdb::FloatGrid::create(1.0f);
-    v.fill->setName("fill");
-    v.fill->tree().setValueOff(openvdb::Coord(0, 0, 0), -1.0f);
+    v.fill->setName("fill");  // empty
     v.metadata["kernel"] = "gaussian";
     for (const auto& g : {openvdb::GridBase::Ptr(v.weight), openvdb::GridBase::Ptr(v.nearest),
                           openvdb::GridBase::Ptr(v.color), openvdb::GridBase::Ptr(v.fill)}) {

@@ -7,10 +7,15 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <cstdint>
 #include <memory>
 #include <mutex>
 #include <set>
 #include <vector>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "detail/io_common.h"
 #include "detail/vdb_file.h"
@@ -65,6 +70,55 @@ openvdb::FloatTree::Ptr density_by_copy(const openvdb::FloatTree& sdf, float ram
     return tree;
 }
 
+/// The density leaf of an sdf leaf: each active voxel's density, those of density 0 switched
+/// off; null when none is left (all off and 0 is the background). Four voxels at a time over
+/// the buffers and the mask's words where SSE2 is there (x86-64 always), the same values as
+/// density_of one at a time. The bunny's density grid at 0.5 mm, 1 thread: 8.6 -> 2.8 ms
+/// against a value iterator and setValueOn. (In the CLI at 2 threads its leaves' fresh pages
+/// still take ~14 ms: the clean stage beside it holds the memory they would reuse.)
+std::unique_ptr<FloatLeaf> density_leaf(const FloatLeaf& s, float ramp) {
+    auto leaf = std::make_unique<FloatLeaf>(s.origin(), 0.0f, false);
+    const float* sv = s.buffer().data();
+    float* dv = leaf->buffer().data();
+    FloatLeaf::NodeMaskType mask;
+    bool any = false;
+    for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
+        const std::uint64_t on = s.getValueMask().getWord<std::uint64_t>(w);
+        std::uint64_t kept = 0;
+        openvdb::Index j = 0;
+#if defined(__SSE2__)
+        const __m128 half = _mm_set1_ps(0.5f), width = _mm_set1_ps(2.0f * ramp);
+        const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.0f);
+        for (; j < 64; j += 4) {
+            const openvdb::Index i = 64 * w + j;
+            // clamp(v, 0, 1) as std::clamp has it: v < 0 ? 0 : (1 < v ? 1 : v), NaN kept.
+            const __m128 v = _mm_sub_ps(half, _mm_div_ps(_mm_loadu_ps(sv + i), width));
+            const __m128 hi = _mm_cmplt_ps(one, v), lo = _mm_cmplt_ps(v, zero);
+            __m128 d = _mm_or_ps(_mm_and_ps(hi, one), _mm_andnot_ps(hi, v));
+            d = _mm_andnot_ps(lo, d);  // 0 where v < 0
+            const int active = int((on >> j) & 15);
+            const __m128 act = _mm_castsi128_ps(_mm_setr_epi32(
+                -(active & 1), -((active >> 1) & 1), -((active >> 2) & 1), -((active >> 3) & 1)));
+            const __m128 keep = _mm_and_ps(act, _mm_cmpneq_ps(d, zero));
+            _mm_storeu_ps(dv + i, _mm_and_ps(keep, d));
+            kept |= std::uint64_t(_mm_movemask_ps(keep)) << j;
+        }
+#endif
+        for (; j < 64; ++j) {
+            const openvdb::Index i = 64 * w + j;
+            const float d = density_of(sv[i], ramp);
+            const bool keep = ((on >> j) & 1) != 0 && d != 0.0f;
+            dv[i] = keep ? d : 0.0f;
+            kept |= std::uint64_t(keep) << j;
+        }
+        mask.getWord<std::uint64_t>(w) = kept;
+        any = any || kept != 0;
+    }
+    if (!any) return nullptr;
+    leaf->setValueMask(mask);
+    return leaf;
+}
+
 /// The same tree for an sdf without active tiles, made directly: only the leaves that keep a
 /// voxel of density are made, in parallel, and added in leaf order; the prune then turns those
 /// of one value throughout into tiles and merges what the copy's would at the internal levels.
@@ -76,15 +130,7 @@ openvdb::FloatTree::Ptr density_direct(const openvdb::FloatTree& sdf, float ramp
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, made.size(), 64),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                              const FloatLeaf& s = src.leaf(i);
-                              auto leaf = std::make_unique<FloatLeaf>(s.origin(), 0.0f, false);
-                              const float* sv = s.buffer().data();
-                              for (auto it = s.cbeginValueOn(); it; ++it) {
-                                  const float d = density_of(sv[it.pos()], ramp);
-                                  if (d != 0.0f) leaf->setValueOn(it.pos(), d);
-                              }
-                              // All off (and 0) is the background: no leaf.
-                              if (!leaf->isEmpty()) made[i] = std::move(leaf);
+                              made[i] = density_leaf(src.leaf(i), ramp);
                           }
                       });
     openvdb::FloatTree::Ptr tree = std::make_shared<openvdb::FloatTree>(0.0f);

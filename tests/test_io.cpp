@@ -573,6 +573,16 @@ TEST_CASE("vdb files: the density grid is the sdf's valid voxels' ramp, pruned",
     fill_leaf(openvdb::Coord(408, 0, 0), [&](openvdb::Index) { return 2.0f * voxel; });
     fill_leaf(openvdb::Coord(416, 0, 0),
               [&](openvdb::Index i) { return i < 256 ? -voxel : voxel; });
+    // Active and inactive voxels interleaved, densities 0, 1 and between, and -0.
+    auto* mixed = sdf->tree().touchLeaf(openvdb::Coord(424, 0, 0));
+    for (openvdb::Index i = 0; i < 512; ++i) {
+        const float v = i == 5 ? -0.0f : 0.4f * voxel * (float(i % 11) - 5.0f);
+        if (i % 3 == 0) {
+            mixed->setValueOff(i, -v);
+        } else {
+            mixed->setValueOn(i, v);
+        }
+    }
     REQUIRE_FALSE(sdf->tree().hasActiveTiles());
     const openvdb::FloatGrid::Ptr density = make_density(*sdf);
     REQUIRE(density->getName() == "density");

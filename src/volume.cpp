@@ -74,8 +74,9 @@ openvdb::FloatTree::Ptr density_by_copy(const openvdb::FloatTree& sdf, float ram
 /// off; null when none is left (all off and 0 is the background). Four voxels at a time over
 /// the buffers and the mask's words where SSE2 is there (x86-64 always), the same values as
 /// density_of one at a time. The bunny's density grid at 0.5 mm, 1 thread: 8.6 -> 2.8 ms
-/// against a value iterator and setValueOn. (In the CLI at 2 threads its leaves' fresh pages
-/// still take ~14 ms: the clean stage beside it holds the memory they would reuse.)
+/// against a value iterator and setValueOn. (In the CLI at 2 threads, beside the clean stage,
+/// it took 9-18 ms without a page fault, most of it in allocating the leaves from the heap
+/// both threads share.)
 std::unique_ptr<FloatLeaf> density_leaf(const FloatLeaf& s, float ramp) {
     auto leaf = std::make_unique<FloatLeaf>(s.origin(), 0.0f, false);
     const float* sv = s.buffer().data();

@@ -51,31 +51,12 @@ inline float density_of(float s, float ramp) {
     return std::clamp(0.5f - s / (2.0f * ramp), 0.0f, 1.0f);
 }
 
-/// The density tree as a copy of the sdf's topology with every active voxel's density, the
-/// voxels of density 0 switched off, then pruned (make_density's definition).
-openvdb::FloatTree::Ptr density_by_copy(const openvdb::FloatTree& sdf, float ramp) {
-    openvdb::FloatTree::Ptr tree =
-        std::make_shared<openvdb::FloatTree>(sdf, 0.0f, 0.0f, openvdb::TopologyCopy());
-    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(*tree);
-    leaves.foreach ([&](FloatLeaf& leaf, std::size_t) {
-        const auto* src = sdf.probeConstLeaf(leaf.origin());
-        if (!src) return;
-        for (auto it = leaf.beginValueOn(); it; ++it) {
-            const float d = density_of(src->getValue(it.pos()), ramp);
-            it.setValue(d);
-            if (d == 0.0f) it.setValueOff();
-        }
-    });
-    tree->prune(0.0f);
-    return tree;
-}
-
-/// Fills `leaf` (made with the sdf leaf's origin, all off and 0) with the density of each active
-/// voxel of `s`, those of density 0 switched off; whether any is left on (all off and 0 is the
-/// background: no leaf). Four voxels at a time over
-/// the buffers and the mask's words where SSE2 is there (x86-64 always), the same values as
-/// density_of one at a time. The bunny's density grid at 0.5 mm, 1 thread: 8.6 -> 2.8 ms
-/// against a value iterator and setValueOn.
+/// Writes into `leaf` (at the sdf leaf's origin; every value and the mask are written) the
+/// density of each active voxel of `s`, those of density 0 switched off; whether any is left
+/// on (all off and 0 is the background). Four voxels at a time over the buffers and the mask's
+/// words where SSE2 is there (x86-64 always), the same values as density_of one at a time. The
+/// bunny's density grid at 0.5 mm, 1 thread: 8.6 -> 2.8 ms against a value iterator and
+/// setValueOn.
 bool fill_density(const FloatLeaf& s, FloatLeaf* leaf, float ramp) {
     const float* sv = s.buffer().data();
     float* dv = leaf->buffer().data();
@@ -117,11 +98,25 @@ bool fill_density(const FloatLeaf& s, FloatLeaf* leaf, float ramp) {
     return any;
 }
 
-/// The same tree for an sdf without active tiles, made directly: only the leaves that keep a
-/// voxel of density are made, in parallel, and added in leaf order; the prune then turns those
-/// of one value throughout into tiles and merges what the copy's would at the internal levels.
-/// Bunny at 0.5 mm: 14 -> 9 ms at 1 thread (the copy wrote every voxel through a value
-/// iterator and allocated the leaves that the prune frees again).
+/// The density tree as a copy of the sdf's topology with every active voxel's density, the
+/// voxels of density 0 switched off, then pruned (make_density's definition).
+openvdb::FloatTree::Ptr density_by_copy(const openvdb::FloatTree& sdf, float ramp) {
+    openvdb::FloatTree::Ptr tree =
+        std::make_shared<openvdb::FloatTree>(sdf, 0.0f, 0.0f, openvdb::TopologyCopy());
+    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(*tree);
+    leaves.foreach ([&](FloatLeaf& leaf, std::size_t) {
+        const auto* src = sdf.probeConstLeaf(leaf.origin());
+        if (src) fill_density(*src, &leaf, ramp);  // a leaf left all off goes in the prune
+    });
+    tree->prune(0.0f);
+    return tree;
+}
+
+/// The same tree for an sdf without active tiles, made directly: a leaf per sdf leaf, filled
+/// in parallel, and only those that keep a voxel of density added, in leaf order; the prune
+/// then turns those of one value throughout into tiles and merges what the copy's would at the
+/// internal levels. (OpenVDB's topology copy allocates every leaf from all threads at once and
+/// keeps the empty ones for the prune to free.)
 openvdb::FloatTree::Ptr density_direct(const openvdb::FloatTree& sdf, float ramp) {
     openvdb::tree::LeafManager<const openvdb::FloatTree> src(sdf);
     // The leaves are allocated on one thread, then filled in parallel: allocated from two

@@ -130,8 +130,8 @@ struct SplatState {
     float max_r = 0.0f;  ///< largest kernel radius so far, voxels
     double sigma_min = std::numeric_limits<double>::infinity(), sigma_max = 0.0;
     std::vector<double> sigma_medians;  ///< one per cloud, world units
-    /// The first cloud, not summed yet (owned): alone, its volume is made from its sums in
-    /// double, as splat() makes it; it is summed onto the grids when a second cloud comes.
+    /// The first cloud, not summed yet (owned): alone, its volume is made from its block sums,
+    /// as splat() makes it; it is summed onto the grids when a second cloud comes.
     std::optional<PointCloud> first;
 };
 
@@ -257,50 +257,60 @@ struct BlockOut {
 
 /// Per-voxel sums of one block, as separate arrays: w, the averaging weight u = amp * w, u * phi,
 /// and the nearest sample (squared distance, index units, and its point; the first sample in
-/// point order wins ties). Aligned for the vector rows (add_piece_avx2).
+/// point order wins ties). Float: a 16-voxel block row is one AVX-512 register, and each update
+/// moves half the bytes of double sums (at 1 thread the splat took 0.448 -> 0.384 s on the
+/// bunny at 0.5 mm). A voxel sums a few dozen to a few thousand terms; against double sums the
+/// meshes moved by 3e-6 voxel on average, 1e-3 at most (bunny, dragon, Autzen; F and Chamfer
+/// the same to 4 digits), and the grids between clouds were float already. Aligned for the
+/// vector rows.
 struct alignas(64) BlockSums {
-    double w[kBlockVoxels], u[kBlockVoxels], uphi[kBlockVoxels], d2[kBlockVoxels];
+    float w[kBlockVoxels], u[kBlockVoxels], uphi[kBlockVoxels], d2[kBlockVoxels];
     std::uint32_t nearest[kBlockVoxels];
 };
 /// Per-voxel colour sums of one block (u * rgb), one array per channel (the vector rows).
 struct alignas(64) ColorSums {
-    double r[kBlockVoxels], g[kBlockVoxels], b[kBlockVoxels];
+    float r[kBlockVoxels], g[kBlockVoxels], b[kBlockVoxels];
 };
 
 /// One (block, point) piece: the kernel's box clipped to the block (block-local voxels lo..hi
 /// per axis) and, per axis and voxel t of that range, the Gaussian factor g, the squared distance
-/// d2 (index units) and the linear basis' share ph (world units).
+/// d2 (index units) and the linear basis' share ph (world units), made in double and rounded
+/// to the sums' float. Rows of a block's 16 voxels, zero outside the range (vector loads).
 struct Piece {
     int lo[3], hi[3];
-    double g[3][kBlockDim], d2[3][kBlockDim], ph[3][kBlockDim];
-    double r2, amp;
+    alignas(64) float g[3][kBlockDim];
+    alignas(64) float d2[3][kBlockDim];
+    alignas(64) float ph[3][kBlockDim];
+    float r2, amp;
     std::uint32_t point;
 };
 
 /// Adds the piece to the sums, one spherical-support run of voxels per (x, y) row; returns the
-/// number of voxel updates.
+/// number of voxel updates. The vector paths below make the same float operations in the same
+/// order on every voxel (no FMA: fp-contract is off where the target has it).
 template <bool kColors>
 std::size_t add_piece(const Piece& p, const float* col, BlockSums& sums, ColorSums* csums) {
     std::size_t updates = 0;
-    const double *gx = p.g[0], *gy = p.g[1], *gz = p.g[2];
-    const double *dx2 = p.d2[0], *dy2 = p.d2[1], *dz2 = p.d2[2];
-    const double *px = p.ph[0], *py = p.ph[1], *pz = p.ph[2];
+    const float *gx = p.g[0], *gy = p.g[1], *gz = p.g[2];
+    const float *dx2 = p.d2[0], *dy2 = p.d2[1], *dz2 = p.d2[2];
+    const float *px = p.ph[0], *py = p.ph[1], *pz = p.ph[2];
     for (int x = p.lo[0]; x <= p.hi[0]; ++x) {
         for (int y = p.lo[1]; y <= p.hi[1]; ++y) {
-            const double dxy2 = dx2[x] + dy2[y];
+            const float dxy2 = dx2[x] + dy2[y];
             if (dxy2 > p.r2) continue;
-            // The row's voxels inside the spherical support: one run, as dz^2 is convex.
+            // The row's voxels inside the spherical support: one run, as dz^2 is convex (and
+            // rounding, monotone, keeps dxy2 + dz2 falling then rising).
             int z0 = p.lo[2], z1 = p.hi[2];
             while (z0 <= z1 && dxy2 + dz2[z0] > p.r2) ++z0;
             while (z1 >= z0 && dxy2 + dz2[z1] > p.r2) --z1;
-            const double wxy = gx[x] * gy[y];
-            const double pxy = px[x] + py[y];
+            const float wxy = gx[x] * gy[y];
+            const float pxy = px[x] + py[y];
             const int row = (x << (2 * kBlockLog2)) | (y << kBlockLog2);
             for (int z = z0; z <= z1; ++z) {
                 const int i = row | z;
-                const double d2 = dxy2 + dz2[z];
-                const double w = wxy * gz[z];
-                const double u = p.amp * w;
+                const float d2 = dxy2 + dz2[z];
+                const float w = wxy * gz[z];
+                const float u = p.amp * w;
                 sums.w[i] += w;
                 sums.u[i] += u;
                 sums.uphi[i] += u * (pxy + pz[z]);
@@ -308,9 +318,9 @@ std::size_t add_piece(const Piece& p, const float* col, BlockSums& sums, ColorSu
                 sums.d2[i] = nearer ? d2 : sums.d2[i];
                 sums.nearest[i] = nearer ? p.point : sums.nearest[i];
                 if (kColors) {
-                    csums->r[i] += u * double(col[0]);
-                    csums->g[i] += u * double(col[1]);
-                    csums->b[i] += u * double(col[2]);
+                    csums->r[i] += u * col[0];
+                    csums->g[i] += u * col[1];
+                    csums->b[i] += u * col[2];
                 }
             }
             updates += std::size_t(std::max(0, z1 - z0 + 1));
@@ -320,65 +330,62 @@ std::size_t add_piece(const Piece& p, const float* col, BlockSums& sums, ColorSu
 }
 
 #ifdef VDBRECON_HAVE_AVX2_PATHS
-/// add_piece four voxels of a row at a time (AVX2), bit for bit the same sums: every
-/// voxel sees the same double operations in the same order, lanes outside the piece's box or
-/// the support add exact zeros (the sums are never -0) and keep their nearest sample. Lanes
-/// are the aligned quads of the 16-voxel block row, so loads and stores stay inside the row.
-/// No FMA: a fused multiply-add would round differently from the scalar code.
+/// add_piece eight voxels of a row at a time (AVX2), bit for bit the same sums: every voxel
+/// sees the same float operations in the same order, lanes outside the piece's box or the
+/// support add exact zeros (the sums are never -0) and keep their nearest sample. Lanes are the
+/// aligned halves of the 16-voxel block row, so loads and stores stay inside the row.
 template <bool kColors>
-__attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, const float* col,
-                                                           BlockSums& sums, ColorSums* csums) {
+__attribute__((target("avx2"), optimize("fp-contract=off"))) std::size_t add_piece_avx2(
+    const Piece& p, const float* col, BlockSums& sums, ColorSums* csums) {
     std::size_t updates = 0;
-    __m256d rgb[3];
-    for (int c = 0; c < 3; ++c) rgb[c] = _mm256_set1_pd(kColors ? double(col[c]) : 0.0);
-    const __m256d r2 = _mm256_set1_pd(p.r2), amp = _mm256_set1_pd(p.amp);
-    const __m256d lane = _mm256_setr_pd(0.0, 1.0, 2.0, 3.0);
-    const __m256d zlo = _mm256_set1_pd(double(p.lo[2])), zhi = _mm256_set1_pd(double(p.hi[2]));
-    const __m128i point = _mm_set1_epi32(int(p.point));
-    const __m256i low_halves = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
-    const int zb0 = p.lo[2] & ~3;
-    // The box part of each quad's mask does not depend on the row.
-    __m256d box[kBlockDim / 4];
-    for (int zb = zb0; zb <= p.hi[2]; zb += 4) {
-        const __m256d z = _mm256_add_pd(_mm256_set1_pd(double(zb)), lane);
-        box[zb >> 2] = _mm256_and_pd(_mm256_cmp_pd(z, zlo, _CMP_GE_OQ),
-                                     _mm256_cmp_pd(z, zhi, _CMP_LE_OQ));
+    __m256 rgb[3];
+    for (int c = 0; c < 3; ++c) rgb[c] = _mm256_set1_ps(kColors ? col[c] : 0.0f);
+    const __m256 r2 = _mm256_set1_ps(p.r2), amp = _mm256_set1_ps(p.amp);
+    const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    const __m256i zlo = _mm256_set1_epi32(p.lo[2] - 1), zhi = _mm256_set1_epi32(p.hi[2] + 1);
+    const __m256i point = _mm256_set1_epi32(int(p.point));
+    const int zb0 = p.lo[2] & ~7;
+    // The box part of each half's mask does not depend on the row.
+    __m256 box[kBlockDim / 8];
+    for (int zb = zb0; zb <= p.hi[2]; zb += 8) {
+        const __m256i z = _mm256_add_epi32(_mm256_set1_epi32(zb), lane);
+        box[zb >> 3] = _mm256_castsi256_ps(
+            _mm256_and_si256(_mm256_cmpgt_epi32(z, zlo), _mm256_cmpgt_epi32(zhi, z)));
     }
-    const double *dx2 = p.d2[0], *dy2 = p.d2[1];
+    const float *dx2 = p.d2[0], *dy2 = p.d2[1];
     for (int x = p.lo[0]; x <= p.hi[0]; ++x) {
         for (int y = p.lo[1]; y <= p.hi[1]; ++y) {
-            const double dxy2_s = dx2[x] + dy2[y];
+            const float dxy2_s = dx2[x] + dy2[y];
             if (dxy2_s > p.r2) continue;
-            const __m256d dxy2 = _mm256_set1_pd(dxy2_s);
-            const __m256d wxy = _mm256_set1_pd(p.g[0][x] * p.g[1][y]);
-            const __m256d pxy = _mm256_set1_pd(p.ph[0][x] + p.ph[1][y]);
+            const __m256 dxy2 = _mm256_set1_ps(dxy2_s);
+            const __m256 wxy = _mm256_set1_ps(p.g[0][x] * p.g[1][y]);
+            const __m256 pxy = _mm256_set1_ps(p.ph[0][x] + p.ph[1][y]);
             const int row = (x << (2 * kBlockLog2)) | (y << kBlockLog2);
-            for (int zb = zb0; zb <= p.hi[2]; zb += 4) {
-                const __m256d d2 = _mm256_add_pd(dxy2, _mm256_loadu_pd(p.d2[2] + zb));
-                const __m256d in = _mm256_and_pd(box[zb >> 2], _mm256_cmp_pd(d2, r2, _CMP_LE_OQ));
-                const int m = _mm256_movemask_pd(in);
+            for (int zb = zb0; zb <= p.hi[2]; zb += 8) {
+                const __m256 d2 = _mm256_add_ps(dxy2, _mm256_load_ps(p.d2[2] + zb));
+                const __m256 in = _mm256_and_ps(box[zb >> 3], _mm256_cmp_ps(d2, r2, _CMP_LE_OQ));
+                const int m = _mm256_movemask_ps(in);
                 if (m == 0) continue;
                 updates += std::size_t(__builtin_popcount(unsigned(m)));
                 const int i = row | zb;
-                const __m256d w = _mm256_and_pd(in, _mm256_mul_pd(wxy, _mm256_loadu_pd(p.g[2] + zb)));
-                const __m256d u = _mm256_mul_pd(amp, w);
-                const __m256d uphi = _mm256_and_pd(
-                    in, _mm256_mul_pd(u, _mm256_add_pd(pxy, _mm256_loadu_pd(p.ph[2] + zb))));
-                _mm256_store_pd(sums.w + i, _mm256_add_pd(_mm256_load_pd(sums.w + i), w));
-                _mm256_store_pd(sums.u + i, _mm256_add_pd(_mm256_load_pd(sums.u + i), u));
-                _mm256_store_pd(sums.uphi + i, _mm256_add_pd(_mm256_load_pd(sums.uphi + i), uphi));
-                const __m256d old = _mm256_load_pd(sums.d2 + i);
-                const __m256d nearer = _mm256_and_pd(in, _mm256_cmp_pd(d2, old, _CMP_LT_OQ));
-                _mm256_store_pd(sums.d2 + i, _mm256_blendv_pd(old, d2, nearer));
-                const __m128i nearer32 = _mm256_castsi256_si128(
-                    _mm256_permutevar8x32_epi32(_mm256_castpd_si256(nearer), low_halves));
-                auto* n = reinterpret_cast<__m128i*>(sums.nearest + i);
-                _mm_store_si128(n, _mm_blendv_epi8(_mm_load_si128(n), point, nearer32));
+                const __m256 w = _mm256_and_ps(in, _mm256_mul_ps(wxy, _mm256_load_ps(p.g[2] + zb)));
+                const __m256 u = _mm256_mul_ps(amp, w);
+                const __m256 uphi = _mm256_and_ps(
+                    in, _mm256_mul_ps(u, _mm256_add_ps(pxy, _mm256_load_ps(p.ph[2] + zb))));
+                _mm256_store_ps(sums.w + i, _mm256_add_ps(_mm256_load_ps(sums.w + i), w));
+                _mm256_store_ps(sums.u + i, _mm256_add_ps(_mm256_load_ps(sums.u + i), u));
+                _mm256_store_ps(sums.uphi + i, _mm256_add_ps(_mm256_load_ps(sums.uphi + i), uphi));
+                const __m256 old = _mm256_load_ps(sums.d2 + i);
+                const __m256 nearer = _mm256_and_ps(in, _mm256_cmp_ps(d2, old, _CMP_LT_OQ));
+                _mm256_store_ps(sums.d2 + i, _mm256_blendv_ps(old, d2, nearer));
+                auto* n = reinterpret_cast<__m256i*>(sums.nearest + i);
+                _mm256_store_si256(n, _mm256_blendv_epi8(_mm256_load_si256(n), point,
+                                                         _mm256_castps_si256(nearer)));
                 if (kColors) {  // u is +0 on the lanes outside
-                    double* to[3] = {csums->r + i, csums->g + i, csums->b + i};
+                    float* to[3] = {csums->r + i, csums->g + i, csums->b + i};
                     for (int c = 0; c < 3; ++c) {
-                        _mm256_store_pd(
-                            to[c], _mm256_add_pd(_mm256_load_pd(to[c]), _mm256_mul_pd(u, rgb[c])));
+                        _mm256_store_ps(
+                            to[c], _mm256_add_ps(_mm256_load_ps(to[c]), _mm256_mul_ps(u, rgb[c])));
                     }
                 }
             }
@@ -387,61 +394,50 @@ __attribute__((target("avx2"))) std::size_t add_piece_avx2(const Piece& p, const
     return updates;
 }
 
-/// add_piece_avx2 eight voxels at a time (AVX-512): the aligned halves of the 16-voxel block
-/// row, one or two per row of a kernel's support instead of two or three quads. Lanes outside
-/// the piece's box or the support are masked off, and the sums see the scalar loop's double
-/// operations in its order, so the result is the same bit for bit. fp-contract is off, as
-/// AVX-512 implies FMA and GCC would otherwise fuse the multiplies and adds.
+/// add_piece_avx2 sixteen voxels at a time (AVX-512): a whole block row, one step per row of a
+/// kernel's support. Lanes outside the piece's box or the support are masked off, and the sums
+/// see the scalar loop's float operations in its order, so the result is the same bit for bit.
 template <bool kColors>
 __attribute__((target("avx512f,avx512vl"), optimize("fp-contract=off"))) std::size_t
 add_piece_avx512(const Piece& p, const float* col, BlockSums& sums, ColorSums* csums) {
     std::size_t updates = 0;
-    __m512d rgb[3];
-    for (int c = 0; c < 3; ++c) rgb[c] = _mm512_set1_pd(kColors ? double(col[c]) : 0.0);
-    const __m512d r2 = _mm512_set1_pd(p.r2), amp = _mm512_set1_pd(p.amp);
-    const __m256i point = _mm256_set1_epi32(int(p.point));
-    const int zb0 = p.lo[2] & ~7;
-    // The box part of each half's mask does not depend on the row.
-    __mmask8 box[kBlockDim / 8];
-    for (int zb = zb0; zb <= p.hi[2]; zb += 8) {
-        const int first = std::max(p.lo[2] - zb, 0), last = std::min(p.hi[2] - zb, 7);
-        box[zb >> 3] = __mmask8((0xffu << first) & (0xffu >> (7 - last)));
-    }
-    const double *dx2 = p.d2[0], *dy2 = p.d2[1];
+    __m512 rgb[3];
+    for (int c = 0; c < 3; ++c) rgb[c] = _mm512_set1_ps(kColors ? col[c] : 0.0f);
+    const __m512 r2 = _mm512_set1_ps(p.r2), amp = _mm512_set1_ps(p.amp);
+    const __m512i point = _mm512_set1_epi32(int(p.point));
+    // The box part of the mask does not depend on the row.
+    const __mmask16 box = __mmask16((0xffffu << p.lo[2]) & (0xffffu >> (15 - p.hi[2])));
+    const __m512 dz2 = _mm512_load_ps(p.d2[2]), gz = _mm512_load_ps(p.g[2]);
+    const __m512 pz = _mm512_load_ps(p.ph[2]);
+    const float *dx2 = p.d2[0], *dy2 = p.d2[1];
     for (int x = p.lo[0]; x <= p.hi[0]; ++x) {
         for (int y = p.lo[1]; y <= p.hi[1]; ++y) {
-            const double dxy2_s = dx2[x] + dy2[y];
+            const float dxy2_s = dx2[x] + dy2[y];
             if (dxy2_s > p.r2) continue;
-            const __m512d dxy2 = _mm512_set1_pd(dxy2_s);
-            const __m512d wxy = _mm512_set1_pd(p.g[0][x] * p.g[1][y]);
-            const __m512d pxy = _mm512_set1_pd(p.ph[0][x] + p.ph[1][y]);
-            const int row = (x << (2 * kBlockLog2)) | (y << kBlockLog2);
-            for (int zb = zb0; zb <= p.hi[2]; zb += 8) {
-                const __m512d d2 = _mm512_add_pd(dxy2, _mm512_loadu_pd(p.d2[2] + zb));
-                const __mmask8 in = _mm512_mask_cmp_pd_mask(box[zb >> 3], d2, r2, _CMP_LE_OQ);
-                if (in == 0) continue;
-                updates += std::size_t(__builtin_popcount(unsigned(in)));
-                const int i = row | zb;
-                const __m512d w = _mm512_mul_pd(wxy, _mm512_loadu_pd(p.g[2] + zb));
-                const __m512d u = _mm512_mul_pd(amp, w);
-                const __m512d uphi =
-                    _mm512_mul_pd(u, _mm512_add_pd(pxy, _mm512_loadu_pd(p.ph[2] + zb)));
-                const __m512d sw = _mm512_load_pd(sums.w + i), su = _mm512_load_pd(sums.u + i);
-                const __m512d sp = _mm512_load_pd(sums.uphi + i);
-                _mm512_store_pd(sums.w + i, _mm512_mask_add_pd(sw, in, sw, w));
-                _mm512_store_pd(sums.u + i, _mm512_mask_add_pd(su, in, su, u));
-                _mm512_store_pd(sums.uphi + i, _mm512_mask_add_pd(sp, in, sp, uphi));
-                const __mmask8 nearer =
-                    _mm512_mask_cmp_pd_mask(in, d2, _mm512_load_pd(sums.d2 + i), _CMP_LT_OQ);
-                _mm512_mask_store_pd(sums.d2 + i, nearer, d2);
-                _mm256_mask_store_epi32(sums.nearest + i, nearer, point);
-                if (kColors) {
-                    double* to[3] = {csums->r + i, csums->g + i, csums->b + i};
-                    for (int c = 0; c < 3; ++c) {
-                        const __m512d sc = _mm512_load_pd(to[c]);
-                        _mm512_store_pd(to[c],
-                                        _mm512_mask_add_pd(sc, in, sc, _mm512_mul_pd(u, rgb[c])));
-                    }
+            const __m512 d2 = _mm512_add_ps(_mm512_set1_ps(dxy2_s), dz2);
+            const __mmask16 in = _mm512_mask_cmp_ps_mask(box, d2, r2, _CMP_LE_OQ);
+            if (in == 0) continue;
+            updates += std::size_t(__builtin_popcount(unsigned(in)));
+            const int i = (x << (2 * kBlockLog2)) | (y << kBlockLog2);
+            const __m512 w = _mm512_mul_ps(_mm512_set1_ps(p.g[0][x] * p.g[1][y]), gz);
+            const __m512 u = _mm512_mul_ps(amp, w);
+            const __m512 uphi =
+                _mm512_mul_ps(u, _mm512_add_ps(_mm512_set1_ps(p.ph[0][x] + p.ph[1][y]), pz));
+            const __m512 sw = _mm512_load_ps(sums.w + i), su = _mm512_load_ps(sums.u + i);
+            const __m512 sp = _mm512_load_ps(sums.uphi + i);
+            _mm512_store_ps(sums.w + i, _mm512_mask_add_ps(sw, in, sw, w));
+            _mm512_store_ps(sums.u + i, _mm512_mask_add_ps(su, in, su, u));
+            _mm512_store_ps(sums.uphi + i, _mm512_mask_add_ps(sp, in, sp, uphi));
+            const __mmask16 nearer =
+                _mm512_mask_cmp_ps_mask(in, d2, _mm512_load_ps(sums.d2 + i), _CMP_LT_OQ);
+            _mm512_mask_store_ps(sums.d2 + i, nearer, d2);
+            _mm512_mask_store_epi32(sums.nearest + i, nearer, point);
+            if (kColors) {
+                float* to[3] = {csums->r + i, csums->g + i, csums->b + i};
+                for (int c = 0; c < 3; ++c) {
+                    const __m512 sc = _mm512_load_ps(to[c]);
+                    _mm512_store_ps(to[c],
+                                    _mm512_mask_add_ps(sc, in, sc, _mm512_mul_ps(u, rgb[c])));
                 }
             }
         }
@@ -544,16 +540,16 @@ void load_state(const SplatState& state, const openvdb::Coord& o, double voxel, 
         for (int v = 0; v < kLeafVoxels; ++v) {
             if (!(w[v] > 0.0f)) continue;
             const int i = block_index(s, v);
-            sums.w[i] = double(w[v]);
-            sums.u[i] = double(u[v]);
-            sums.uphi[i] = double(uphi[v]);
-            sums.d2[i] = openvdb::Vec3d(nearest[v]).lengthSqr() * inv_voxel2;
+            sums.w[i] = w[v];
+            sums.u[i] = u[v];
+            sums.uphi[i] = uphi[v];
+            sums.d2[i] = float(openvdb::Vec3d(nearest[v]).lengthSqr() * inv_voxel2);
             sums.nearest[i] = kNoPoint;
             if (color) {
                 const openvdb::Vec3f& c = color[v];
-                csums->r[i] = double(c[0]);
-                csums->g[i] = double(c[1]);
-                csums->b[i] = double(c[2]);
+                csums->r[i] = c[0];
+                csums->g[i] = c[1];
+                csums->b[i] = c[2];
             }
         }
     }
@@ -574,18 +570,16 @@ void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kern
         openvdb::Vec3f* color = state.colors ? state.color->tree().probeLeaf(lo)->buffer().data() : nullptr;
         for (int v = 0; v < kLeafVoxels; ++v) {
             const int i = block_index(s, v);
-            if (!(sums.w[i] > 0.0)) continue;
-            w[v] = float(sums.w[i]);
-            u[v] = float(sums.u[i]);
-            uphi[v] = float(sums.uphi[i]);
+            if (!(sums.w[i] > 0.0f)) continue;
+            w[v] = sums.w[i];
+            u[v] = sums.u[i];
+            uphi[v] = sums.uphi[i];
             if (sums.nearest[i] != kNoPoint) {
                 const openvdb::Vec3d k = kernels.centre(sums.nearest[i]);
                 const openvdb::Coord c = FloatLeaf::offsetToLocalCoord(openvdb::Index(v)) + lo;
                 nearest[v] = openvdb::Vec3f((k - c.asVec3d()) * voxel);
             }
-            if (color)
-                color[v] =
-                    openvdb::Vec3f(float(csums->r[i]), float(csums->g[i]), float(csums->b[i]));
+            if (color) color[v] = openvdb::Vec3f(csums->r[i], csums->g[i], csums->b[i]);
         }
     }
 }
@@ -598,14 +592,14 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
                  const PointCloud& cloud, double voxel, double min_weight, float background,
                  int vector_rows, SplatState* state, BlockSums& sums, ColorSums* csums,
                  BlockOut& out) {
-    std::fill(std::begin(sums.w), std::end(sums.w), 0.0);
-    std::fill(std::begin(sums.u), std::end(sums.u), 0.0);
-    std::fill(std::begin(sums.uphi), std::end(sums.uphi), 0.0);
-    std::fill(std::begin(sums.d2), std::end(sums.d2), std::numeric_limits<double>::infinity());
+    std::fill(std::begin(sums.w), std::end(sums.w), 0.0f);
+    std::fill(std::begin(sums.u), std::end(sums.u), 0.0f);
+    std::fill(std::begin(sums.uphi), std::end(sums.uphi), 0.0f);
+    std::fill(std::begin(sums.d2), std::end(sums.d2), std::numeric_limits<float>::infinity());
     if (kColors) {
-        std::fill(std::begin(csums->r), std::end(csums->r), 0.0);
-        std::fill(std::begin(csums->g), std::end(csums->g), 0.0);
-        std::fill(std::begin(csums->b), std::end(csums->b), 0.0);
+        std::fill(std::begin(csums->r), std::end(csums->r), 0.0f);
+        std::fill(std::begin(csums->g), std::end(csums->g), 0.0f);
+        std::fill(std::begin(csums->b), std::end(csums->b), 0.0f);
     }
     if (state) load_state(*state, o, voxel, sums, csums);
     Piece p{};  // zeroed: the vector rows read (and mask out) lanes outside the box
@@ -615,8 +609,8 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
         if (!clip_to_block(support_box(k), o, p.lo, p.hi)) continue;
         out.leaves |= std::uint8_t(leaf_mask(p.lo, p.hi));
         const double inv_s2 = k.inv_s2, rho = std::exp(-2.0 * inv_s2);
-        p.r2 = double(k.r) * double(k.r);
-        p.amp = double(k.amp);
+        p.r2 = float(double(k.r) * double(k.r));
+        p.amp = k.amp;
         p.point = q->point;
         // Gaussian on consecutive voxels by recurrence, two exp() per axis instead of one per
         // voxel: g(d+1) = g(d) q(d), q(d) = exp(-(2d+1)/s^2), q(d+1) = q(d) exp(-2/s^2).
@@ -629,9 +623,9 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
             double qt = std::exp(-(2.0 * d0 + 1.0) * inv_s2);
             for (int t = p.lo[a]; t <= p.hi[a]; ++t) {
                 const double d = double(o[a] + t) - c[a];
-                p.d2[a][t] = d * d;
-                p.g[a][t] = gt;
-                p.ph[a][t] = double(nc[a]) * d * voxel;  // world units
+                p.d2[a][t] = float(d * d);
+                p.g[a][t] = float(gt);
+                p.ph[a][t] = float(double(nc[a]) * d * voxel);  // world units
                 gt *= qt;
                 qt *= rho;
             }
@@ -1324,8 +1318,8 @@ void sum_onto(SplatState& st, const PointCloud& cloud) {
     st.sigma_medians.push_back(sums.sigma_median);
 }
 
-/// The volume of an accumulator that holds one cloud: its blocks' sums in double made into
-/// output leaves directly, as splat() does (no crease model).
+/// The volume of an accumulator that holds one cloud: its blocks' sums made into output leaves
+/// directly, as splat() does (no crease model).
 SplatResult single_cloud_result(const SplatOptions& options, const PointCloud& cloud) {
     CloudSums sums;
     const Kernels kernels = added_kernels(cloud, options, sums);

@@ -143,11 +143,12 @@ struct SplatState;
 /// time, so memory follows the grid, not the number of frames. result() is the volume of all
 /// clouds added so far, by the rules of splat(); adding the same clouds in the same order gives
 /// the same grids bit for bit for any thread count. What differs from one splat() of all of
-/// them at once: the sums are kept in float between clouds (in double within one; the first
-/// cloud is held until a second comes, so the volume of one cloud is made from its sums in
-/// double, without grids of sums), the area normalisation's reference sigma is the voxel (a
-/// constant factor of every u that cancels in sdf = sum u phi / sum u), and there is no crease
-/// model (it needs every sample of a leaf at once).
+/// them at once: the sums are kept in grids between clouds (the first cloud is held until a
+/// second comes, so the volume of one cloud is made from its block sums, without grids of
+/// sums) and the nearest sample's distance is read back from the `nearest` grid, the area
+/// normalisation's reference sigma is the voxel (a constant factor of every u that cancels in
+/// sdf = sum u phi / sum u), and there is no crease model (it needs every sample of a leaf at
+/// once).
 class SplatAccumulator {
   public:
     /// Throws InvalidArgument when the options are out of range. Clouds added must have

@@ -1,11 +1,14 @@
 #include <tbb/global_control.h>
 
 #include <cmath>
+#include <cstdint>
 #include <cstdlib>
+#include <cstring>
 #include <random>
 #include <set>
 #include <tuple>
 
+#include "detail/exp8.h"
 #include "detail/kernels.h"
 #include "grid_compare.h"
 #include "shapes.h"
@@ -218,6 +221,53 @@ TEST_CASE("the vector rows give the scalar rows' grids bit for bit", "[splat]") 
             if (colored) REQUIRE(same_grids(*scalar.volume.color, *vector->volume.color));
         }
     }
+}
+
+TEST_CASE("exp8 is within 2 ulp of exp and gives the same bits on every path", "[splat]") {
+    // The splat's Gaussians come from exp8 (detail/exp8.h): its scalar and AVX-512 paths must
+    // agree bit for bit (the grids may not depend on the CPU) and stay close to exp().
+    const auto ulps = [](double a, double b) {
+        std::int64_t ia, ib;
+        std::memcpy(&ia, &a, 8);
+        std::memcpy(&ib, &b, 8);
+        return std::abs(ia - ib);  // both positive: the distance of their bit patterns
+    };
+    std::vector<double> x = {0.0,
+                             -0.0,
+                             1e-300,
+                             -1e-17,
+                             0.5 * std::log(2.0),
+                             -0.5 * std::log(2.0),
+                             -std::log(2.0),
+                             1.0,
+                             -1.0,
+                             -2.0,
+                             -9.0,
+                             -16.5,
+                             700.0,
+                             detail::kExp8Min,
+                             -706.0,
+                             -1e6};
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> wide(-700.0, 700.0), narrow(-20.0, 0.0);
+    for (int i = 0; i < 20000; ++i) x.push_back(i % 2 ? wide(rng) : narrow(rng));
+    while (x.size() % 8) x.push_back(-3.0);
+    std::vector<int> paths = {0, 1};  // 1: the scalar loop too
+    if (detail::wide_vector_loops()) paths.push_back(2);
+    INFO("paths available: " << paths.size());
+    std::int64_t worst = 0;
+    for (std::size_t i = 0; i < x.size(); i += 8) {
+        double y[3][8];
+        for (int path : paths) detail::exp8(&x[i], y[path], path);
+        for (int j = 0; j < 8; ++j) {
+            const double want = std::exp(std::max(x[i + j], detail::kExp8Min));
+            INFO("x = " << x[i + j]);
+            REQUIRE(std::isfinite(y[0][j]));
+            worst = std::max(worst, ulps(y[0][j], want));
+            for (int path : paths) REQUIRE(std::memcmp(&y[path][j], &y[0][j], 8) == 0);
+        }
+    }
+    REQUIRE(worst <= 2);
 }
 
 TEST_CASE("a scan too wide for 32-bit block keys gives the grids of its parts", "[splat]") {

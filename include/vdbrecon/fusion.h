@@ -95,7 +95,8 @@ struct DepthOptions {
     /// 0 = every sample its own kernel.
     double aggregate = 1.5;
     /// Samples gathered before they are splatted together (0: every frame on its own). Only
-    /// time and memory depend on it (and the last bits of the sums: a batch sums in double):
+    /// time and memory depend on it (and the last bits of the grids: a batch's cell groups are
+    /// summed once more, and its nearest samples are compared with the stored ones' distances):
     /// the same options give the same grids for any thread count.
     std::size_t batch_samples = std::size_t(1) << 21;
     /// Depth up to which pixels have full confidence; beyond it the confidence falls as
@@ -226,7 +227,7 @@ class Fusion {
     SplatResult fused(bool take) const;
 
     // Samples are gathered into batches of depth.batch_samples before they are splatted (a
-    // batch sums in double and touches each block's stored sums once): presummed frames'
+    // batch touches each block's stored sums once): presummed frames'
     // groups into the batch's cell groups (groups_, the frames' groups of one cell summed
     // once more), samples not presummed (depth.aggregate 0) into pending_. Flushing a batch
     // does not change what the fusion holds, so the const accessors may do it.

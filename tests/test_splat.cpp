@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <random>
 #include <set>
 #include <tuple>
@@ -268,6 +269,14 @@ TEST_CASE("exp8 is within 2 ulp of exp and gives the same bits on every path", "
         }
     }
     REQUIRE(worst <= 2);
+    // NaN (never an argument of the splat's) gives exp(kExp8Min) on every path alike.
+    double nan[8], y[3][8];
+    std::fill(nan, nan + 8, std::numeric_limits<double>::quiet_NaN());
+    for (int path : paths) detail::exp8(nan, y[path], path);
+    const double floor_value = detail::exp8_scalar_one(detail::kExp8Min);
+    for (int path : paths) {
+        for (int j = 0; j < 8; ++j) REQUIRE(std::memcmp(&y[path][j], &floor_value, 8) == 0);
+    }
 }
 
 TEST_CASE("a scan too wide for 32-bit block keys gives the grids of its parts", "[splat]") {

@@ -8,8 +8,9 @@
 // (truncation below 2e-16 relative) as 1 + (r + r^2 Q(r)), Q by Estrin's scheme (its terms in
 // parallel: a shorter chain of dependent operations than Horner's, which one vector call
 // waits on), and 2^k added to the exponent bits. Within 2 ulp of exp() for x in
-// [kExp8Min, 700]; arguments below kExp8Min give exp(kExp8Min), ~1e-304. Every path makes the same
-// double operations in the same order (no FMA: fp-contract is off where the target has it).
+// [kExp8Min, 700]; arguments below kExp8Min (and NaN, which the splat never passes) give
+// exp(kExp8Min), ~1e-304. Every path makes the same double operations in the same order (no
+// FMA: fp-contract is off).
 #pragma once
 
 #include <algorithm>
@@ -52,7 +53,7 @@ constexpr double kInvFactorial[13] = {
 /// exp(x) by the scalar path: the lanes of exp8_avx512 bit for bit.
 inline double exp8_scalar_one(double x) {
     using namespace exp8_constants;
-    x = std::max(x, kExp8Min);
+    x = x > kExp8Min ? x : kExp8Min;  // as _mm512_max_pd(x, min): NaN gives min too
     const double k = std::nearbyint(x * kLog2e);
     const double r = (x - k * kLn2Hi) - k * kLn2Lo;
     const double* c = kInvFactorial;

@@ -276,7 +276,8 @@ struct alignas(64) ColorSums {
 /// One (block, point) piece: the kernel's box clipped to the block (block-local voxels lo..hi
 /// per axis) and, per axis and voxel t of that range, the Gaussian factor g, the squared distance
 /// d2 (index units) and the linear basis' share ph (world units), made in double and rounded
-/// to the sums' float. Rows of a block's 16 voxels, zero outside the range (vector loads).
+/// to the sums' float. Rows of a block's 16 voxels: the vector paths load whole rows and mask
+/// out the entries outside the range (zero at first, then what earlier pieces left there).
 struct Piece {
     int lo[3], hi[3];
     alignas(64) float g[3][kBlockDim];
@@ -630,9 +631,8 @@ void store_state(SplatState& state, const openvdb::Coord& o, const Kernels& kern
 /// the block's output leaves).
 template <bool kColors, typename P>
 void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Kernels& kernels,
-                 const PointCloud& cloud, double voxel, double min_weight, float background,
-                 int vector_rows, SplatState* state, BlockSums& sums, ColorSums* csums,
-                 BlockOut& out) {
+                 const PointCloud& cloud, double voxel, const ValidRule& rule, int vector_rows,
+                 SplatState* state, BlockSums& sums, ColorSums* csums, BlockOut& out) {
     std::fill(std::begin(sums.w), std::end(sums.w), 0.0f);
     std::fill(std::begin(sums.u), std::end(sums.u), 0.0f);
     std::fill(std::begin(sums.uphi), std::end(sums.uphi), 0.0f);
@@ -694,7 +694,6 @@ void splat_block(const openvdb::Coord& o, const P* begin, const P* end, const Ke
         return;
     }
     // The block's eight leaves, each written only when one of its voxels is valid.
-    const ValidRule rule(min_weight, voxel, background);
     for (int s = 0; s < 8; ++s) {
         struct At {
             const BlockSums& sums;
@@ -923,7 +922,8 @@ void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::si
         check_memory(need(num_leaves), setup.options, what.str().c_str());
     }
     const bool colors = setup.cloud.has_colors();
-    const double min_weight = setup.options.min_weight, voxel = setup.options.voxel_size;
+    const double voxel = setup.options.voxel_size;
+    const ValidRule rule(setup.options.min_weight, voxel, setup.background);
     // 2: AVX-512 rows, 1: AVX2 rows, 0: the scalar loop.
     const int vector_rows = detail::vector_loops() ? (detail::wide_vector_loops() ? 2 : 1) : 0;
     const std::size_t first_block = blocks.size();
@@ -938,13 +938,13 @@ void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::si
             const Pair<Key>* e = pairs.data() + block_begin[B + 1];
             BlockOut& out = blocks[first_block + B];
             if (colors) {
-                splat_block<true>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel,
-                                  min_weight, setup.background, vector_rows, setup.state,
-                                  *scratch.sums, scratch.csums.get(), out);
+                splat_block<true>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel, rule,
+                                  vector_rows, setup.state, *scratch.sums, scratch.csums.get(),
+                                  out);
             } else {
-                splat_block<false>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel,
-                                   min_weight, setup.background, vector_rows, setup.state,
-                                   *scratch.sums, scratch.csums.get(), out);
+                splat_block<false>(codec.origin(b->key), b, e, kernels, setup.cloud, voxel, rule,
+                                   vector_rows, setup.state, *scratch.sums, scratch.csums.get(),
+                                   out);
             }
         }
     });

@@ -4,6 +4,7 @@
 // io_pcd) depend on this file, never on each other's.
 #include "detail/io_common.h"
 
+#include <fcntl.h>
 #include <sys/stat.h>
 #include <tbb/parallel_for.h>
 #include <unistd.h>
@@ -90,6 +91,23 @@ AtomicFile::AtomicFile(const std::string& final_path) : final_(final_path) {
     register_temp_file(temp_);
 }
 
+int move_into_place(const std::string& temp, const std::string& final_path) {
+    struct stat st {};
+    if (::lstat(final_path.c_str(), &st) == 0 && S_ISREG(st.st_mode)) {
+        // Swapped, then the older file (now under the temporary name) removed: ext4 turns a
+        // rename over an existing file into a flush of the new file's data (auto_da_alloc: 24 ms
+        // for the bunny's 35 MB .vdb on the 2-core VM, against 8 ms for the removal). The swap is
+        // atomic like the rename: the final name always holds a whole file, the old or the new.
+        if (::renameat2(AT_FDCWD, temp.c_str(), AT_FDCWD, final_path.c_str(), RENAME_EXCHANGE) ==
+            0) {
+            ::unlink(temp.c_str());  // fails only on an I/O error: the old file stays there
+            return 0;
+        }
+        // EINVAL: a filesystem that cannot swap; anything else, rename tells again.
+    }
+    return std::rename(temp.c_str(), final_path.c_str()) == 0 ? 0 : errno;
+}
+
 AtomicFile::~AtomicFile() {
     if (file_) std::fclose(file_);
     if (!committed_) std::remove(temp_.c_str());
@@ -129,19 +147,15 @@ std::string StagedOutputs::final_names(std::string message) const {
 }
 
 void StagedOutputs::commit_all() {
-    // Side by side (in the caller's arena: one after another with one thread). A rename over
-    // an older file is slow on ext4: it drops the old file's cached pages and flushes the new
-    // one (auto_da_alloc), 5-20 ms for the bunny's 36 MB .vdb and 17 MB mesh.
+    // Side by side (in the caller's arena: one after another with one thread): each removal of
+    // an older output drops its cached pages (8 ms for the bunny's 35 MB .vdb on the VM).
     std::vector<int> failed(files_.size(), 0);  // errno
     tbb::parallel_for(std::size_t(0), files_.size(), [&](std::size_t i) {
         Entry& e = files_[i];
         struct stat st {};
         if (::stat(e.temp.c_str(), &st) != 0) return;  // not written (e.g. an empty preview)
-        if (std::rename(e.temp.c_str(), e.final.c_str()) != 0) {
-            failed[i] = errno;
-        } else {
-            e.committed = true;
-        }
+        failed[i] = move_into_place(e.temp, e.final);
+        e.committed = failed[i] == 0;
     });
     for (std::size_t i = 0; i < files_.size(); ++i) {
         if (failed[i] == 0) continue;
@@ -199,9 +213,9 @@ void AtomicFile::commit() {
             throw IoError(where(final_, std::string("write failed: ") + std::strerror(err)));
         }
     }
-    if (std::rename(temp_.c_str(), final_.c_str()) != 0) {
+    if (const int err = move_into_place(temp_, final_)) {
         throw IoError(where(final_, std::string("cannot rename the temporary file into place: ") +
-                                        std::strerror(errno)));
+                                        std::strerror(err)));
     }
     committed_ = true;
 }

@@ -1,5 +1,7 @@
 #include <openvdb/io/File.h>
 #include <openvdb/tools/LevelSetSphere.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -442,6 +444,40 @@ TEST_CASE("writes are atomic: failures leave no file behind", "[io]") {
     // A good write leaves exactly the target (no temp files).
     write_points(dir.file("x.ply"), c);
     REQUIRE(count_files(dir.path()) == 1);
+}
+
+TEST_CASE("writes replace an older file, a link to one and a hard-linked one as rename would",
+          "[io]") {
+    TempDir dir;
+    const PointCloud small = sample_sphere(10, 1.0), large = sample_sphere(20, 1.0);
+    REQUIRE(small.size() != large.size());
+    const std::string x = dir.file("x.ply"), y = dir.file("y.ply"), z = dir.file("z.ply");
+    write_points(x, small);
+    write_points(x, large);  // swapped with the older file, which is then removed
+    REQUIRE(count_files(dir.path()) == 1);
+    REQUIRE(read_points(x).cloud.size() == large.size());
+    // A symbolic link at the target is replaced, not followed: its target keeps its data.
+    write_points(y, small);
+    REQUIRE(::unlink(x.c_str()) == 0);
+    REQUIRE(::symlink(y.c_str(), x.c_str()) == 0);
+    write_points(x, large);
+    struct stat st {};
+    REQUIRE(::lstat(x.c_str(), &st) == 0);
+    REQUIRE(S_ISREG(st.st_mode));
+    REQUIRE(read_points(y).cloud.size() == small.size());
+    // A second hard link keeps the old data; the target gets the new.
+    REQUIRE(::link(y.c_str(), z.c_str()) == 0);
+    write_points(y, large);
+    REQUIRE(read_points(y).cloud.size() == large.size());
+    REQUIRE(read_points(z).cloud.size() == small.size());
+    REQUIRE(count_files(dir.path()) == 3);
+    // A directory at the target is refused and left as it was.
+    const std::string d = dir.file("d.ply");
+    REQUIRE(::mkdir(d.c_str(), 0755) == 0);
+    REQUIRE_THROWS_AS(write_points(d, small), IoError);
+    REQUIRE(::stat(d.c_str(), &st) == 0);
+    REQUIRE(S_ISDIR(st.st_mode));
+    REQUIRE(count_files(dir.path()) == 4);
 }
 
 TEST_CASE("LAS: the Autzen tile reads as its PLY twin; classes filter; LAZ is refused", "[io][las]") {

@@ -119,6 +119,12 @@ std::string printable(std::string_view text);
 /// be a directory and be writable, and `path` itself must not be a directory.
 void check_writable(const std::string& path);
 
+/// Moves the file `temp` to `final_path` in the same directory, replacing a file there
+/// atomically, and returns 0 or the errno of the failure. An older regular file is swapped out
+/// (renameat2 RENAME_EXCHANGE) and removed rather than renamed over, which ext4 would turn into
+/// a flush of the new file's data; like rename, nothing is synced to disk.
+int move_into_place(const std::string& temp, const std::string& final_path);
+
 /// Writes to a temporary file in the target directory; commit() renames it onto the final
 /// path. If never committed, the destructor removes the temporary file.
 class AtomicFile {

@@ -1,9 +1,12 @@
 // Format dispatch, the local frame, and the OBJ / XYZ writers (the shared primitives, atomic
 // writes among them, are in io_common.cpp).
+#include "vdbrecon/io.h"
+
 #include <fcntl.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 #include <unistd.h>
 
@@ -14,6 +17,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <map>
 #include <mutex>
@@ -26,7 +30,6 @@
 #include "detail/release.h"
 #include "detail/temp_files.h"
 #include "vdbrecon/error.h"
-#include "vdbrecon/io.h"
 #include "vdbrecon/log.h"
 
 namespace vdbrecon {
@@ -151,6 +154,8 @@ Vec3f local_point(const double* p, const Vec3d& origin, const std::string& path,
 
 namespace {
 
+constexpr std::size_t kRowGrain = 16384;  ///< rows a task of the passes over a cloud's rows
+
 /// The box of finite rows, and the local frame choose_origin picks from it.
 struct RowBounds {
     double lo[3] = {HUGE_VAL, HUGE_VAL, HUGE_VAL}, hi[3] = {-HUGE_VAL, -HUGE_VAL, -HUGE_VAL};
@@ -164,6 +169,15 @@ struct RowBounds {
         for (int a = 0; a < 3; ++a) {
             lo[a] = std::min(lo[a], p[std::size_t(a)]);
             hi[a] = std::max(hi[a], p[std::size_t(a)]);
+        }
+    }
+
+    void merge(const RowBounds& o) {
+        any |= o.any;
+        rows += o.rows;
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = std::min(lo[a], o.lo[a]);
+            hi[a] = std::max(hi[a], o.hi[a]);
         }
     }
 
@@ -195,11 +209,20 @@ struct RowBounds {
     }
 };
 
-/// choose_origin over rows row(i) (std::array<double, 3>).
+/// choose_origin over rows row(i) (std::array<double, 3>), in parallel: the box is the same in
+/// any order.
 template <typename Row>
 Vec3d origin_of_rows(std::size_t rows, const Row& row) {
-    RowBounds b;
-    for (std::size_t i = 0; i < rows; ++i) b.add(row(i));
+    const RowBounds b = tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, rows, kRowGrain), RowBounds{},
+        [&](const tbb::blocked_range<std::size_t>& r, RowBounds part) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) part.add(row(i));
+            return part;
+        },
+        [](RowBounds a, const RowBounds& b) {
+            a.merge(b);
+            return a;
+        });
     return b.origin();
 }
 
@@ -230,40 +253,74 @@ std::vector<Vec3f> take_rows(std::vector<float>&& flat, std::size_t rows) {
 
 namespace {
 
-/// finalize_points for rows [first, first + raw.rows()) of a file, in the frame `origin`: the
-/// cloud and counts into `result` (whose counts add up over chunks), nothing logged.
-void finalize_rows(RawPoints&& raw, const std::string& path, const ReadOptions& options,
-                   const Vec3d& origin, std::size_t first, ReadResult& result) {
-    const std::size_t rows = raw.rows();
-    result.rows += rows;
-    // One pass that drops rows with non-finite coordinates, converts the others and compacts
-    // every attribute in place.
-    PointCloud& cloud = result.cloud;
-    cloud.origin = origin;
-    // Float rows become the positions in place (each row is read before it is overwritten).
-    const bool in_place = !raw.xyz_float.empty();
-    std::vector<Vec3f> positions;
-    if (in_place) {
-        positions = std::move(raw.xyz_float);
-    } else {
-        positions.resize(rows);
+/// What the rows hold before they are converted: those with a NaN or infinite coordinate, and
+/// the first finite one that does not fit in single precision in the frame (local_point).
+struct RowScan {
+    static constexpr std::size_t kNone = std::numeric_limits<std::size_t>::max();
+    std::size_t nonfinite = 0, first_nonfinite = kNone, first_unfit = kNone;
+
+    void merge(const RowScan& o) {
+        nonfinite += o.nonfinite;
+        first_nonfinite = std::min(first_nonfinite, o.first_nonfinite);
+        first_unfit = std::min(first_unfit, o.first_unfit);
     }
+};
+
+RowScan scan_rows(const RawPoints& raw, const Vec3d& origin) {
+    return tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, raw.rows(), kRowGrain), RowScan{},
+        [&](const tbb::blocked_range<std::size_t>& r, RowScan part) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                const std::array<double, 3> p = raw.row(i);
+                if (!finite_row(p.data())) {
+                    ++part.nonfinite;
+                    part.first_nonfinite = std::min(part.first_nonfinite, i);
+                    continue;
+                }
+                for (int a = 0; a < 3; ++a) {
+                    if (!std::isfinite(float(p[std::size_t(a)] - origin[a]))) {
+                        part.first_unfit = std::min(part.first_unfit, i);
+                    }
+                }
+            }
+            return part;
+        },
+        [](RowScan x, const RowScan& y) {
+            x.merge(y);
+            return x;
+        });
+}
+
+/// The rows' positions in the frame, when every row is finite: row by row, in parallel (in place
+/// when `positions` holds the float rows already).
+void convert_rows(const RawPoints& raw, const Vec3d& origin, std::vector<Vec3f>& positions,
+                  bool in_place) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, positions.size(), kRowGrain),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                              const std::array<double, 3> p =
+                                  in_place ? std::array<double, 3>{double(positions[i][0]),
+                                                                   double(positions[i][1]),
+                                                                   double(positions[i][2])}
+                                           : raw.row(i);
+                              for (int a = 0; a < 3; ++a)
+                                  positions[i][a] = float(p[std::size_t(a)] - origin[a]);
+                          }
+                      });
+}
+
+/// The finite rows' positions in the frame, the others dropped and every attribute compacted
+/// with them, in place (one pass, in row order: rarely taken).
+std::size_t compact_rows(RawPoints& raw, const Vec3d& origin, std::vector<Vec3f>& positions,
+                         bool in_place) {
     std::size_t kept = 0;
-    for (std::size_t i = 0; i < rows; ++i) {
-        const std::array<double, 3> row =
+    for (std::size_t i = 0; i < positions.size(); ++i) {
+        const std::array<double, 3> p =
             in_place ? std::array<double, 3>{double(positions[i][0]), double(positions[i][1]),
                                              double(positions[i][2])}
                      : raw.row(i);
-        const double* p = row.data();
-        if (!finite_row(p)) {
-            if (options.non_finite == NonFinitePolicy::error) {
-                throw FormatError(where(path, "row " + std::to_string(first + i) +
-                                                  ": NaN or infinite coordinate"));
-            }
-            if (result.dropped_nonfinite++ == 0) result.first_dropped = first + i;
-            continue;
-        }
-        positions[kept] = local_point(p, cloud.origin, path, "row", first + i);
+        if (!finite_row(p.data())) continue;
+        for (int a = 0; a < 3; ++a) positions[kept][a] = float(p[std::size_t(a)] - origin[a]);
         if (kept != i) {
             for (auto* v : {&raw.normals, &raw.colors}) {
                 if (!v->empty()) std::copy_n(v->data() + 3 * i, 3, v->data() + 3 * kept);
@@ -280,6 +337,74 @@ void finalize_rows(RawPoints&& raw, const std::string& path, const ReadOptions& 
             keep(raw.las.number_of_returns);
         }
         ++kept;
+    }
+    return kept;
+}
+
+/// Unit normals (a unit one stays bit-exact), zero where a normal is zero or not finite; returns
+/// how many are. In parallel.
+std::size_t unit_normals(std::vector<Vec3f>& normals) {
+    return tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, normals.size(), kRowGrain), std::size_t(0),
+        [&](const tbb::blocked_range<std::size_t>& r, std::size_t invalid) {
+            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                Vec3f& n = normals[i];
+                const double len =
+                    std::sqrt(double(n[0]) * n[0] + double(n[1]) * n[1] + double(n[2]) * n[2]);
+                if (!std::isfinite(len) || len < 1e-12) {
+                    n = {0.0f, 0.0f, 0.0f};
+                    ++invalid;
+                } else if (std::fabs(len - 1.0) > 1e-6) {
+                    for (float& c : n) c = float(c / len);
+                }
+            }
+            return invalid;
+        },
+        std::plus<std::size_t>());
+}
+
+/// The errors a pass over the rows in order meets first: a row that does not fit in single
+/// precision; with NonFinitePolicy::error, a NaN or infinite row before it.
+void throw_row_errors(const RowScan& scan, const RawPoints& raw, const Vec3d& origin,
+                      const std::string& path, const ReadOptions& options, std::size_t first) {
+    if (options.non_finite == NonFinitePolicy::error && scan.first_nonfinite < scan.first_unfit) {
+        throw FormatError(where(path, "row " + std::to_string(first + scan.first_nonfinite) +
+                                          ": NaN or infinite coordinate"));
+    }
+    if (scan.first_unfit != RowScan::kNone) {
+        const std::array<double, 3> p = raw.row(scan.first_unfit);
+        local_point(p.data(), origin, path, "row", first + scan.first_unfit);  // throws
+        throw Error("read: internal error: a row neither fits nor fails");
+    }
+}
+
+/// finalize_points for rows [first, first + raw.rows()) of a file, in the frame `origin`: the
+/// cloud and counts into `result` (whose counts add up over chunks), nothing logged.
+void finalize_rows(RawPoints&& raw, const std::string& path, const ReadOptions& options,
+                   const Vec3d& origin, std::size_t first, ReadResult& result) {
+    const std::size_t rows = raw.rows();
+    result.rows += rows;
+    const RowScan scan = scan_rows(raw, origin);
+    throw_row_errors(scan, raw, origin, path, options, first);
+    if (scan.nonfinite > 0) {
+        if (result.dropped_nonfinite == 0) result.first_dropped = first + scan.first_nonfinite;
+        result.dropped_nonfinite += scan.nonfinite;
+    }
+    PointCloud& cloud = result.cloud;
+    cloud.origin = origin;
+    // Float rows become the positions in place (each row is read before it is overwritten).
+    const bool in_place = !raw.xyz_float.empty();
+    std::vector<Vec3f> positions;
+    if (in_place) {
+        positions = std::move(raw.xyz_float);
+    } else {
+        positions.resize(rows);
+    }
+    std::size_t kept = rows;
+    if (scan.nonfinite == 0) {
+        convert_rows(raw, origin, positions, in_place);
+    } else {
+        kept = compact_rows(raw, origin, positions, in_place);
     }
     detail::release(raw.xyz);  // (xyz_float, if any, became the positions)
     positions.resize(kept);
@@ -301,15 +426,7 @@ void finalize_rows(RawPoints&& raw, const std::string& path, const ReadOptions& 
     take(raw.las.intensity, result.las.intensity);
     take(raw.las.return_number, result.las.return_number);
     take(raw.las.number_of_returns, result.las.number_of_returns);
-    for (Vec3f& n : normals) {
-        const double len = std::sqrt(double(n[0]) * n[0] + double(n[1]) * n[1] + double(n[2]) * n[2]);
-        if (!std::isfinite(len) || len < 1e-12) {
-            n = {0.0f, 0.0f, 0.0f};
-            ++result.invalid_normals;
-        } else if (std::fabs(len - 1.0) > 1e-6) {  // unit normals stay bit-exact
-            for (float& c : n) c = float(c / len);
-        }
-    }
+    result.invalid_normals += unit_normals(normals);
     cloud.normals = std::move(normals);
     if (!raw.scales.empty()) {
         raw.scales.resize(kept);

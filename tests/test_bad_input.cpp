@@ -895,6 +895,49 @@ TEST_CASE("fuzz: a coordinate beyond float range is refused, not read as inf", "
     REQUIRE(r.cloud.positions == std::vector<Vec3f>(2, Vec3f{0, 0, 0}));
 }
 
+TEST_CASE("bad rows among many: the first in file order decides, as row by row", "[io][fuzz]") {
+    // The rows are checked in parallel pieces of 16384; what is reported must not depend on that.
+    const auto xyz = [](std::size_t nan_row, std::size_t huge_row) {
+        std::string text;
+        for (std::size_t i = 0; i < 50000; ++i) {
+            if (i == nan_row) {
+                text += "nan 0 0\n";
+            } else if (i == huge_row) {
+                text += "1e39 0 0\n";
+            } else {
+                text += std::to_string(i % 100) + " " + std::to_string(i / 100) + " 1\n";
+            }
+        }
+        return text;
+    };
+    ReadOptions strict;
+    strict.non_finite = NonFinitePolicy::error;
+    const auto error_of = [](const std::string& text, const ReadOptions& o) {
+        try {
+            read_points_from_memory(text, "f.xyz", o);
+        } catch (const Error& e) {
+            return std::string(e.what());
+        }
+        return std::string("(no error)");
+    };
+    const std::string huge = ": coordinate 1e+39 is out of single-precision range";
+    CHECK_THAT(error_of(xyz(20000, 40000), ReadOptions{}),
+               Catch::StartsWith("f.xyz: row 40000" + huge));
+    CHECK(error_of(xyz(20000, 40000), strict) == "f.xyz: row 20000: NaN or infinite coordinate");
+    CHECK_THAT(error_of(xyz(40000, 20000), strict), Catch::StartsWith("f.xyz: row 20000" + huge));
+    // Dropped rows: counted, the first named, the others kept in order.
+    std::string text = xyz(17000, -1);
+    text.replace(text.find("0 330 1\n"), 8, "0 inf 1\n");  // row 33000
+    const ReadResult r = read_points_from_memory(text, "f.xyz");
+    REQUIRE(r.dropped_nonfinite == 2);
+    REQUIRE(r.first_dropped == 17000);
+    REQUIRE(r.cloud.size() == 49998);
+    CHECK(r.cloud.positions[16999] == Vec3f{99, 169, 1});
+    CHECK(r.cloud.positions[17000] == Vec3f{1, 170, 1});  // row 17001
+    CHECK(r.cloud.positions[32999] == Vec3f{1, 330, 1});  // row 33001
+    CHECK(r.cloud.positions[49997] == Vec3f{99, 499, 1});
+}
+
 TEST_CASE("fuzz: file text in messages is escaped and cut short", "[io][fuzz]") {
     // fuzz_ply: an element named with NUL bytes made the message end at the file name.
     const std::string name("a\0b\x1b[1m", 7);

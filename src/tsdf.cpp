@@ -279,16 +279,73 @@ __attribute__((target("avx2"))) std::uint32_t update_row_avx2(const RowCamera& c
     _mm256_storeu_si256(reinterpret_cast<__m256i*>(pixel), i);
     return updated;
 }
+
+/// update_row_avx2 on two rows at once (AVX-512): lanes 0-7 are row r0's voxels, 8-15 row r1's
+/// (r0 and r1 share their z parts, here in 16 lanes: a16). value, weight, pixel and t hold both
+/// rows, r0's first. The same float operations in the same order, so the same bits.
+__attribute__((target("avx512f,avx512vl"), optimize("fp-contract=off"))) std::uint32_t
+update_rows_avx512(const RowCamera& c, const RowVoxels& r0, const RowVoxels& r1,
+                   const float (&a16)[3][16], float* value, float* weight, std::int32_t* pixel,
+                   float* t) {
+    const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f),
+                 half = _mm512_set1_ps(0.5f);
+    const __mmask16 second = 0xff00;  // r1's lanes
+    const __m512 sz = _mm512_mask_blend_ps(second, _mm512_set1_ps(r0.sz), _mm512_set1_ps(r1.sz));
+    const __m512 sx = _mm512_mask_blend_ps(second, _mm512_set1_ps(r0.sx), _mm512_set1_ps(r1.sx));
+    const __m512 sy = _mm512_mask_blend_ps(second, _mm512_set1_ps(r0.sy), _mm512_set1_ps(r1.sy));
+    const __m512 cz = _mm512_add_ps(sz, _mm512_loadu_ps(a16[2]));
+    const __m512 cx = _mm512_add_ps(sx, _mm512_loadu_ps(a16[0]));
+    const __m512 cy = _mm512_add_ps(sy, _mm512_loadu_ps(a16[1]));
+    __mmask16 ok = _mm512_cmp_ps_mask(cz, zero, _CMP_GT_OQ);
+    if (!ok) return 0;
+    const __m512 inv = _mm512_div_ps(one, cz);
+    const __m512 fu = _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(c.fx), cx), inv),
+                                    _mm512_set1_ps(c.cx));
+    const __m512 fv = _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(c.fy), cy), inv),
+                                    _mm512_set1_ps(c.cy));
+    const __m512 lo = _mm512_set1_ps(-0.5f);
+    ok = _mm512_mask_cmp_ps_mask(ok, fu, lo, _CMP_GT_OQ);
+    ok = _mm512_mask_cmp_ps_mask(ok, fu, _mm512_set1_ps(float(c.w) - 0.5f), _CMP_LT_OQ);
+    ok = _mm512_mask_cmp_ps_mask(ok, fv, lo, _CMP_GT_OQ);
+    ok = _mm512_mask_cmp_ps_mask(ok, fv, _mm512_set1_ps(float(c.h) - 0.5f), _CMP_LT_OQ);
+    if (!ok) return 0;
+    // (The maskz forms: GCC 12's plain ones start from an undefined vector and warn.)
+    const __mmask16 all = 0xffff;
+    const __m512i u = _mm512_maskz_min_epi32(
+        all, _mm512_maskz_cvttps_epi32(all, _mm512_floor_ps(_mm512_add_ps(fu, half))),
+        _mm512_set1_epi32(c.w - 1));
+    const __m512i v = _mm512_maskz_min_epi32(
+        all, _mm512_maskz_cvttps_epi32(all, _mm512_floor_ps(_mm512_add_ps(fv, half))),
+        _mm512_set1_epi32(c.h - 1));
+    const __m512i i = _mm512_maskz_add_epi32(ok, _mm512_mullo_epi32(v, _mm512_set1_epi32(c.w)), u);
+    const __m512 d = _mm512_mask_i32gather_ps(zero, ok, i, c.z, 4);
+    const __m512 sdf = _mm512_sub_ps(d, cz);
+    ok = _mm512_mask_cmp_ps_mask(ok, d, zero, _CMP_GT_OQ);
+    ok = _mm512_mask_cmp_ps_mask(ok, sdf, _mm512_set1_ps(-c.trunc), _CMP_NLT_UQ);
+    if (!ok) return 0;
+    const __m512 w0 = _mm512_loadu_ps(weight);
+    const __m512 v0 =
+        _mm512_maskz_mov_ps(_mm512_cmp_ps_mask(w0, zero, _CMP_GT_OQ), _mm512_loadu_ps(value));
+    const __m512 tt = _mm512_maskz_min_ps(all, _mm512_div_ps(sdf, _mm512_set1_ps(c.trunc)), one);
+    const __m512 w1 = _mm512_add_ps(w0, one);
+    const __m512 nv = _mm512_div_ps(_mm512_add_ps(_mm512_mul_ps(v0, w0), tt), w1);
+    _mm512_mask_storeu_ps(value, ok, nv);
+    _mm512_mask_storeu_ps(weight, ok, w1);
+    _mm512_storeu_ps(t, tt);
+    _mm512_storeu_si512(pixel, i);
+    return std::uint32_t(ok);
+}
 #endif
 
 }  // namespace
 
 /// A frame's update of one leaf's voxels (see integrate), a row of 8 voxels at a time
-/// (update_row). The camera-frame coordinates are (m0 p0 + m4 p1) + m8 p2 per axis, the first
-/// part once per row in double, then in float. The leaf's arrays are written in place.
+/// (update_row; with `vector_rows` 1 by AVX2, with 2 two rows at a time by AVX-512). The
+/// camera-frame coordinates are (m0 p0 + m4 p1) + m8 p2 per axis, the first part once per row
+/// in double, then in float. The leaf's arrays are written in place.
 void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<float>& z,
                              const Intrinsics& K, const Pose& m, const LeafColors& lc,
-                             bool vector) const {
+                             int vector_rows) const {
     const openvdb::Coord o = val.origin();
     double p[3][8];  // per axis and leaf coordinate, the voxel's position less the camera's
     for (int a = 0; a < 3; ++a) {
@@ -296,9 +353,9 @@ void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<fl
             p[a][k] = (o[a] + k) * voxel_ + origin_[std::size_t(a)] - m[std::size_t(4 * a + 3)];
         }
     }
-    float a[3][8];  // the z coordinate's part of each camera axis
+    float a[3][16];  // the z coordinate's part of each camera axis (twice, for two rows)
     for (int k = 0; k < 8; ++k) {
-        for (int b = 0; b < 3; ++b) a[b][k] = float(m[std::size_t(8 + b)] * p[2][k]);
+        for (int b = 0; b < 3; ++b) a[b][k] = a[b][k + 8] = float(m[std::size_t(8 + b)] * p[2][k]);
     }
     const RowCamera cam{z.data(),    K.width,     K.height,    float(K.fx),
                         float(K.fy), float(K.cx), float(K.cy), float(truncation_)};
@@ -306,29 +363,44 @@ void TsdfVolume::update_leaf(FloatLeaf& val, FloatLeaf& wt, const std::vector<fl
     float* weight = wt.buffer().data();
     auto& value_on = val.getValueMask();
     auto& weight_on = wt.getValueMask();
-    std::int32_t pixel[8];
-    float t[8];
+    std::int32_t pixel[16];
+    float t[16];
+    const auto row_of = [&](int x, int y) {
+        return RowVoxels{float(m[0] * p[0][x] + m[4] * p[1][y]),
+                         float(m[1] * p[0][x] + m[5] * p[1][y]),
+                         float(m[2] * p[0][x] + m[6] * p[1][y]),
+                         a[0],
+                         a[1],
+                         a[2]};
+    };
+    // The voxels of `updated` (bit k: voxel first + k) are on, and their colours updated.
+    const auto mark = [&](openvdb::Index first, std::uint32_t updated, int lane) {
+        if (!updated) return;
+        value_on.getWord<std::uint8_t>(first >> 3) |= std::uint8_t(updated);
+        weight_on.getWord<std::uint8_t>(first >> 3) |= std::uint8_t(updated);
+        if (lc.pixels) update_colors(lc, first, updated, pixel + lane, t + lane);
+    };
     for (int x = 0; x < 8; ++x) {
-        for (int y = 0; y < 8; ++y) {
-            const RowVoxels row{float(m[0] * p[0][x] + m[4] * p[1][y]),
-                                float(m[1] * p[0][x] + m[5] * p[1][y]),
-                                float(m[2] * p[0][x] + m[6] * p[1][y]),
-                                a[0],
-                                a[1],
-                                a[2]};
+        for (int y = 0; y < 8; y += vector_rows == 2 ? 2 : 1) {
             const openvdb::Index first = openvdb::Index(x << 6 | y << 3);
 #ifdef VDBRECON_HAVE_AVX2_PATHS
+            if (vector_rows == 2) {
+                const std::uint32_t updated =
+                    update_rows_avx512(cam, row_of(x, y), row_of(x, y + 1), a, value + first,
+                                       weight + first, pixel, t);
+                mark(first, updated & 0xffu, 0);
+                mark(first + 8, updated >> 8, 8);
+                continue;
+            }
             const std::uint32_t updated =
-                vector ? update_row_avx2(cam, row, value + first, weight + first, pixel, t)
-                       : update_row(cam, row, value + first, weight + first, pixel, t);
+                vector_rows == 1
+                    ? update_row_avx2(cam, row_of(x, y), value + first, weight + first, pixel, t)
+                    : update_row(cam, row_of(x, y), value + first, weight + first, pixel, t);
 #else
             const std::uint32_t updated =
-                update_row(cam, row, value + first, weight + first, pixel, t);
+                update_row(cam, row_of(x, y), value + first, weight + first, pixel, t);
 #endif
-            if (!updated) continue;
-            value_on.getWord<std::uint8_t>(first >> 3) |= std::uint8_t(updated);
-            weight_on.getWord<std::uint8_t>(first >> 3) |= std::uint8_t(updated);
-            if (lc.pixels) update_colors(lc, first, updated, pixel, t);
+            mark(first, updated, 0);
         }
     }
 }
@@ -425,14 +497,14 @@ std::size_t TsdfVolume::integrate(const TsdfFrame& f) {
     if (f.measured == 0) return 0;
     const std::vector<Vec3f>* colors = f.colors.size() == f.z.size() ? &f.colors : nullptr;
     const std::vector<FloatLeaf*> todo = candidates(f.leaves, colors != nullptr);
-    const bool vector = vector_loops();
+    const int vector_rows = vector_loops() ? (wide_vector_loops() ? 2 : 1) : 0;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, todo.size(), 8),
                       [&](const tbb::blocked_range<std::size_t>& rg) {
         for (std::size_t j = rg.begin(); j < rg.end(); ++j) {
             FloatLeaf& val = *todo[j];
             if (!leaf_seen(val.origin(), f.K, f.pose, f.tiles)) continue;
             FloatLeaf& wt = *weight_->tree().probeLeaf(val.origin());
-            update_leaf(val, wt, f.z, f.K, f.pose, leaf_colors(colors, val.origin()), vector);
+            update_leaf(val, wt, f.z, f.K, f.pose, leaf_colors(colors, val.origin()), vector_rows);
         }
     });
     return f.measured;

@@ -772,7 +772,8 @@ TEST_CASE("tsdf fusion: a sphere is one closed piece, and carving removes an obj
     CHECK(carved == 0);
 }
 
-TEST_CASE("tsdf fusion: the AVX2 rows give the scalar rows' grids bit for bit", "[fusion][tsdf]") {
+TEST_CASE("tsdf fusion: the AVX2 and AVX-512 rows give the scalar rows' grids bit for bit",
+          "[fusion][tsdf]") {
     // A painted part seen from 12 cameras close enough that it leaves the image: voxels behind,
     // in front of and across the surface, projections off the image, and the colour pass.
     const Shape shape = make_shape("boss");
@@ -793,13 +794,18 @@ TEST_CASE("tsdf fusion: the AVX2 rows give the scalar rows' grids bit for bit", 
     ::setenv("VDBRECON_SCALAR", "1", 1);
     const Volume scalar = fused();
     ::unsetenv("VDBRECON_SCALAR");
-    const Volume vector = fused();
+    ::setenv("VDBRECON_NO_AVX512", "1", 1);
+    const Volume avx2 = fused();
+    ::unsetenv("VDBRECON_NO_AVX512");
+    const Volume wide = fused();  // AVX-512 where the CPU has it
     REQUIRE(scalar.sdf->activeVoxelCount() > 10000);
     REQUIRE(scalar.color);
-    REQUIRE(vector.color);
-    CHECK(same_grids(*scalar.sdf, *vector.sdf));
-    CHECK(same_grids(*scalar.weight, *vector.weight));
-    CHECK(same_grids(*scalar.color, *vector.color));
+    for (const Volume* vector : {&avx2, &wide}) {
+        REQUIRE(vector->color);
+        CHECK(same_grids(*scalar.sdf, *vector->sdf));
+        CHECK(same_grids(*scalar.weight, *vector->weight));
+        CHECK(same_grids(*scalar.color, *vector->color));
+    }
 }
 
 TEST_CASE("fuse: scans of a point file, each seen from its own sensor", "[fusion][scans]") {

@@ -98,7 +98,7 @@ class TsdfVolume {
     };
     void update_leaf(FloatLeaf& value, FloatLeaf& weight, const std::vector<float>& z,
                      const Intrinsics& K, const Pose& pose, const LeafColors& colors,
-                     bool vector) const;
+                     int vector_rows) const;
     static void update_colors(const LeafColors& colors, openvdb::Index first, std::uint32_t updated,
                               const std::int32_t* pixel, const float* t);
     struct Scan;

@@ -10,6 +10,7 @@
 #include <utility>
 #include <vector>
 
+#include "detail/radix_sort.h"
 #include "detail/union_find.h"
 #include "vdbrecon/types.h"
 
@@ -37,22 +38,25 @@ struct EdgeSide {
     std::int32_t face, slot;
 };
 
-/// The edges of the faces that `take(f)` accepts, sorted by (key, face): the faces that share
-/// an edge come together, in face order.
+/// The edges of the faces that `take(f)` accepts, sorted by (key, face, slot): the faces that
+/// share an edge come together, in face order. (A stable radix sort of the sides, made in face
+/// and slot order, by key; std::sort took 25 ms of one thread for the 340k sides of a Kinect
+/// frame's unsupported faces.)
 template <typename Take>
 std::vector<EdgeSide> sorted_sides(Span<Triangle> faces, Take take) {
     std::vector<EdgeSide> sides;
+    std::uint64_t largest = 0;
     for (std::size_t f = 0; f < faces.size(); ++f) {
         if (!take(f)) continue;
         const Triangle& t = faces[f];
         for (int k = 0; k < 3; ++k) {
             sides.push_back({edge_key(t[std::size_t(k)], t[std::size_t((k + 1) % 3)]),
                              std::int32_t(f), k});
+            largest = std::max(largest, sides.back().key);
         }
     }
-    std::sort(sides.begin(), sides.end(), [](const EdgeSide& x, const EdgeSide& y) {
-        return x.key != y.key ? x.key < y.key : x.face < y.face;
-    });
+    const int bits = largest == 0 ? 0 : 64 - __builtin_clzll(largest);
+    radix_sort(sides, bits, [](const EdgeSide& e) { return e.key; });
     return sides;
 }
 

@@ -43,6 +43,32 @@ std::vector<std::uint64_t> border_edge_keys(Span<Triangle> faces) {
     return keys;  // undirected_edges is sorted by (a, b), so are the keys
 }
 
+namespace {
+
+/// Unites the faces [first, last) around vertex a that share an edge (a, b): each edge (a, b)
+/// of a face f there with every later face there that holds b.
+void unite_around(Span<Triangle> faces, std::int32_t a, const std::int32_t* first,
+                  const std::int32_t* last, ConcurrentMinUnionFind& sets) {
+    for (const std::int32_t* i = first; i < last; ++i) {
+        const std::int32_t f = *i;
+        if (i > first && i[-1] == f) continue;  // a face listing a twice
+        const Triangle& t = faces[std::size_t(f)];
+        for (int k = 0; k < 3; ++k) {
+            const std::int32_t b = t[std::size_t((k + 1) % 3)];
+            if (t[std::size_t(k)] != a || b == a) continue;  // a degenerate edge joins nothing
+            for (const std::int32_t* j = i + 1; j < last; ++j) {
+                const std::int32_t g = *j;
+                if (g == f) continue;
+                const Triangle& u = faces[std::size_t(g)];
+                if (u[0] != b && u[1] != b && u[2] != b) continue;
+                sets.unite(f, g);
+            }
+        }
+    }
+}
+
+}  // namespace
+
 VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count) {
     return vertex_faces(faces, 0, vertex_count);
 }
@@ -72,40 +98,28 @@ VertexFaces vertex_faces(Span<Triangle> faces, std::size_t lo, std::size_t hi) {
 
 std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count) {
     const std::size_t nf = faces.size();
-    MinUnionFind sets(nf);
+    ConcurrentMinUnionFind sets(nf);
     // A face g around a that holds both ends of an edge (a, b) of face f has that edge too. The
     // faces around each vertex are listed for a range of vertices at a time (about 2^24 corners
-    // a pass), so that a large mesh never holds all 3 nf of them; the labels, the smallest face
-    // of each set, do not depend on the order of the unions.
+    // a pass), so that a large mesh never holds all 3 nf of them; the vertices of a range are
+    // visited in parallel. The labels, the smallest face of each set, do not depend on the order
+    // of the unions.
     constexpr std::size_t kCornersPerPass = std::size_t(1) << 24;
     const std::size_t passes =
         std::max<std::size_t>(1, (3 * nf + kCornersPerPass - 1) / kCornersPerPass);
     const std::size_t span = std::max<std::size_t>(1, (vertex_count + passes - 1) / passes);
     for (std::size_t lo = 0; lo < vertex_count; lo += span) {
         const VertexFaces vf = vertex_faces(faces, lo, std::min(vertex_count, lo + span));
-        // Each edge (a, b) of a face f around a, a in the range.
-        for (std::size_t r = 0; r + 1 < vf.first.size(); ++r) {
-            const auto a = std::int32_t(lo + r);
-            const std::size_t end = vf.first[r + 1];
-            for (std::size_t i = vf.first[r]; i < end; ++i) {
-                const std::int32_t f = vf.around[i];
-                if (i > vf.first[r] && vf.around[i - 1] == f) continue;  // a face listing a twice
-                const Triangle& t = faces[std::size_t(f)];
-                for (int k = 0; k < 3; ++k) {
-                    const std::int32_t b = t[std::size_t((k + 1) % 3)];
-                    if (t[std::size_t(k)] != a || b == a) continue;  // a degenerate edge joins nothing
-                    for (std::size_t j = i + 1; j < end; ++j) {
-                        const std::int32_t g = vf.around[j];
-                        if (g == f) continue;
-                        const Triangle& u = faces[std::size_t(g)];
-                        if (u[0] != b && u[1] != b && u[2] != b) continue;
-                        sets.unite(f, g);
-                    }
-                }
-            }
-        }
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, vf.first.size() - 1, 4096),
+                          [&](const tbb::blocked_range<std::size_t>& range) {
+                              for (std::size_t r = range.begin(); r < range.end(); ++r) {
+                                  unite_around(faces, std::int32_t(lo + r),
+                                               vf.around.data() + vf.first[r],
+                                               vf.around.data() + vf.first[r + 1], sets);
+                              }
+                          });
     }
-    return std::move(sets).labels();
+    return sets.labels();
 }
 
 std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::size_t vertex_count,

@@ -1,6 +1,10 @@
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <random>
 
+#include "detail/union_find.h"
 #include "support.h"
 #include "support_volume.h"
 #include "vdbrecon/clean.h"
@@ -269,4 +273,35 @@ TEST_CASE("clean: options are validated, bad faces rejected", "[clean]") {
     bad.faces.push_back({0, 1, 7});
     REQUIRE_THROWS_AS(clean_mesh(bad), InvalidArgument);
     REQUIRE(clean_mesh(Mesh{}).mesh.faces.empty());
+}
+
+TEST_CASE("union-find: unions from several threads give the one-thread labels", "[clean]") {
+    // 200k elements joined by 150k random pairs (many sets, long chains), in parallel in
+    // pieces of 64 and one after another: the same sets, each labelled by its smallest index.
+    const std::size_t n = 200000;
+    std::mt19937 rng(7);
+    std::uniform_int_distribution<std::int32_t> pick(0, std::int32_t(n) - 1);
+    std::vector<std::pair<std::int32_t, std::int32_t>> pairs(150000);
+    for (auto& p : pairs) p = {pick(rng), pick(rng)};
+    detail::MinUnionFind serial(n);
+    for (const auto& p : pairs) serial.unite(p.first, p.second);
+    const std::vector<std::int32_t> expected = std::move(serial).labels();
+    for (int round = 0; round < 3; ++round) {
+        detail::ConcurrentMinUnionFind sets(n);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, pairs.size(), 64),
+                          [&](const tbb::blocked_range<std::size_t>& r) {
+                              for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                                  sets.unite(pairs[i].first, pairs[i].second);
+                              }
+                          });
+        REQUIRE(sets.labels() == expected);
+    }
+    REQUIRE(std::count_if(expected.begin(), expected.end(), [&](std::int32_t l) {
+                return l != expected[std::size_t(l)];
+            }) == 0);  // labels are roots
+    const std::size_t sets_count = std::size_t(
+        std::count_if(expected.begin(), expected.end(),
+                      [i = std::int32_t(0)](std::int32_t l) mutable { return l == i++; }));
+    CHECK(sets_count > 1000);
+    CHECK(sets_count < n / 2);
 }

@@ -133,19 +133,27 @@ bool finite_row(const double* p) {
     return std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
 }
 
-/// `p - origin` in single precision; throws FormatError naming the row when it does not fit
-/// (a coordinate like 1e300, or points spread wider than float's range).
+/// `p - origin` in single precision into q; returns the first axis where that is not finite
+/// (a coordinate like 1e300, or points spread wider than float's range), or -1.
+int in_frame(const double* p, const Vec3d& origin, Vec3f& q) {
+    int bad = -1;
+    for (int a = 0; a < 3; ++a) {
+        q[a] = float(p[a] - origin[a]);
+        if (bad < 0 && !std::isfinite(q[a])) bad = a;
+    }
+    return bad;
+}
+
+/// in_frame's point; throws FormatError naming the row when it does not fit.
 Vec3f local_point(const double* p, const Vec3d& origin, const std::string& path,
                   const char* row_kind, std::size_t row) {
     Vec3f q;
-    for (int a = 0; a < 3; ++a) {
-        q[a] = float(p[a] - origin[a]);
-        if (!std::isfinite(q[a])) {
-            throw FormatError(where(path, std::string(row_kind) + " " + std::to_string(row) +
-                                              ": coordinate " + format_number(p[a]) +
-                                              " is out of single-precision range (even "
-                                              "relative to the centre of the points)"));
-        }
+    const int a = in_frame(p, origin, q);
+    if (a >= 0) {
+        throw FormatError(where(path, std::string(row_kind) + " " + std::to_string(row) +
+                                          ": coordinate " + format_number(p[a]) +
+                                          " is out of single-precision range (even relative "
+                                          "to the centre of the points)"));
     }
     return q;
 }
@@ -272,15 +280,12 @@ RowScan scan_rows(const RawPoints& raw, const Vec3d& origin) {
         [&](const tbb::blocked_range<std::size_t>& r, RowScan part) {
             for (std::size_t i = r.begin(); i < r.end(); ++i) {
                 const std::array<double, 3> p = raw.row(i);
+                Vec3f q;
                 if (!finite_row(p.data())) {
                     ++part.nonfinite;
                     part.first_nonfinite = std::min(part.first_nonfinite, i);
-                    continue;
-                }
-                for (int a = 0; a < 3; ++a) {
-                    if (!std::isfinite(float(p[std::size_t(a)] - origin[a]))) {
-                        part.first_unfit = std::min(part.first_unfit, i);
-                    }
+                } else if (in_frame(p.data(), origin, q) >= 0) {
+                    part.first_unfit = std::min(part.first_unfit, i);
                 }
             }
             return part;
@@ -291,6 +296,14 @@ RowScan scan_rows(const RawPoints& raw, const Vec3d& origin) {
         });
 }
 
+/// Row i's coordinates: from `positions` when they hold the float rows (in place), else from
+/// the raw rows.
+std::array<double, 3> row_at(const RawPoints& raw, const std::vector<Vec3f>& positions,
+                             bool in_place, std::size_t i) {
+    if (!in_place) return raw.row(i);
+    return {double(positions[i][0]), double(positions[i][1]), double(positions[i][2])};
+}
+
 /// The rows' positions in the frame, when every row is finite: row by row, in parallel (in place
 /// when `positions` holds the float rows already).
 void convert_rows(const RawPoints& raw, const Vec3d& origin, std::vector<Vec3f>& positions,
@@ -298,13 +311,8 @@ void convert_rows(const RawPoints& raw, const Vec3d& origin, std::vector<Vec3f>&
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, positions.size(), kRowGrain),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                              const std::array<double, 3> p =
-                                  in_place ? std::array<double, 3>{double(positions[i][0]),
-                                                                   double(positions[i][1]),
-                                                                   double(positions[i][2])}
-                                           : raw.row(i);
-                              for (int a = 0; a < 3; ++a)
-                                  positions[i][a] = float(p[std::size_t(a)] - origin[a]);
+                              in_frame(row_at(raw, positions, in_place, i).data(), origin,
+                                       positions[i]);
                           }
                       });
 }
@@ -315,12 +323,9 @@ std::size_t compact_rows(RawPoints& raw, const Vec3d& origin, std::vector<Vec3f>
                          bool in_place) {
     std::size_t kept = 0;
     for (std::size_t i = 0; i < positions.size(); ++i) {
-        const std::array<double, 3> p =
-            in_place ? std::array<double, 3>{double(positions[i][0]), double(positions[i][1]),
-                                             double(positions[i][2])}
-                     : raw.row(i);
+        const std::array<double, 3> p = row_at(raw, positions, in_place, i);
         if (!finite_row(p.data())) continue;
-        for (int a = 0; a < 3; ++a) positions[kept][a] = float(p[std::size_t(a)] - origin[a]);
+        in_frame(p.data(), origin, positions[kept]);
         if (kept != i) {
             for (auto* v : {&raw.normals, &raw.colors}) {
                 if (!v->empty()) std::copy_n(v->data() + 3 * i, 3, v->data() + 3 * kept);

@@ -72,8 +72,10 @@ CellGroups::CellGroups(const SplatOptions& options, double cell, bool colors)
     }
 }
 
-void CellGroups::grow() {
-    std::vector<Slot> old(slots_.size() * 2, Slot{kNoKey, kNone});
+void CellGroups::grow(std::size_t cells) {
+    std::size_t size = slots_.size() * 2;
+    while (2 * cells > size) size *= 2;
+    std::vector<Slot> old(size, Slot{kNoKey, kNone});
     old.swap(slots_);
     cells_ = 0;
     last_key_ = kNoKey;
@@ -85,7 +87,7 @@ void CellGroups::grow() {
 std::uint32_t& CellGroups::first_group(std::uint64_t key) {
     // Samples in image order come in runs of one cell (a cell spans a few pixels).
     if (key == last_key_) return slots_[last_slot_].first;
-    if (2 * (cells_ + 1) > slots_.size()) grow();
+    if (2 * (cells_ + 1) > slots_.size()) grow(cells_ + 1);
     const std::size_t mask = slots_.size() - 1;
     // Neighbours along x take neighbouring slots (samples and groups come in spatial order,
     // so the probes stay in a few cache lines); y, z and the level scatter the rows.
@@ -148,7 +150,8 @@ bool CellGroups::add(const PointCloud& cloud) {
         }
     });
     if (outside) return false;
-    while (2 * (cells_ + n / 4) > slots_.size()) grow();  // room for a cell per four samples
+    // Room for a cell per four samples, made at once.
+    if (2 * (cells_ + n / 4) > slots_.size()) grow(cells_ + n / 4);
     // Each sample joins the first group of its cell whose summed normal is less than 90
     // degrees from its own (opposite sides of a thin wall never mix). Normals are summed as
     // they are (a group's mean normal is shorter than 1 where they disagree), so that groups of

@@ -36,11 +36,14 @@ class CellGroups {
     }
 
   private:
+    static constexpr std::uint32_t kNone = 0xffffffffu;
+    /// Trivial, so that a block of them is made without initialising (Blocks::add zeroes each).
     struct Group {
-        double c = 0.0, sigma = 0.0;
-        double p[3] = {0, 0, 0}, n[3] = {0, 0, 0}, rgb[3] = {0, 0, 0};
-        std::uint32_t next = kNone;  ///< the cell's next group
+        double c, sigma;
+        double p[3], n[3], rgb[3];
+        std::uint32_t next;  ///< the cell's next group
     };
+    static constexpr Group kZero{0.0, 0.0, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}, kNone};
     /// The groups in blocks of 4096: growth never copies them, nor holds room for twice as
     /// many (a batch of frames holds ~10^5 groups).
     class Blocks {
@@ -48,10 +51,15 @@ class CellGroups {
         std::size_t size() const { return size_; }
         Group& operator[](std::uint32_t g) { return blocks_[g >> kLog][g & (kSize - 1)]; }
         const Group& operator[](std::uint32_t g) const { return blocks_[g >> kLog][g & (kSize - 1)]; }
-        /// A new zero group; its index.
+        /// A new zero group; its index. A block's groups are zeroed as they are added, not all
+        /// when it is made (4096 constructor calls of a small `rep stos` each cost more).
         std::uint32_t add() {
-            if ((size_ & (kSize - 1)) == 0) blocks_.push_back(std::make_unique<Group[]>(kSize));
-            return std::uint32_t(size_++);
+            if ((size_ & (kSize - 1)) == 0) {
+                blocks_.push_back(std::unique_ptr<Group[]>(new Group[kSize]));
+            }
+            const std::uint32_t g = std::uint32_t(size_++);
+            (*this)[g] = kZero;
+            return g;
         }
         void clear() {
             blocks_.clear();
@@ -68,10 +76,10 @@ class CellGroups {
         std::uint64_t key;
         std::uint32_t first;  ///< the cell's first group
     };
-    static constexpr std::uint32_t kNone = 0xffffffffu;
 
     std::uint32_t& first_group(std::uint64_t key);
-    void grow();
+    /// A table twice as large, or more, so that it holds `cells` at most half full.
+    void grow(std::size_t cells);
 
     SplatOptions options_;
     bool colors_;

@@ -174,6 +174,49 @@ __attribute__((target("avx512f"))) void offer_avx512(int last, std::uint64_t* ke
     }
     for (int r = 0; r < R; ++r) _mm512_storeu_si512(keys + 8 * r, a[r]);
 }
+
+/// The most candidates rank_select_avx512 takes at once (six registers of keys); above it each
+/// candidate's rank costs more compares than offer_avx512's insertions.
+constexpr std::size_t kRankSelectMax = 48;
+
+/// Best::offer_all into an empty list of up to 16 places, by rank instead of insertion: each
+/// candidate's rank is the count of candidates' keys below its own (the keys are distinct, but
+/// for kNoKey, which marks `self`), counted for eight keys to a register at once, and the
+/// candidates of rank below k are scattered to their places. No candidate waits on the one
+/// before (insertion is one chain of dependent steps per candidate entering). The same list as
+/// the other paths: the k smallest keys, ascending, kNoKey past the candidates.
+__attribute__((target("avx512f"))) void rank_select_avx512(int k, std::uint64_t* keys,
+                                                           const float* d, const int* ids,
+                                                           const std::uint32_t* keep,
+                                                           std::size_t kept, int self) {
+    alignas(64) std::uint64_t cand[kRankSelectMax];
+    const std::size_t regs = (kept + 7) / 8;
+    for (std::size_t i = 0; i < kept; ++i) {
+        const std::uint32_t j = keep[i];
+        cand[i] = ids[j] == self ? kNoKey : pair_key(d[j], ids[j]);
+    }
+    for (std::size_t i = kept; i < regs * 8; ++i) cand[i] = kNoKey;
+    __m512i c[kRankSelectMax / 8], rank[kRankSelectMax / 8];
+    for (std::size_t r = 0; r < regs; ++r) {
+        c[r] = _mm512_load_si512(cand + 8 * r);
+        rank[r] = _mm512_setzero_si512();
+    }
+    const __m512i one = _mm512_set1_epi64(1);
+    for (std::size_t i = 0; i < kept; ++i) {
+        const __m512i x = _mm512_set1_epi64(std::int64_t(cand[i]));
+        for (std::size_t r = 0; r < regs; ++r) {
+            rank[r] =
+                _mm512_mask_add_epi64(rank[r], _mm512_cmpgt_epi64_mask(c[r], x), rank[r], one);
+        }
+    }
+    const __m512i places = _mm512_set1_epi64(k);
+    for (std::size_t r = 0; r < regs; ++r) {
+        // kNoKey (self, padding) ranks after every real key; where it lands among the first k
+        // places, it writes the empty mark that is there already.
+        const __mmask8 in = _mm512_cmplt_epi64_mask(rank[r], places);
+        _mm512_mask_i64scatter_epi64(keys, in, rank[r], c[r], 8);
+    }
+}
 #endif
 
 /// The k smallest pair keys seen so far, ascending, in a list whose empty places hold kNoKey
@@ -188,7 +231,10 @@ class Best {
           vector_(detail::vector_loops()) {
         clear();
     }
-    void clear() { std::fill(key_.begin(), key_.end(), kNoKey); }
+    void clear() {
+        std::fill(key_.begin(), key_.end(), kNoKey);
+        empty_ = true;
+    }
     int k() const { return k_; }
     bool full() const { return key_[std::size_t(k_ - 1)] != kNoKey; }
     /// Keys from this one up cannot enter: the last kept key once full, else none.
@@ -197,6 +243,7 @@ class Best {
     float worst() const { return full() ? dist(k_ - 1) : std::numeric_limits<float>::infinity(); }
     /// Inserts `key` in order; the largest key falls off the end.
     void offer(std::uint64_t key) {
+        empty_ = false;
         std::uint64_t* k = key_.data();
         int j = int(key_.size()) - 1;
         while (j > 0 && k[j - 1] > key) {
@@ -210,6 +257,11 @@ class Best {
     void offer_all(const float* d, const int* ids, const std::uint32_t* keep, std::size_t kept,
                    int self) {
 #ifdef VDBRECON_HAVE_AVX2_PATHS
+        const bool empty = empty_;
+        empty_ = false;
+        if (wide_ && key_.size() <= 16 && empty && kept <= kRankSelectMax) {
+            return rank_select_avx512(k_, key_.data(), d, ids, keep, kept, self);
+        }
         if (wide_ && key_.size() <= 16) {
             std::uint64_t* k = key_.data();
             return key_.size() == 8 ? offer_avx512<1>(k_ - 1, k, d, ids, keep, kept, self)
@@ -248,6 +300,7 @@ class Best {
     bool wide_;  ///< offer_all() by AVX-512 (lists of up to 16)
     std::vector<std::uint64_t> key_;
     bool vector_;  ///< offer_all() by AVX2
+    bool empty_ = true;  ///< nothing offered since clear()
 };
 
 /// One answer into its row; dist may be null (distances not kept).

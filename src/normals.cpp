@@ -14,6 +14,7 @@
 
 #include "detail/normal_rules.h"
 #include "detail/pca.h"
+#include "detail/select.h"
 #include "detail/union_find.h"
 #include "vdbrecon/error.h"
 #include "vdbrecon/knn.h"
@@ -1572,9 +1573,12 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
     if (options.scale != ScaleMode::none && cloud.has_scales()) result.scales = cloud.scales;
     auto median_scale = [&result] {
         if (result.scales.empty()) return;
-        std::vector<float> s = result.scales.to_vector();
-        std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
-        result.median_scale = s[s.size() / 2];
+        // What nth_element would put in the middle, without a copy of the scales to reorder
+        // (3 ms of one thread on the bunny's 362k, the other idle). A file's negative or NaN
+        // scales order after all others (select_rank).
+        const Span<float> s = result.scales;
+        result.median_scale =
+            detail::select_rank(s.size() / 2, [&s](const auto& fn) { fn(s.data(), s.size()); });
     };
 
     if (needed == 0 && !need_scale) {

@@ -358,7 +358,6 @@ __attribute__((target("avx2"), optimize("fp-contract=off"))) std::size_t add_pie
     for (int x = p.lo[0]; x <= p.hi[0]; ++x) {
         for (int y = p.lo[1]; y <= p.hi[1]; ++y) {
             const float dxy2_s = dx2[x] + dy2[y];
-            if (dxy2_s > p.r2) continue;
             const __m256 dxy2 = _mm256_set1_ps(dxy2_s);
             const __m256 wxy = _mm256_set1_ps(p.g[0][x] * p.g[1][y]);
             const __m256 pxy = _mm256_set1_ps(p.ph[0][x] + p.ph[1][y]);
@@ -367,7 +366,6 @@ __attribute__((target("avx2"), optimize("fp-contract=off"))) std::size_t add_pie
                 const __m256 d2 = _mm256_add_ps(dxy2, _mm256_load_ps(p.d2[2] + zb));
                 const __m256 in = _mm256_and_ps(box[zb >> 3], _mm256_cmp_ps(d2, r2, _CMP_LE_OQ));
                 const int m = _mm256_movemask_ps(in);
-                if (m == 0) continue;
                 updates += std::size_t(__builtin_popcount(unsigned(m)));
                 const int i = row | zb;
                 const __m256 w = _mm256_and_ps(in, _mm256_mul_ps(wxy, _mm256_load_ps(p.g[2] + zb)));
@@ -412,13 +410,14 @@ add_piece_avx512(const Piece& p, const float* col, BlockSums& sums, ColorSums* c
     const __m512 dz2 = _mm512_load_ps(p.d2[2]), gz = _mm512_load_ps(p.g[2]);
     const __m512 pz = _mm512_load_ps(p.ph[2]);
     const float *dx2 = p.d2[0], *dy2 = p.d2[1];
+    // Every row of the box, the corners outside the support with an empty mask: a branch on
+    // the row (outside the disk, or no lane in) was mispredicted often enough to cost more
+    // (bunny at 0.5 mm, 1 thread: splat 0.380 -> 0.360 s; the AVX2 rows likewise).
     for (int x = p.lo[0]; x <= p.hi[0]; ++x) {
         for (int y = p.lo[1]; y <= p.hi[1]; ++y) {
             const float dxy2_s = dx2[x] + dy2[y];
-            if (dxy2_s > p.r2) continue;
             const __m512 d2 = _mm512_add_ps(_mm512_set1_ps(dxy2_s), dz2);
             const __mmask16 in = _mm512_mask_cmp_ps_mask(box, d2, r2, _CMP_LE_OQ);
-            if (in == 0) continue;
             updates += std::size_t(__builtin_popcount(unsigned(in)));
             const int i = (x << (2 * kBlockLog2)) | (y << kBlockLog2);
             const __m512 w = _mm512_mul_ps(_mm512_set1_ps(p.g[0][x] * p.g[1][y]), gz);
@@ -505,11 +504,23 @@ openvdb::util::NodeMask<3> valid_mask(const At& at, const ValidRule& rule, std::
     for (int row = 0; row < kLeafVoxels / 8; ++row) {
         const float* w = at.w_row(row);
         unsigned summed = 0, full = 0, low = 0;
+#if defined(__x86_64__)
+        // Two halves of four (SSE2 is in every x86-64): ordered comparisons, false for a NaN
+        // as the scalar ones.
+        const __m128 zero = _mm_setzero_ps(), f = _mm_set1_ps(rule.full), l = _mm_set1_ps(rule.low);
+        for (int h = 0; h < 2; ++h) {
+            const __m128 x = _mm_loadu_ps(w + 4 * h);
+            summed |= unsigned(_mm_movemask_ps(_mm_cmpgt_ps(x, zero))) << (4 * h);
+            full |= unsigned(_mm_movemask_ps(_mm_cmpge_ps(x, f))) << (4 * h);
+            low |= unsigned(_mm_movemask_ps(_mm_cmpge_ps(x, l))) << (4 * h);
+        }
+#else
         for (int z = 0; z < 8; ++z) {
             summed |= unsigned(w[z] > 0.0f) << z;
             full |= unsigned(w[z] >= rule.full) << z;
             low |= unsigned(w[z] >= rule.low) << z;
         }
+#endif
         touched += std::size_t(__builtin_popcount(summed));
         unsigned valid = summed & full;
         for (unsigned mid = summed & ~full & low; mid != 0; mid &= mid - 1) {

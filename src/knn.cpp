@@ -359,16 +359,18 @@ __attribute__((target("avx2"))) std::size_t keep_within_avx2(const float* bx, co
 }
 
 /// keep_within_avx2 sixteen candidates at a time (AVX-512; m a multiple of 8, the last step
-/// masked to its 8 where m is not one of 16; keep has room for m + 16): the kept indices are
-/// compressed in a register. fp-contract is off (AVX-512 implies FMA), so the distances are the
-/// other loops' bit for bit.
+/// masked to its 8 where m is not one of 16; keep and near have room for m + 16): the kept
+/// indices are compressed in a register, and those within `guess` too into `near` (their count
+/// in *near_count), in the same pass. No branch on the lanes kept: their compressed indices are
+/// stored in any case, and the next step overwrites them when there are none. fp-contract is
+/// off (AVX-512 implies FMA), so the distances are the other loops' bit for bit.
 __attribute__((target("avx512f"), optimize("fp-contract=off"))) std::size_t keep_within_avx512(
     const float* bx, const float* by, const float* bz, std::size_t m, const float q[3], float bound,
-    float* d, std::uint32_t* keep) {
+    float* d, std::uint32_t* keep, float guess, std::uint32_t* near, std::size_t* near_count) {
     const __m512 qx = _mm512_set1_ps(q[0]), qy = _mm512_set1_ps(q[1]), qz = _mm512_set1_ps(q[2]);
-    const __m512 lim = _mm512_set1_ps(bound);
+    const __m512 lim = _mm512_set1_ps(bound), close = _mm512_set1_ps(guess);
     const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-    std::size_t kept = 0;
+    std::size_t kept = 0, nearer = 0;
     for (std::size_t j = 0; j < m; j += 16) {
         const __mmask16 lanes = m - j >= 16 ? __mmask16(0xffff) : __mmask16(0x00ff);
         const __m512 ex = _mm512_sub_ps(_mm512_maskz_loadu_ps(lanes, bx + j), qx);
@@ -378,12 +380,16 @@ __attribute__((target("avx512f"), optimize("fp-contract=off"))) std::size_t keep
                                         _mm512_mul_ps(ez, ez));
         _mm512_mask_storeu_ps(d + j, lanes, dd);
         const __mmask16 in = _mm512_mask_cmp_ps_mask(lanes, dd, lim, _CMP_LE_OQ);
-        if (in == 0) continue;
-        const __m512i ids =
-            _mm512_maskz_compress_epi32(in, _mm512_add_epi32(iota, _mm512_set1_epi32(int(j))));
-        _mm512_storeu_si512(keep + kept, ids);
+        const __m512i at = _mm512_add_epi32(iota, _mm512_set1_epi32(int(j)));
+        _mm512_storeu_si512(keep + kept, _mm512_maskz_compress_epi32(in, at));
         kept += std::size_t(__builtin_popcount(unsigned(in)));
+        if (near) {
+            const __mmask16 nb = _mm512_mask_cmp_ps_mask(in, dd, close, _CMP_LE_OQ);
+            _mm512_storeu_si512(near + nearer, _mm512_maskz_compress_epi32(nb, at));
+            nearer += std::size_t(__builtin_popcount(unsigned(nb)));
+        }
     }
+    if (near_count) *near_count = nearer;
     return kept;
 }
 #endif
@@ -399,8 +405,11 @@ struct KnnIndex::Impl {
     double extent = 1.0;                 ///< edge of the bounding cube, world units
     double to_grid = 1.0;                ///< finest cells per world unit
     int level = 0;                       ///< the cell level of the cell list
-    std::vector<float> x, y, z;          ///< the points in Morton order
-    std::vector<int> id;                 ///< their indices in the input
+    /// The points in Morton order and their indices in the input, each followed by kCopy
+    /// entries of padding (gather()'s copies).
+    std::vector<float> x, y, z;
+    std::vector<int> id;
+    static constexpr std::size_t kCopy = 16;
     std::vector<std::uint64_t> cell_key;   ///< occupied level-`level` cells, ascending prefixes
     std::vector<std::uint32_t> cell_first;  ///< first point of each (size = cells + 1)
     /// Open-addressing hash table of the occupied cells (slot -> cell number, or kNoCell), so
@@ -503,33 +512,45 @@ struct KnnIndex::Impl {
         std::uint32_t begin[27], end[27];
         int runs = 0;
         std::size_t total = 0;
-        for (const auto& o : kBlockOrder) {
-            std::int64_t cc[3];
-            bool inside = true;
-            for (int a = 0; a < 3; ++a) {
-                cc[a] = std::int64_t(c[a]) + o[a];
-                inside = inside && cc[a] >= 0 && cc[a] <= top;
+        // Each axis' three coordinates spread once (morton() = their interleaving), not 27
+        // times over.
+        std::uint64_t spread_of[3][3];
+        bool inside_of[3][3];
+        for (int a = 0; a < 3; ++a) {
+            for (int d = 0; d < 3; ++d) {
+                const std::int64_t v = std::int64_t(c[a]) + d - 1;
+                inside_of[a][d] = v >= 0 && v <= top;
+                spread_of[a][d] = spread(std::uint64_t(inside_of[a][d] ? v : 0)) << (2 - a);
             }
-            if (!inside) continue;
-            cell_range(l, morton(std::uint32_t(cc[0]), std::uint32_t(cc[1]), std::uint32_t(cc[2])),
-                       begin[runs], end[runs]);
+        }
+        for (const auto& o : kBlockOrder) {
+            const int dx = o[0] + 1, dy = o[1] + 1, dz = o[2] + 1;
+            if (!(inside_of[0][dx] && inside_of[1][dy] && inside_of[2][dz])) continue;
+            cell_range(l, spread_of[0][dx] | spread_of[1][dy] | spread_of[2][dz], begin[runs],
+                       end[runs]);
             total += end[runs] - begin[runs];
             runs += end[runs] > begin[runs];
         }
         // Padded to whole groups of 8 for keep_within(): a NaN candidate is never within any
         // bound, so the padding is never kept, by the scalar loop either.
         b.m = (total + 7) / 8 * 8;
-        b.reserve(b.m);
+        b.reserve(b.m + kCopy);
         float *bx = b.x.data(), *by = b.y.data(), *bz = b.z.data();
         int* bid = b.id.data();
         std::size_t o = 0;
+        // kCopy entries at a time, fixed-size copies that the compiler unrolls: a run's last
+        // copy may read past it (the arrays have kCopy entries of padding) and write past it
+        // (the next run, or the padding below, overwrites them; the block has room).
         for (int r = 0; r < runs; ++r) {
-            for (std::uint32_t j = begin[r]; j < end[r]; ++j, ++o) {
-                bx[o] = x[j];
-                by[o] = y[j];
-                bz[o] = z[j];
-                bid[o] = id[j];
+            const std::size_t len = end[r] - begin[r];
+            for (std::size_t t = 0; t < len; t += kCopy) {
+                const std::size_t j = begin[r] + t;
+                std::memcpy(bx + o + t, x.data() + j, kCopy * sizeof(float));
+                std::memcpy(by + o + t, y.data() + j, kCopy * sizeof(float));
+                std::memcpy(bz + o + t, z.data() + j, kCopy * sizeof(float));
+                std::memcpy(bid + o + t, id.data() + j, kCopy * sizeof(int));
             }
+            o += len;
         }
         const float nan = std::numeric_limits<float>::quiet_NaN();
         for (; o < b.m; ++o) {
@@ -553,13 +574,25 @@ struct KnnIndex::Impl {
     }
 
     /// Squared distances from q to the candidates of `b` (into b.d) and the candidates within
-    /// `bound`, in block order (into b.keep); returns their count.
-    static std::size_t keep_within(Block& b, const float q[3], float bound) {
+    /// `bound`, in block order (into b.keep); returns their count. With `near_count`, also those
+    /// of them within `guess` (into b.near, their count into *near_count).
+    static std::size_t keep_within(Block& b, const float q[3], float bound, float guess = 0.0f,
+                                   std::size_t* near_count = nullptr) {
 #ifdef VDBRECON_HAVE_AVX2_PATHS
         if (b.wide) {
             return keep_within_avx512(b.x.data(), b.y.data(), b.z.data(), b.m, q, bound, b.d.data(),
-                                      b.keep.data());
+                                      b.keep.data(), guess, near_count ? b.near.data() : nullptr,
+                                      near_count);
         }
+#endif
+        const std::size_t kept = keep_within_narrow(b, q, bound);
+        if (near_count) *near_count = near_within(b, kept, guess);
+        return kept;
+    }
+
+    /// keep_within's distances and kept candidates without AVX-512.
+    static std::size_t keep_within_narrow(Block& b, const float q[3], float bound) {
+#ifdef VDBRECON_HAVE_AVX2_PATHS
         if (b.vector)
             return keep_within_avx2(b.x.data(), b.y.data(), b.z.data(), b.m, q, bound, b.d.data(),
                                     b.keep.data());
@@ -581,6 +614,20 @@ struct KnnIndex::Impl {
         return kept;
     }
 
+    /// The first `kept` entries of b.keep within squared distance `guess` (into b.near, in
+    /// order); returns their count.
+    static std::size_t near_within(Block& b, std::size_t kept, float guess) {
+        const float* d = b.d.data();
+        const std::uint32_t* keep = b.keep.data();
+        std::uint32_t* near = b.near.data();
+        std::size_t count = 0;
+        for (std::size_t e = 0; e < kept; ++e) {
+            near[count] = keep[e];
+            count += d[keep[e]] <= guess;
+        }
+        return count;
+    }
+
     /// Offers every candidate of `b` except `self` within squared distance `bound` of q to
     /// `best` (bound: an upper bound of the k-th distance, or infinity when none is known).
     ///
@@ -591,20 +638,13 @@ struct KnnIndex::Impl {
     /// without a bound.
     static void measure(Block& b, const float q[3], int self, float bound, Best& best,
                         float guess = std::numeric_limits<float>::infinity()) {
-        std::size_t kept = keep_within(b, q, bound);
+        std::size_t count = 0;
+        std::size_t kept = keep_within(b, q, bound, guess, guess < bound ? &count : nullptr);
         const float* d = b.d.data();
         const std::uint32_t* keep = b.keep.data();
-        if (guess < bound) {
-            std::uint32_t* near = b.near.data();
-            std::size_t count = 0;
-            for (std::size_t e = 0; e < kept; ++e) {
-                near[count] = keep[e];
-                count += d[keep[e]] <= guess;
-            }
-            if (count > std::size_t(best.k())) {
-                keep = near;
-                kept = count;
-            }
+        if (count > std::size_t(best.k())) {
+            keep = b.near.data();
+            kept = count;
         }
         best.clear();
         best.offer_all(d, b.id.data(), keep, kept, self);
@@ -735,10 +775,10 @@ KnnIndex::KnnIndex(Span<Vec3f> points, const KnnOptions& options) : impl_(std::m
     detail::radix_sort(keyed, 3 * fine, [](const auto& e) { return e.first; });
     for (auto& e : keyed) e.first >>= 3 * (fine - m.level);  // the level-L cell
 
-    m.x.resize(n);
-    m.y.resize(n);
-    m.z.resize(n);
-    m.id.resize(n);
+    m.x.resize(n + Impl::kCopy);
+    m.y.resize(n + Impl::kCopy);
+    m.z.resize(n + Impl::kCopy);
+    m.id.resize(n + Impl::kCopy);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 8192),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
@@ -769,6 +809,8 @@ void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
                             const std::uint32_t* first, const std::uint64_t* keys, std::size_t g0,
                             std::size_t g1, int k, int* idx, float* dist,
                             std::size_t row_base) const {
+    const bool own = order == id.data();  // the queries are the index's points, in its order
+    const float* own_xyz[3] = {x.data(), y.data(), z.data()};
     tbb::parallel_for(tbb::blocked_range<std::size_t>(g0, g1, 16),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         Block block, alone;
@@ -776,31 +818,34 @@ void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
         // The previous query's k-th distance plus the distance between the two bounds this
         // one's (triangle inequality; the margin covers float rounding), also from the last
         // query of the cell before: only speed depends on the bound, never the answer.
-        const float* prev = nullptr;
-        float prev_worst = 0.0f;
+        float prev[3] = {0.0f, 0.0f, 0.0f}, prev_worst = -1.0f;  // -1: no query before
         for (std::size_t g = r.begin(); g < r.end(); ++g) {
             const std::uint32_t c[3] = {compact(keys[g] >> 2), compact(keys[g] >> 1),
                                         compact(keys[g])};
             gather(level, c, block);
             for (std::uint32_t j = first[g]; j < first[g + 1]; ++j) {
                 const std::size_t i = std::size_t(order[j]);
-                const float* p = q[i].data();
+                // The index's own points in its order (self_neighbours) are read from its
+                // copies, in memory order, not from the input (a cache miss a query).
+                float p[3];
+                for (int a = 0; a < 3; ++a) p[a] = own ? own_xyz[a][j] : q[i][a];
                 const int s = self.of(i);
                 float bound = std::numeric_limits<float>::infinity();
-                if (prev) {
+                const bool after = prev_worst >= 0.0f;
+                if (after) {
                     const float ex = p[0] - prev[0], ey = p[1] - prev[1], ez = p[2] - prev[2];
                     const float r = std::sqrt(prev_worst) + std::sqrt(ex * ex + ey * ey + ez * ez);
                     bound = r * r * 1.0001f;
                 }
                 // The previous query's k-th squared distance, a quarter more, as the guess.
                 measure(block, p, s, bound, best,
-                        prev ? 1.25f * prev_worst : std::numeric_limits<float>::infinity());
+                        after ? 1.25f * prev_worst : std::numeric_limits<float>::infinity());
                 if (!best.full()) measure(block, p, s, std::numeric_limits<float>::infinity(), best);
                 if (!settled(best, level, c, p)) answer_alone(p, s, level - 1, alone, best);
                 const std::size_t row = row_base == kByQuery ? i : j - row_base;
                 write_row(best, k, idx + row * std::size_t(k),
                           dist ? dist + row * std::size_t(k) : nullptr);
-                prev = p;
+                std::copy(p, p + 3, prev);
                 prev_worst = best.worst();
             }
         }

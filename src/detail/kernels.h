@@ -34,6 +34,13 @@ class Kernels {
           use_conf_(cloud.has_confidences()) {}
 
     std::size_t size() const { return cloud_.size(); }
+    /// Asks for point i's data ahead of its kernel (a hint: the splat's pieces take their
+    /// points in block order, which is not memory order).
+    void prefetch(std::size_t i) const {
+        __builtin_prefetch(cloud_.positions.data() + i);
+        __builtin_prefetch(cloud_.normals.data() + i);
+        if (use_scale_) __builtin_prefetch(cloud_.scales.data() + i);
+    }
     /// Point i's kernel centre, index units.
     openvdb::Vec3d centre(std::size_t i) const {
         const Vec3f& p = cloud_.positions[i];

@@ -15,6 +15,7 @@
 #include <numeric>
 #include <optional>
 
+#include "detail/compact.h"
 #include "detail/mesh_common.h"
 #include "detail/mesh_graph.h"
 #include "detail/radix_sort.h"
@@ -175,9 +176,15 @@ std::vector<char> classify_points(const Volume& volume, const MeshOptions& optio
     const std::size_t npoints = raw.points.size();
     // Only points some triangle uses are looked at (marching cubes hands over every crossing).
     std::vector<char> used(npoints, 0);
-    for (const Triangle& t : raw.triangles) {
-        for (std::int32_t v : t) used[std::size_t(v)] = 1;
-    }
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, raw.triangles.size(), 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t f = r.begin(); f < r.end(); ++f) {
+                              // Concurrent stores of the same value, as relaxed atomic stores.
+                              for (std::int32_t v : raw.triangles[f])
+                                  __atomic_store_n(&used[std::size_t(v)], char(1),
+                                                   __ATOMIC_RELAXED);
+                          }
+                      });
     std::vector<char> status(npoints, kInvalid);
     const SupportTest support(volume, options);
     const bool need_stencil = raw.check_cells || !own_normals;
@@ -447,15 +454,10 @@ ClassifiedSurface classify_surface(const Volume& volume, const MeshOptions& opti
     out.triangles = std::move(raw.triangles);
     std::vector<Triangle>& tris = out.triangles;
     const std::vector<char>& status = out.status;
-    std::size_t kept = 0;
-    for (const Triangle& t : tris) {
-        if (status[std::size_t(t[0])] && status[std::size_t(t[1])] && status[std::size_t(t[2])]) {
-            tris[kept++] = t;
-        } else {
-            ++out.dropped_faces;
-        }
-    }
-    tris.resize(kept);
+    out.dropped_faces = compact_in_place(tris, [&](std::size_t f) {
+        const Triangle& t = tris[f];
+        return status[std::size_t(t[0])] && status[std::size_t(t[1])] && status[std::size_t(t[2])];
+    });
     out.points = std::move(raw.points);
     if (volume.color) {
         out.colors.assign(npoints, openvdb::Vec3f(0.0f));
@@ -481,15 +483,7 @@ MeshResult finish_surface(ClassifiedSurface&& surface, double voxel, const Vec3d
     // Faces trimmed where unsupported (see trimmed_faces).
     std::vector<Triangle> tris = std::move(surface.triangles);
     const std::vector<char> trim = trimmed_faces(tris, surface.status, npoints);
-    std::size_t kept = 0;
-    for (std::size_t f = 0; f < tris.size(); ++f) {
-        if (trim[f]) {
-            ++result.trimmed_faces;
-        } else {
-            tris[kept++] = tris[f];
-        }
-    }
-    tris.resize(kept);
+    result.trimmed_faces = compact_in_place(tris, [&](std::size_t f) { return !trim[f]; });
 
     // Compact: keep referenced points only, in their original order.
     std::size_t kept_points = 0;

@@ -1,0 +1,39 @@
+// Stable in-place compaction of a vector in parallel (the mesh stage's face filters), on the
+// fixed chunks of detail/radix_sort.h.
+#pragma once
+
+#include <algorithm>
+#include <cstddef>
+#include <vector>
+
+#include "detail/radix_sort.h"
+
+namespace vdbrecon::detail {
+
+/// Keeps the elements v[i] for which keep(i) holds, in their order, and returns how many were
+/// dropped. keep(i) may read v[i] (it is called before v[i] is moved). Each chunk is compacted
+/// within itself in parallel, then the kept runs are moved down in chunk order: one memmove per
+/// chunk instead of a serial pass of element copies over the whole vector.
+template <typename T, typename Keep>
+std::size_t compact_in_place(std::vector<T>& v, Keep&& keep) {
+    const std::size_t n = v.size();
+    std::vector<std::size_t> kept(chunk_count(n), 0);
+    for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        std::size_t out = begin;
+        for (std::size_t i = begin; i < end; ++i) {
+            if (keep(i)) v[out++] = v[i];
+        }
+        kept[c] = out - begin;
+    });
+    std::size_t out = 0;
+    for (std::size_t c = 0; c < kept.size(); ++c) {
+        const auto from = v.begin() + std::ptrdiff_t(c * kChunk);
+        if (out != c * kChunk)
+            std::move(from, from + std::ptrdiff_t(kept[c]), v.begin() + std::ptrdiff_t(out));
+        out += kept[c];
+    }
+    v.resize(out);
+    return n - out;
+}
+
+}  // namespace vdbrecon::detail

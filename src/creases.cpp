@@ -829,17 +829,6 @@ class LeafSums {
 
 }  // namespace
 
-/// The samples by cell (the crease test's index).
-struct CreaseSamples {
-    SampleCells cells;
-};
-
-std::shared_ptr<const CreaseSamples> index_crease_samples(const Kernels& kernels,
-                                                          std::size_t points, double crease_angle) {
-    return std::make_shared<const CreaseSamples>(
-        CreaseSamples{SampleCells(kernels, points, std::cos(0.5 * crease_angle))});
-}
-
 CreaseReach crease_reach(const Kernels& kernels, std::size_t points) {
     CreaseReach reach;
     if (points == 0) return reach;
@@ -857,14 +846,14 @@ CreaseReach crease_reach(const Kernels& kernels, std::size_t points) {
     return reach;
 }
 
-CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels,
-                            const CreaseSamples* samples, double voxel, double crease_angle,
-                            float background, const CreaseReach& reach) {
+CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels, std::size_t points,
+                            double voxel, double crease_angle, float background,
+                            const CreaseReach& reach) {
     CreaseStats stats;
-    if (!(crease_angle > 0.0) || !samples) return stats;
+    if (!(crease_angle > 0.0)) return stats;
     const float r_max = reach.r_max, r_typical = reach.r_typical;
     const double cos_group = std::cos(0.5 * crease_angle), cos_crease = std::cos(crease_angle);
-    const SampleCells& cells = samples->cells;
+    const SampleCells cells(kernels, points, cos_group);
     const int margin = int(std::ceil(double(r_typical) / kCell));  // cells most kernels reach
 
     std::vector<openvdb::FloatTree::LeafNodeType*> leaves;

@@ -15,7 +15,6 @@
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
-#include <tbb/task_group.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -1254,31 +1253,12 @@ SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
     // samples overlap the fine ones (smaller footprint, usually the more accurate, e.g. not at a
     // grazing angle) dominate -- the scale weighting of FSSR.
     kernels.set_median_sigma(result.sigma_median / voxel);
-    // The crease test's index of the samples is made beside the sums (its serial parts, ~4 ms
-    // on the bunny's 362k, would leave a thread idle after them).
-    const double crease_angle = options.crease_angle * M_PI / 180.0;
-    std::shared_ptr<const detail::CreaseSamples> crease_samples;
-    tbb::task_group side;
-    if (crease_angle > 0.0) {
-        side.run([&] {
-            crease_samples = detail::index_crease_samples(kernels, cloud.size(), crease_angle);
-        });
-    }
-    try {
-        sum_kernels(kernels, cloud, options, nullptr, sums);
-    } catch (...) {
-        side.cancel();
-        try {
-            side.wait();
-        } catch (...) {
-        }
-        throw;
-    }
-    side.wait();
+    sum_kernels(kernels, cloud, options, nullptr, sums);
     Grids g = assemble(sums.blocks, cloud.has_colors(), sums.background, options, result);
     // Next to sharp creases, the field of each face on its own, combined as the solid they bound.
-    const detail::CreaseStats creases = detail::sharpen_creases(
-        g.sdf->tree(), kernels, crease_samples.get(), voxel, crease_angle, sums.background, reach);
+    const detail::CreaseStats creases =
+        detail::sharpen_creases(g.sdf->tree(), kernels, cloud.size(), voxel,
+                                options.crease_angle * M_PI / 180.0, sums.background, reach);
     result.crease_voxels = creases.modelled;
     finish_volume(std::move(g), cloud.origin, cloud.size(), options, result);
     return result;

@@ -4,7 +4,6 @@
 #include <openvdb/openvdb.h>
 
 #include <cstddef>
-#include <memory>
 
 #include "detail/kernels.h"
 #include "vdbrecon/types.h"
@@ -26,21 +25,14 @@ struct CreaseReach {
 /// The reach of these kernels (points of them).
 CreaseReach crease_reach(const Kernels& kernels, std::size_t points);
 
-/// The samples indexed for sharpen_creases (by cell, with a summary of each cell's normals);
-/// made from the kernels alone, so beside the splat's sums.
-struct CreaseSamples;
-std::shared_ptr<const CreaseSamples> index_crease_samples(const Kernels& kernels,
-                                                          std::size_t points, double crease_angle);
-
 /// Re-evaluates the signed distance of the active voxels of `sdf` (world units, index space of
 /// the kernels) that lie next to a crease of the sampled surface, from the same kernels as the
 /// splat but with the samples grouped by normal: each group (one face of the crease) gives its
 /// own weighted field, and the groups are combined as the solid they bound (max for a convex
 /// pair, min for a concave one). `crease_angle` (radians) is the least angle between two groups'
-/// normals that counts as a crease; `samples`, index_crease_samples() of the same kernels and
-/// angle (nothing is done without). Deterministic for any thread count.
-CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels,
-                            const CreaseSamples* samples, double voxel, double crease_angle,
-                            float background, const CreaseReach& reach);
+/// normals that counts as a crease. Deterministic for any thread count.
+CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels, std::size_t points,
+                            double voxel, double crease_angle, float background,
+                            const CreaseReach& reach);
 
 }  // namespace vdbrecon::detail

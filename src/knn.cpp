@@ -361,13 +361,20 @@ __attribute__((target("avx2"))) std::size_t keep_within_avx2(const float* bx, co
     return kept;
 }
 
+/// Blocks of more candidates than this lie mostly outside any one query's bound (the room
+/// scan's stacks of duplicate points): keep_within_avx512 skips their empty steps by a branch.
+constexpr std::size_t kSparseCandidates = 512;
+
 /// keep_within_avx2 sixteen candidates at a time (AVX-512; m a multiple of 8, the last step
 /// masked to its 8 where m is not one of 16; keep and near have room for m + 16): the kept
 /// indices are compressed in a register, and those within `guess` too into `near` (their count
-/// in *near_count), in the same pass. No branch on the lanes kept: their compressed indices are
-/// stored in any case, and the next step overwrites them when there are none. fp-contract is
-/// off (AVX-512 implies FMA), so the distances are the other loops' bit for bit.
-__attribute__((target("avx512f"), optimize("fp-contract=off"))) std::size_t keep_within_avx512(
+/// in *near_count), in the same pass. kSkip: a step with no lane kept stores nothing (a branch,
+/// cheaper where most steps keep none); else its compressed indices are stored anyway and the
+/// next step overwrites them (no branch to mispredict where steps keep some lanes and some
+/// none: the bunny's outlier stage took 0.172 -> 0.156 s at 1 thread). fp-contract is off
+/// (AVX-512 implies FMA), so the distances are the other loops' bit for bit.
+template <bool kSkip>
+__attribute__((target("avx512f"), optimize("fp-contract=off"))) std::size_t keep_within_steps(
     const float* bx, const float* by, const float* bz, std::size_t m, const float q[3], float bound,
     float* d, std::uint32_t* keep, float guess, std::uint32_t* near, std::size_t* near_count) {
     const __m512 qx = _mm512_set1_ps(q[0]), qy = _mm512_set1_ps(q[1]), qz = _mm512_set1_ps(q[2]);
@@ -383,6 +390,7 @@ __attribute__((target("avx512f"), optimize("fp-contract=off"))) std::size_t keep
                                         _mm512_mul_ps(ez, ez));
         _mm512_mask_storeu_ps(d + j, lanes, dd);
         const __mmask16 in = _mm512_mask_cmp_ps_mask(lanes, dd, lim, _CMP_LE_OQ);
+        if (kSkip && in == 0) continue;
         const __m512i at = _mm512_add_epi32(iota, _mm512_set1_epi32(int(j)));
         _mm512_storeu_si512(keep + kept, _mm512_maskz_compress_epi32(in, at));
         kept += std::size_t(__builtin_popcount(unsigned(in)));
@@ -394,6 +402,15 @@ __attribute__((target("avx512f"), optimize("fp-contract=off"))) std::size_t keep
     }
     if (near_count) *near_count = nearer;
     return kept;
+}
+
+std::size_t keep_within_avx512(const float* bx, const float* by, const float* bz, std::size_t m,
+                               const float q[3], float bound, float* d, std::uint32_t* keep,
+                               float guess, std::uint32_t* near, std::size_t* near_count) {
+    return m > kSparseCandidates
+               ? keep_within_steps<true>(bx, by, bz, m, q, bound, d, keep, guess, near, near_count)
+               : keep_within_steps<false>(bx, by, bz, m, q, bound, d, keep, guess, near,
+                                          near_count);
 }
 #endif
 

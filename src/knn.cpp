@@ -28,6 +28,7 @@
 // parallel and shares each cell's candidates among its queries.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <cmath>
@@ -700,6 +701,9 @@ struct KnnIndex::Impl {
     /// one level-`level` cell, whose key is keys[g], for the groups g in [g0, g1). Query
     /// order[j] goes to row j - row_base, or with row_base = kByQuery to row order[j].
     static constexpr std::size_t kByQuery = ~std::size_t(0);
+    /// Distances a cell's queries measure in all (queries x candidates) above which search()
+    /// splits the cell's queries among the threads.
+    static constexpr std::size_t kSplitWork = std::size_t(1) << 18;
     void search(Span<Vec3f> q, Self self, const int* order, const std::uint32_t* first,
                 const std::uint64_t* keys, std::size_t g0, std::size_t g1, int k, int* idx,
                 float* dist, std::size_t row_base = kByQuery) const;
@@ -831,43 +835,70 @@ void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
                             std::size_t row_base) const {
     const bool own = order == id.data();  // the queries are the index's points, in its order
     const float* own_xyz[3] = {x.data(), y.data(), z.data()};
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(g0, g1, 16),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
+    // One thread's scratch: the gathered block, the lists, and the previous query's k-th
+    // distance and position, whose sum with the distance between the two bounds this one's
+    // (triangle inequality; the margin covers float rounding), also from the last query of the
+    // cell before: only speed depends on the bound, never the answer.
+    struct Scratch {
         Block block, alone;
-        Best best(k);
-        // The previous query's k-th distance plus the distance between the two bounds this
-        // one's (triangle inequality; the margin covers float rounding), also from the last
-        // query of the cell before: only speed depends on the bound, never the answer.
+        Best best;
         float prev[3] = {0.0f, 0.0f, 0.0f}, prev_worst = -1.0f;  // -1: no query before
+        explicit Scratch(int k) : best(k) {}
+    };
+    // Queries j0..j1 of the cell c, whose block `s` holds.
+    const auto answer = [&](const std::uint32_t c[3], std::uint32_t j0, std::uint32_t j1,
+                            Scratch& s) {
+        for (std::uint32_t j = j0; j < j1; ++j) {
+            const std::size_t i = std::size_t(order[j]);
+            // The index's own points in its order (self_neighbours) are read from its copies,
+            // in memory order, not from the input (a cache miss a query).
+            float p[3];
+            for (int a = 0; a < 3; ++a) p[a] = own ? own_xyz[a][j] : q[i][a];
+            const int me = self.of(i);
+            float bound = std::numeric_limits<float>::infinity();
+            const bool after = s.prev_worst >= 0.0f;
+            if (after) {
+                const float ex = p[0] - s.prev[0], ey = p[1] - s.prev[1], ez = p[2] - s.prev[2];
+                const float r = std::sqrt(s.prev_worst) + std::sqrt(ex * ex + ey * ey + ez * ez);
+                bound = r * r * 1.0001f;
+            }
+            // The previous query's k-th squared distance, a quarter more, as the guess.
+            measure(s.block, p, me, bound, s.best,
+                    after ? 1.25f * s.prev_worst : std::numeric_limits<float>::infinity());
+            if (!s.best.full()) {
+                measure(s.block, p, me, std::numeric_limits<float>::infinity(), s.best);
+            }
+            if (!settled(s.best, level, c, p)) answer_alone(p, me, level - 1, s.alone, s.best);
+            const std::size_t row = row_base == kByQuery ? i : j - row_base;
+            write_row(s.best, k, idx + row * std::size_t(k),
+                      dist ? dist + row * std::size_t(k) : nullptr);
+            std::copy(p, p + 3, s.prev);
+            s.prev_worst = s.best.worst();
+        }
+    };
+    const bool split = tbb::this_task_arena::max_concurrency() > 1;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(g0, g1, 16), [&](const tbb::blocked_range<
+                                                                       std::size_t>& r) {
+        Scratch s(k);
         for (std::size_t g = r.begin(); g < r.end(); ++g) {
             const std::uint32_t c[3] = {compact(keys[g] >> 2), compact(keys[g] >> 1),
                                         compact(keys[g])};
-            gather(level, c, block);
-            for (std::uint32_t j = first[g]; j < first[g + 1]; ++j) {
-                const std::size_t i = std::size_t(order[j]);
-                // The index's own points in its order (self_neighbours) are read from its
-                // copies, in memory order, not from the input (a cache miss a query).
-                float p[3];
-                for (int a = 0; a < 3; ++a) p[a] = own ? own_xyz[a][j] : q[i][a];
-                const int s = self.of(i);
-                float bound = std::numeric_limits<float>::infinity();
-                const bool after = prev_worst >= 0.0f;
-                if (after) {
-                    const float ex = p[0] - prev[0], ey = p[1] - prev[1], ez = p[2] - prev[2];
-                    const float r = std::sqrt(prev_worst) + std::sqrt(ex * ex + ey * ey + ez * ez);
-                    bound = r * r * 1.0001f;
-                }
-                // The previous query's k-th squared distance, a quarter more, as the guess.
-                measure(block, p, s, bound, best,
-                        after ? 1.25f * prev_worst : std::numeric_limits<float>::infinity());
-                if (!best.full()) measure(block, p, s, std::numeric_limits<float>::infinity(), best);
-                if (!settled(best, level, c, p)) answer_alone(p, s, level - 1, alone, best);
-                const std::size_t row = row_base == kByQuery ? i : j - row_base;
-                write_row(best, k, idx + row * std::size_t(k),
-                          dist ? dist + row * std::size_t(k) : nullptr);
-                std::copy(p, p + 3, prev);
-                prev_worst = best.worst();
+            gather(level, c, s.block);
+            // A cell whose queries each measure a large block (a stack of duplicate points:
+            // the room scan's, 0.12 s of one thread while the other waited) is split among the
+            // threads, each with its own copy of the block.
+            const std::uint32_t n = first[g + 1] - first[g];
+            if (split && std::size_t(n) * s.block.m > kSplitWork) {
+                tbb::parallel_for(tbb::blocked_range<std::uint32_t>(first[g], first[g + 1], 128),
+                                  [&](const tbb::blocked_range<std::uint32_t>& js) {
+                                      Scratch t(k);
+                                      gather(level, c, t.block);
+                                      answer(c, js.begin(), js.end(), t);
+                                  });
+                s.prev_worst = -1.0f;
+                continue;
             }
+            answer(c, first[g], first[g + 1], s);
         }
     });
 }

@@ -1,4 +1,5 @@
 #include <tbb/global_control.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <cstdlib>
@@ -126,6 +127,47 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
             }
         }
   }
+}
+
+TEST_CASE("kNN: a stack of duplicates, its cell's queries split among threads, stays exact",
+          "[normals]") {
+    // 3,000 copies of one point among 1,000 points around it: the stack's cell has more queries
+    // times candidates than search() answers on one thread, so its queries are split (with 2
+    // threads); the lists must be brute force's, ties broken by index, the point itself out.
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    std::vector<Vec3f> pts;
+    for (int i = 0; i < 1000; ++i) pts.push_back({u(rng), u(rng), 0.05f * u(rng)});
+    for (int i = 0; i < 3000; ++i) pts.push_back({0.01f, -0.02f, 0.0f});
+    const int k = 16;
+    KnnResult one, two;
+    {
+        tbb::global_control c(tbb::global_control::max_allowed_parallelism, 1);
+        one = KnnIndex(pts).self_neighbours(k);
+    }
+    {
+        tbb::global_control c(tbb::global_control::max_allowed_parallelism, 2);
+        tbb::task_arena arena(2);
+        arena.execute([&] { two = KnnIndex(pts).self_neighbours(k); });
+    }
+    REQUIRE(one.indices == two.indices);
+    REQUIRE(one.sq_distances == two.sq_distances);
+    std::size_t wrong = 0;
+    for (std::size_t i = 0; i < pts.size(); i += 7) {
+        std::vector<std::pair<float, int>> all;
+        for (std::size_t j = 0; j < pts.size(); ++j) {
+            if (j == i) continue;
+            const float dx = pts[j][0] - pts[i][0], dy = pts[j][1] - pts[i][1],
+                        dz = pts[j][2] - pts[i][2];
+            all.push_back({dx * dx + dy * dy + dz * dz, int(j)});
+        }
+        std::partial_sort(all.begin(), all.begin() + k, all.end());
+        for (int j = 0; j < k; ++j) {
+            wrong += two.neighbours(i)[j] != all[std::size_t(j)].second ||
+                     two.sq_dists(i)[j] != all[std::size_t(j)].first;
+        }
+    }
+    REQUIRE(wrong == 0);
 }
 
 TEST_CASE("kNN: the batched self-neighbours are the full lists, each row once", "[normals]") {

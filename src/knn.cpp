@@ -105,8 +105,8 @@ std::uint64_t pair_key(float d, int id) {
 constexpr std::uint64_t kNoKey = 0x7fffffffffffffffULL;
 
 #ifdef VDBRECON_HAVE_AVX2_PATHS
-/// Best::offer_all for lists of 4 R keys (R <= 4, so k <= 16, the sizes the pipeline asks for),
-/// held in registers. A candidate below the k-th kept key enters without a branch on its
+/// Best::select's insertions for lists of 4 R keys (R <= 4, so k <= 16, the sizes the pipeline asks
+/// for), held in registers. A candidate below the k-th kept key enters without a branch on its
 /// place: every place takes its own key, the new one or its left neighbour's, as Best::offer
 /// does. `last` = k - 1 is the place of the k-th key. The same lists as the scalar path.
 template <int R>
@@ -185,7 +185,7 @@ __attribute__((target("avx512f"))) void offer_avx512(int last, std::uint64_t* ke
 /// candidate's rank costs more compares than offer_avx512's insertions.
 constexpr std::size_t kRankSelectMax = 48;
 
-/// Best::offer_all into an empty list of up to 16 places, by rank instead of insertion: each
+/// Best::select into a list of up to 16 places, by rank instead of insertion: each
 /// candidate's rank is the count of candidates' keys below its own (the keys are distinct, but
 /// for kNoKey, which marks `self`), counted for eight keys to a register at once, and the
 /// candidates of rank below k are scattered to their places. No candidate waits on the one
@@ -237,10 +237,7 @@ class Best {
           vector_(detail::vector_loops()) {
         clear();
     }
-    void clear() {
-        std::fill(key_.begin(), key_.end(), kNoKey);
-        empty_ = true;
-    }
+    void clear() { std::fill(key_.begin(), key_.end(), kNoKey); }
     int k() const { return k_; }
     bool full() const { return key_[std::size_t(k_ - 1)] != kNoKey; }
     /// Keys from this one up cannot enter: the last kept key once full, else none.
@@ -249,7 +246,6 @@ class Best {
     float worst() const { return full() ? dist(k_ - 1) : std::numeric_limits<float>::infinity(); }
     /// Inserts `key` in order; the largest key falls off the end.
     void offer(std::uint64_t key) {
-        empty_ = false;
         std::uint64_t* k = key_.data();
         int j = int(key_.size()) - 1;
         while (j > 0 && k[j - 1] > key) {
@@ -258,14 +254,13 @@ class Best {
         }
         k[j] = key;
     }
-    /// Offers the candidates keep[0 .. kept) of a block (squared distances d, indices ids),
-    /// except the point `self`.
-    void offer_all(const float* d, const int* ids, const std::uint32_t* keep, std::size_t kept,
-                   int self) {
+    /// The list of the k smallest of the candidates keep[0 .. kept) of a block (squared
+    /// distances d, indices ids) alone, the point `self` left out.
+    void select(const float* d, const int* ids, const std::uint32_t* keep, std::size_t kept,
+                int self) {
+        clear();
 #ifdef VDBRECON_HAVE_AVX2_PATHS
-        const bool empty = empty_;
-        empty_ = false;
-        if (wide_ && key_.size() <= 16 && empty && kept <= kRankSelectMax) {
+        if (wide_ && key_.size() <= 16 && kept <= kRankSelectMax) {
             return rank_select_avx512(k_, key_.data(), d, ids, keep, kept, self);
         }
         if (wide_ && key_.size() <= 16) {
@@ -303,10 +298,9 @@ class Best {
 
   private:
     int k_;
-    bool wide_;  ///< offer_all() by AVX-512 (lists of up to 16)
+    bool wide_;  ///< select() by AVX-512 (lists of up to 16)
     std::vector<std::uint64_t> key_;
-    bool vector_;  ///< offer_all() by AVX2
-    bool empty_ = true;  ///< nothing offered since clear()
+    bool vector_;  ///< select() by AVX2
 };
 
 /// One answer into its row; dist may be null (distances not kept).
@@ -669,8 +663,7 @@ struct KnnIndex::Impl {
             keep = b.near.data();
             kept = count;
         }
-        best.clear();
-        best.offer_all(d, b.id.data(), keep, kept, self);
+        best.select(d, b.id.data(), keep, kept, self);
     }
 
     /// Whether `best` holds the exact answer for a query at q with the block of level-l cell c.

@@ -176,15 +176,7 @@ std::vector<char> classify_points(const Volume& volume, const MeshOptions& optio
     const std::size_t npoints = raw.points.size();
     // Only points some triangle uses are looked at (marching cubes hands over every crossing).
     std::vector<char> used(npoints, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, raw.triangles.size(), 16384),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t f = r.begin(); f < r.end(); ++f) {
-                              // Concurrent stores of the same value, as relaxed atomic stores.
-                              for (std::int32_t v : raw.triangles[f])
-                                  __atomic_store_n(&used[std::size_t(v)], char(1),
-                                                   __ATOMIC_RELAXED);
-                          }
-                      });
+    mark_used_vertices(raw.triangles, used.data(), char(1));
     std::vector<char> status(npoints, kInvalid);
     const SupportTest support(volume, options);
     const bool need_stencil = raw.check_cells || !own_normals;

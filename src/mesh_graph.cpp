@@ -128,17 +128,10 @@ std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vert
 std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::size_t vertex_count,
                                            std::size_t* used) {
     // In parallel (this was a serial tail of the mesh and clean stages): the used vertices
-    // marked 0 (concurrent stores of the same value, as relaxed atomic stores), numbered in
-    // order by chunks (their counts, then each chunk from its offset), the faces rewritten.
+    // marked 0, numbered in order by chunks (their counts, then each chunk from its offset),
+    // the faces rewritten.
     std::vector<std::int32_t> remap(vertex_count, -1);
-    constexpr std::size_t kGrain = 16384;
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, faces.size(), kGrain),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t f = r.begin(); f < r.end(); ++f) {
-                              for (std::int32_t i : faces[f])
-                                  __atomic_store_n(&remap[std::size_t(i)], 0, __ATOMIC_RELAXED);
-                          }
-                      });
+    mark_used_vertices(faces, remap.data(), std::int32_t(0));
     std::vector<std::int32_t> first(chunk_count(vertex_count), 0);
     for_each_chunk(vertex_count, [&](std::size_t c, std::size_t begin, std::size_t end) {
         first[c] = std::int32_t(std::count(remap.begin() + std::ptrdiff_t(begin),
@@ -152,7 +145,7 @@ std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::si
             if (remap[i] == 0) remap[i] = k++;
         }
     });
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, faces.size(), kGrain),
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, faces.size(), 16384),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t f = r.begin(); f < r.end(); ++f) {
                               for (std::int32_t& i : faces[f]) i = remap[std::size_t(i)];

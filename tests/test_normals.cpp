@@ -30,6 +30,21 @@ PointCloud bare_sphere(std::size_t n, double r, const Vec3d& c) {
 
 }  // namespace
 
+/// Brute force's k nearest of `pts` to q, (squared distance, index) ascending, the point
+/// `self` left out (-1: none).
+std::vector<std::pair<float, int>> brute_knn(const std::vector<Vec3f>& pts, const Vec3f& q,
+                                             long self, int k) {
+    std::vector<std::pair<float, int>> all;
+    for (std::size_t j = 0; j < pts.size(); ++j) {
+        if (long(j) == self) continue;
+        const float dx = pts[j][0] - q[0], dy = pts[j][1] - q[1], dz = pts[j][2] - q[2];
+        all.push_back({dx * dx + dy * dy + dz * dz, int(j)});
+    }
+    std::partial_sort(all.begin(), all.begin() + k, all.end());
+    all.resize(std::size_t(k));
+    return all;
+}
+
 /// The index options of one backend.
 KnnOptions backend(KnnBackend b) {
     KnnOptions o;
@@ -73,18 +88,7 @@ TEST_CASE("kNN: exact against brute force on uneven clouds, for any thread count
     // (8, 16) and one beyond them.
     for (const int k : {1, 6, 12, 16, 23}) {
         INFO("k " << k);
-        // Brute force: (squared distance, index) ascending, the point itself excluded.
-        auto brute = [&](const Vec3f& q, long self) {
-            std::vector<std::pair<float, int>> all;
-            for (std::size_t j = 0; j < pts.size(); ++j) {
-                if (long(j) == self) continue;
-                const float dx = pts[j][0] - q[0], dy = pts[j][1] - q[1], dz = pts[j][2] - q[2];
-                all.push_back({dx * dx + dy * dy + dz * dz, int(j)});
-            }
-            std::partial_sort(all.begin(), all.begin() + k, all.end());
-            all.resize(std::size_t(k));
-            return all;
-        };
+        const auto brute = [&](const Vec3f& q, long self) { return brute_knn(pts, q, self, k); };
         for (KnnBackend b : {KnnBackend::grid, KnnBackend::flann}) {
             INFO("backend " << int(b));
             KnnResult one, two;
@@ -154,14 +158,7 @@ TEST_CASE("kNN: a stack of duplicates, its cell's queries split among threads, s
     REQUIRE(one.sq_distances == two.sq_distances);
     std::size_t wrong = 0;
     for (std::size_t i = 0; i < pts.size(); i += 7) {
-        std::vector<std::pair<float, int>> all;
-        for (std::size_t j = 0; j < pts.size(); ++j) {
-            if (j == i) continue;
-            const float dx = pts[j][0] - pts[i][0], dy = pts[j][1] - pts[i][1],
-                        dz = pts[j][2] - pts[i][2];
-            all.push_back({dx * dx + dy * dy + dz * dz, int(j)});
-        }
-        std::partial_sort(all.begin(), all.begin() + k, all.end());
+        const std::vector<std::pair<float, int>> all = brute_knn(pts, pts[i], long(i), k);
         for (int j = 0; j < k; ++j) {
             wrong += two.neighbours(i)[j] != all[std::size_t(j)].second ||
                      two.sq_dists(i)[j] != all[std::size_t(j)].first;

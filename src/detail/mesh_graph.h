@@ -3,6 +3,9 @@
 // area-weighted vertex normals.
 #pragma once
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <array>
 #include <cstddef>
@@ -90,6 +93,19 @@ VertexFaces vertex_faces(Span<Triangle> faces, std::size_t lo, std::size_t hi);
 /// face, its component's label, the smallest face index in it. Linear time (a few passes over
 /// the faces for a large mesh, a range of vertices at a time).
 std::vector<std::int32_t> face_components(Span<Triangle> faces, std::size_t vertex_count);
+
+/// Sets marks[v] = value for every vertex v the faces use, in parallel (the threads' stores of
+/// the same value to one vertex are relaxed atomic stores).
+template <typename T>
+void mark_used_vertices(Span<Triangle> faces, T* marks, T value) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, faces.size(), 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t f = r.begin(); f < r.end(); ++f) {
+                              for (std::int32_t v : faces[f])
+                                  __atomic_store_n(&marks[std::size_t(v)], value, __ATOMIC_RELAXED);
+                          }
+                      });
+}
 
 /// The vertices the faces use, renumbered in their original order: rewrites the faces to the new
 /// numbers and returns, per old vertex, its new index (-1 where no face uses it); *used gets

@@ -29,6 +29,7 @@
 // FLANN's kd-tree: 5x faster on the bunny scans at 2 threads (bench/knn.sh), mostly because it
 // builds in parallel and shares each cell's candidates among its queries.
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
@@ -872,9 +873,16 @@ void KnnIndex::Impl::search(Span<Vec3f> q, Self self, const int* order,
         }
     };
     const bool split = tbb::this_task_arena::max_concurrency() > 1;
+    // A thread's scratch lives through the search: made per task, its growing arrays were
+    // allocated and freed from both threads at once, and the CLI's one heap arena puts a thread
+    // that finds its lock taken to sleep (detail/release.h, heap_lock). A thread that takes
+    // another task while it waits for a split cell's (below) uses the same scratch; the waiting
+    // task gathers its next block afresh.
+    tbb::enumerable_thread_specific<Scratch> scratch(k);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(g0, g1, 16), [&](const tbb::blocked_range<
                                                                        std::size_t>& r) {
-        Scratch s(k);
+        Scratch& s = scratch.local();
+        s.prev_worst = -1.0f;
         for (std::size_t g = r.begin(); g < r.end(); ++g) {
             const std::uint32_t c[3] = {compact(keys[g] >> 2), compact(keys[g] >> 1),
                                         compact(keys[g])};

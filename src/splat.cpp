@@ -559,6 +559,15 @@ openvdb::util::NodeMask<3> valid_mask(const At& at, const ValidRule& rule, std::
     return mask;
 }
 
+/// A leaf at `origin`, all voxels off, with its buffer allocated but not filled.
+template <typename Leaf>
+std::unique_ptr<Leaf> unfilled_leaf(const openvdb::Coord& origin) {
+    auto leaf = std::make_unique<Leaf>(openvdb::PartialCreate(), origin,
+                                       typename Leaf::ValueType(0), false);
+    leaf->buffer().allocate();
+    return leaf;
+}
+
 /// One output leaf (sdf, weight, nearest and colour) at lo_world from the sums of its voxels
 /// (`at(v)`, v the leaf offset): the valid voxels (valid_mask) get sdf = u phi / u (clamped to
 /// the band), weight w, the nearest vector and the mean colour, written into the new leaves'
@@ -572,14 +581,22 @@ void emit_leaf(const openvdb::Coord& lo_world, At&& at, bool colors, const Valid
     out.active += active;
     if (active == 0) return;
     const float background = rule.background;
-    out.sdf[s] = std::make_unique<FloatLeaf>(lo_world, background, false);
-    out.weight[s] = std::make_unique<FloatLeaf>(lo_world, 0.0f, false);
-    out.nearest[s] = std::make_unique<Vec3Leaf>(lo_world, openvdb::Vec3f(0.0f), false);
-    if (colors) out.color[s] = std::make_unique<Vec3Leaf>(lo_world, openvdb::Vec3f(0.0f), false);
+    {
+        // Allocated under the heap lock (detail/release.h), filled after it.
+        const tbb::spin_mutex::scoped_lock lock(detail::heap_lock());
+        out.sdf[s] = unfilled_leaf<FloatLeaf>(lo_world);
+        out.weight[s] = unfilled_leaf<FloatLeaf>(lo_world);
+        out.nearest[s] = unfilled_leaf<Vec3Leaf>(lo_world);
+        if (colors) out.color[s] = unfilled_leaf<Vec3Leaf>(lo_world);
+    }
     float* sdf = out.sdf[s]->buffer().data();
     float* weight = out.weight[s]->buffer().data();
     openvdb::Vec3f* nearest = out.nearest[s]->buffer().data();
     openvdb::Vec3f* color = colors ? out.color[s]->buffer().data() : nullptr;
+    std::fill(sdf, sdf + FloatLeaf::SIZE, background);
+    std::fill(weight, weight + FloatLeaf::SIZE, 0.0f);
+    std::fill(nearest, nearest + Vec3Leaf::SIZE, openvdb::Vec3f(0.0f));
+    if (color) std::fill(color, color + Vec3Leaf::SIZE, openvdb::Vec3f(0.0f));
     for (auto it = mask.beginOn(); it; ++it) {
         const int v = int(it.pos());
         const VoxelSums x = at(v);

@@ -499,6 +499,17 @@ void check_grid(const openvdb::GridBase::ConstPtr& g, std::set<std::string>& nam
     }
 }
 
+/// Frees a tree's leaves on this thread. OpenVDB's clear() frees them from every thread at once,
+/// and the CLI's one heap arena then puts a thread that finds its lock taken to sleep
+/// (detail/release.h, heap_lock): the file is written beside another stage (the CLI's clean),
+/// whose allocations the parallel frees held up.
+template <typename TreeT>
+void free_leaves(TreeT& tree) {
+    std::vector<typename TreeT::LeafNodeType*> leaves;
+    tree.stealNodes(leaves);
+    for (auto* leaf : leaves) delete leaf;
+}
+
 }  // namespace
 
 void write_vdb_file(std::FILE* file, const std::string& path, const std::vector<FileGrid>& grids,
@@ -519,18 +530,26 @@ void write_vdb_file(std::FILE* file, const std::string& path, const std::vector<
     Output out(file, path);
     out.put(head.str());
     for (const FileGrid& source : grids) {
-        openvdb::GridBase::ConstPtr g = source.grid;
-        if (!g) {
-            g = source.make();
-            check_grid(g, names, trees);
+        openvdb::GridBase::Ptr made;
+        if (!source.grid) {
+            made = source.make();
+            check_grid(made, names, trees);
         }
-        if (g->isType<openvdb::FloatGrid>()) {
-            write_grid(out, archive, static_cast<const openvdb::FloatGrid&>(*g));
+        const openvdb::GridBase& g = made ? *made : *source.grid;
+        if (g.isType<openvdb::FloatGrid>()) {
+            write_grid(out, archive, static_cast<const openvdb::FloatGrid&>(g));
         } else {
-            write_grid(out, archive, static_cast<const openvdb::Vec3SGrid&>(*g));
+            write_grid(out, archive, static_cast<const openvdb::Vec3SGrid&>(g));
         }
-        // A made grid is freed here; its tree's address may serve a later one.
-        if (!source.grid) trees.erase(&g->baseTree());
+        if (made) {
+            // A made grid is freed here; its tree's address may serve a later one.
+            trees.erase(&g.baseTree());
+            if (made->isType<openvdb::FloatGrid>()) {
+                free_leaves(static_cast<openvdb::FloatGrid&>(*made).tree());
+            } else {
+                free_leaves(static_cast<openvdb::Vec3SGrid&>(*made).tree());
+            }
+        }
     }
     out.finish();
 }

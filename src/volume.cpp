@@ -189,7 +189,7 @@ std::size_t write_volume(const std::string& path, const Volume& volume) {
     grids.push_back({nullptr, [&] {
                          openvdb::FloatGrid::Ptr density = make_density(*volume.sdf);
                          density_bytes = std::size_t(density->memUsage());
-                         return openvdb::GridBase::ConstPtr(density);
+                         return openvdb::GridBase::Ptr(density);
                      }});
     add(volume.color, "color");
     add(volume.fill, "fill");

@@ -13,7 +13,7 @@ namespace vdbrecon::detail {
 /// be written comes (so that it need not coexist with the grids written before it).
 struct FileGrid {
     openvdb::GridBase::ConstPtr grid;
-    std::function<openvdb::GridBase::ConstPtr()> make;
+    std::function<openvdb::GridBase::Ptr()> make;
 };
 
 /// Writes `grids` (float and Vec3f grids with distinct, non-empty names and trees of their own)

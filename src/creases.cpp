@@ -829,20 +829,15 @@ class LeafSums {
 
 }  // namespace
 
-CreaseReach crease_reach(const Kernels& kernels, std::size_t points) {
+CreaseReach crease_reach(const std::vector<float>& radius) {
     CreaseReach reach;
-    if (points == 0) return reach;
-    std::vector<float> radius(points);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, points, 4096),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-        for (std::size_t i = r.begin(); i < r.end(); ++i) radius[i] = kernels(i, false).r;
-    });
+    if (radius.empty()) return reach;
     reach.r_max = *std::max_element(radius.begin(), radius.end());
     // The crease test looks as far as most kernels reach (95 %): a crease only the widest
     // kernels see from a leaf leaves the splat's value there. The radii are >= 0 (0: a point
     // skipped); select_rank gives what nth_element would put at that rank, without reordering
     // them (nth_element took 3-4 ms of one thread on the bunny's 362k).
-    reach.r_typical = select_rank(std::size_t(0.95 * double(points - 1)), radius);
+    reach.r_typical = select_rank(std::size_t(0.95 * double(radius.size() - 1)), radius);
     return reach;
 }
 

@@ -1048,6 +1048,9 @@ std::vector<BlockOut> sum_blocks(const BlockSetup& setup, std::vector<std::size_
 struct CloudSums {
     std::vector<BlockOut> blocks;  ///< splat() only: an accumulator's sums go to its state
     float max_r = 0.0f;            ///< largest kernel radius, voxels
+    float r_typical = 0.0f;        ///< the crease test's typical reach (measure_kernels)
+    std::vector<std::size_t> chunk_pairs;  ///< each chunk's (block, point) pairs
+    int block_lo[3] = {INT_MAX, INT_MAX, INT_MAX}, block_hi[3] = {INT_MIN, INT_MIN, INT_MIN};
     float background = 0.0f;       ///< the band's half width, world units
     double sigma_min = 0.0, sigma_median = 0.0, sigma_max = 0.0;  ///< world units
     std::size_t skipped = 0;       ///< points without a usable normal or confidence
@@ -1061,45 +1064,79 @@ void check_cloud(const PointCloud& cloud) {
     }
 }
 
+/// What measure_kernels gathers from one chunk of kernels.
+struct ChunkMeasure {
+    double index = 0.0;  ///< largest |centre coordinate|, index units
+    float r = 0.0f;      ///< largest radius, voxels
+    std::size_t skipped = 0, pairs = 0;
+    int lo[3] = {INT_MAX, INT_MAX, INT_MAX}, hi[3] = {INT_MIN, INT_MIN, INT_MIN};  ///< blocks
+
+    /// Counts the (block, point) pairs of kernel k and widens the blocks' range by its span.
+    void add_pairs(const Kernel& k) {
+        int blo[3], bhi[3];
+        if (!(k.r > 0.0f) || !block_span(support_box(k), blo, bhi)) return;
+        std::size_t count = 1;
+        for (int a = 0; a < 3; ++a) {
+            count *= std::size_t(bhi[a] - blo[a] + 1);
+            lo[a] = std::min(lo[a], blo[a]);
+            hi[a] = std::max(hi[a], bhi[a]);
+        }
+        pairs += count;
+    }
+    void merge(const ChunkMeasure& m) {
+        index = std::max(index, m.index);
+        r = std::max(r, m.r);
+        skipped += m.skipped;
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = std::min(lo[a], m.lo[a]);
+            hi[a] = std::max(hi[a], m.hi[a]);
+        }
+    }
+};
+
 /// Narrow-band half width: no |sdf| can exceed the largest support radius (voxels).
 float band_background(float max_r, double voxel) {
     return float(std::max(3.0, std::ceil(double(max_r))) * voxel);
 }
 
-/// The kernels' range and sigmas: refuses clouds no kernel of which is usable and voxels the
-/// index range or OpenVDB's transforms cannot take.
-void measure_kernels(const Kernels& kernels, double voxel, CloudSums& out) {
+/// The kernels' range and sigmas, in one pass over them: refuses clouds no kernel of which is
+/// usable and voxels the index range or OpenVDB's transforms cannot take; counts each chunk's
+/// (block, point) pairs and the range of blocks they touch for sum_kernels (the kernels' boxes
+/// do not depend on the area normalisation set after this); with `reach`, the crease test's
+/// reach (detail::crease_reach) from the same kernels.
+void measure_kernels(const Kernels& kernels, double voxel, CloudSums& out, bool reach = false) {
     const std::size_t n = kernels.size();
     const std::size_t chunks = detail::chunk_count(n);
-    std::vector<double> chunk_index(chunks, 0.0);
-    std::vector<float> chunk_r(chunks, 0.0f);
-    std::vector<std::size_t> chunk_skipped(chunks, 0);
+    std::vector<ChunkMeasure> chunk(chunks);
     std::vector<float> sigmas(n);  // voxels; -1 for a skipped point
+    std::vector<float> radius(reach ? n : 0);
     detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
         // In locals, stored once: neighbouring chunks' entries share a cache line, and writing
         // them per point made the two threads take it from each other (bunny: 7 ms -> 2 ms).
-        double index = 0.0;
-        float r = 0.0f;
-        std::size_t skipped = 0;
+        ChunkMeasure m;
         for (std::size_t i = begin; i < end; ++i) {
             const Kernel k = kernels(i, false);
-            index = std::max({index, std::fabs(k.cx), std::fabs(k.cy), std::fabs(k.cz)});
-            r = std::max(r, k.r);
-            skipped += k.r == 0.0f;
+            m.index = std::max({m.index, std::fabs(k.cx), std::fabs(k.cy), std::fabs(k.cz)});
+            m.r = std::max(m.r, k.r);
+            m.skipped += k.r == 0.0f;
             sigmas[i] = k.r == 0.0f ? -1.0f : k.s;
+            if (reach) radius[i] = k.r;
+            m.add_pairs(k);
         }
-        chunk_index[c] = index;
-        chunk_r[c] = r;
-        chunk_skipped[c] = skipped;
+        chunk[c] = m;
     });
 
     // Range check before any big allocation.
-    const double max_index = *std::max_element(chunk_index.begin(), chunk_index.end());
-    const float max_r = *std::max_element(chunk_r.begin(), chunk_r.end());
-    out.max_r = max_r;
-    out.skipped =
-        std::accumulate(chunk_skipped.begin(), chunk_skipped.end(), std::size_t(0));
-    detail::check_kernel_range(max_index, max_r, out.skipped, n, voxel);
+    ChunkMeasure all;
+    for (const ChunkMeasure& m : chunk) all.merge(m);
+    out.max_r = all.r;
+    out.skipped = all.skipped;
+    detail::check_kernel_range(all.index, all.r, out.skipped, n, voxel);
+    out.chunk_pairs.resize(chunks);
+    for (std::size_t c = 0; c < chunks; ++c) out.chunk_pairs[c] = chunk[c].pairs;
+    std::copy(all.lo, all.lo + 3, out.block_lo);
+    std::copy(all.hi, all.hi + 3, out.block_hi);
+    if (reach) out.r_typical = detail::crease_reach(radius).r_typical;
 
     // Sigma statistics (world units). The median by select_rank (a histogram, then a small
     // selection) rather than nth_element over every sigma (3-4 ms of one thread on the bunny):
@@ -1117,55 +1154,25 @@ void measure_kernels(const Kernels& kernels, double voxel, CloudSums& out) {
         out.sigma_min = double(lo) * voxel;
         out.sigma_max = double(hi) * voxel;
     }
-
 }
 
 /// Lists, sorts and sums the (block, point) pairs of measured kernels (measure_kernels).
 void sum_kernels(const Kernels& kernels, const PointCloud& cloud, const SplatOptions& options,
                  SplatState* state, CloudSums& out) {
-    const std::size_t n = kernels.size();
     const double voxel = options.voxel_size;
-    // Blocks the kernels touch: per-chunk pair counts and the range of block coordinates.
-    std::vector<std::size_t> chunk_pairs(detail::chunk_count(n), 0);
-    std::vector<std::array<int, 6>> ranges(detail::chunk_count(n));
-    detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
-        std::array<int, 6> r = {INT_MAX, INT_MAX, INT_MAX, INT_MIN, INT_MIN, INT_MIN};
-        std::size_t pairs = 0;
-        for (std::size_t i = begin; i < end; ++i) {
-            int lo[3], hi[3];
-            const Kernel k = kernels(i, false);
-            if (!(k.r > 0.0f) || !block_span(support_box(k), lo, hi)) continue;
-            std::size_t count = 1;
-            for (int a = 0; a < 3; ++a) {
-                count *= std::size_t(hi[a] - lo[a] + 1);
-                r[std::size_t(a)] = std::min(r[std::size_t(a)], lo[a]);
-                r[std::size_t(a) + 3] = std::max(r[std::size_t(a) + 3], hi[a]);
-            }
-            pairs += count;
-        }
-        chunk_pairs[c] = pairs;
-        ranges[c] = r;
-    });
     BlockCodec codec;
-    int x_hi = 0;
     for (int a = 0; a < 3; ++a) {
-        int lo = INT_MAX, hi = INT_MIN;
-        for (const auto& r : ranges) {
-            lo = std::min(lo, r[std::size_t(a)]);
-            hi = std::max(hi, r[std::size_t(a) + 3]);
-        }
+        const int lo = out.block_lo[a], hi = out.block_hi[a];
         if (lo > hi) break;  // no kernel reaches a voxel: no pairs, the default codec
         codec.lo[a] = lo;
-        if (a == 0) x_hi = hi;
         while (std::uint32_t(hi - lo) >> codec.bits[a]) ++codec.bits[a];
     }
-
     out.background = band_background(out.max_r, voxel);
     BlockSetup setup{kernels, codec, cloud, options, out.background, state};
-    out.blocks =
-        codec.total() <= 32 ? sum_blocks<std::uint32_t>(setup, std::move(chunk_pairs), x_hi)
-                            : sum_blocks<std::uint64_t>(setup, std::move(chunk_pairs), x_hi);
-
+    const int x_hi = out.block_lo[0] > out.block_hi[0] ? 0 : out.block_hi[0];
+    out.blocks = codec.total() <= 32
+                     ? sum_blocks<std::uint32_t>(setup, std::move(out.chunk_pairs), x_hi)
+                     : sum_blocks<std::uint64_t>(setup, std::move(out.chunk_pairs), x_hi);
 }
 
 /// The output grids.
@@ -1277,7 +1284,7 @@ SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
     // Per-point kernels, made when needed; first their range, sigmas and usable normals.
     Kernels kernels(cloud, options);
     CloudSums sums;
-    measure_kernels(kernels, voxel, sums);
+    measure_kernels(kernels, voxel, sums, !frame && options.crease_angle > 0.0);
     result.skipped_points = sums.skipped;
     result.sigma_min = sums.sigma_min;
     result.sigma_median = sums.sigma_median;
@@ -1288,7 +1295,7 @@ SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
         sums.max_r = frame->max_r;  // the band's half width
         reach = {frame->max_r, frame->r_typical};
     } else if (options.crease_angle > 0.0) {
-        reach = detail::crease_reach(kernels, cloud.size());
+        reach = {sums.max_r, sums.r_typical};
     }
     // Area normalisation: every sample's kernel carries the same mass, so where fine and coarse
     // samples overlap the fine ones (smaller footprint, usually the more accurate, e.g. not at a
@@ -1355,11 +1362,11 @@ detail::KernelFrame detail::kernel_frame(const PointCloud& cloud, const SplatOpt
     check_cloud(cloud);
     Kernels kernels(cloud, options);
     CloudSums sums;
-    measure_kernels(kernels, options.voxel_size, sums);
+    measure_kernels(kernels, options.voxel_size, sums, true);
     KernelFrame frame;
     frame.sigma_median = sums.sigma_median;
     frame.max_r = sums.max_r;
-    frame.r_typical = crease_reach(kernels, cloud.size()).r_typical;
+    frame.r_typical = sums.r_typical;
     return frame;
 }
 

@@ -4,6 +4,7 @@
 #include <openvdb/openvdb.h>
 
 #include <cstddef>
+#include <vector>
 
 #include "detail/kernels.h"
 #include "vdbrecon/types.h"
@@ -22,8 +23,8 @@ struct CreaseReach {
     float r_typical = 0.0f;
 };
 
-/// The reach of these kernels (points of them).
-CreaseReach crease_reach(const Kernels& kernels, std::size_t points);
+/// The reach of kernels whose radii (voxels, 0 for a point skipped) are `radius`.
+CreaseReach crease_reach(const std::vector<float>& radius);
 
 /// Re-evaluates the signed distance of the active voxels of `sdf` (world units, index space of
 /// the kernels) that lie next to a crease of the sampled surface, from the same kernels as the

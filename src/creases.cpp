@@ -61,6 +61,7 @@
 #include <numeric>
 #include <vector>
 
+#include "detail/compact.h"
 #include "detail/radix_sort.h"
 #include "detail/select.h"
 #include "detail/union_find.h"
@@ -177,24 +178,27 @@ class SampleCells {
 
     SampleCells(const Kernels& kernels, std::size_t n, double cos_group)
         : index_(std::make_shared<openvdb::Int32Tree>(-1)) {
-        // Each sample's cell in parallel (a kernel costs an evaluation), then those with a
-        // support, in order.
+        // Each sample's cell and each chunk's range of cells in parallel (a kernel costs an
+        // evaluation), then those with a support, in order.
         std::vector<std::pair<openvdb::Coord, std::uint32_t>> keyed(n);
         std::vector<char> used(n);
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                          [&](const tbb::blocked_range<std::size_t>& r) {
-            for (std::size_t i = r.begin(); i < r.end(); ++i) {
+        std::vector<openvdb::CoordBBox> range(chunk_count(n));
+        for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+            openvdb::CoordBBox box;  // empty
+            for (std::size_t i = begin; i < end; ++i) {
                 const Kernel k = kernels(i, false);
                 used[i] = k.r > 0.0f;
                 keyed[i] = {cell({k.cx, k.cy, k.cz}), std::uint32_t(i)};
+                if (used[i]) box.expand(keyed[i].first);
             }
+            range[c] = box;
         });
-        std::size_t m = 0;
-        for (std::size_t i = 0; i < n; ++i) {
-            if (used[i]) keyed[m++] = keyed[i];
+        compact_in_place(keyed, [&](std::size_t i) { return used[i] != 0; });
+        openvdb::CoordBBox box;
+        for (const openvdb::CoordBBox& b : range) {
+            if (!b.empty()) box.expand(b);
         }
-        keyed.resize(m);
-        sort_by_cell(keyed);
+        sort_by_cell(keyed, box);
         order_.resize(keyed.size());
         where_.resize(keyed.size());
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, keyed.size(), 4096),
@@ -205,9 +209,10 @@ class SampleCells {
                 where_[j] = {float(k.cx), float(k.cy), float(k.cz), k.r};
             }
         });
+        openvdb::tree::ValueAccessor<openvdb::Int32Tree> index(*index_);
         for (std::size_t j = 0; j < keyed.size(); ++j) {
             if (j == 0 || keyed[j].first != keyed[j - 1].first) {
-                index_->setValueOn(keyed[j].first, int(cells_.size()));
+                index.setValueOn(keyed[j].first, int(cells_.size()));
                 cells_.push_back({std::uint32_t(j), std::uint32_t(j)});
             }
             cells_.back().end = std::uint32_t(j + 1);
@@ -220,14 +225,12 @@ class SampleCells {
 
     /// Sorts (cell, sample) pairs (in sample order) by cell, then sample: a radix sort on the
     /// cells' offsets from the lowest packed x-major, or where they need more than 64 bits a
-    /// comparison sort. The pairs are distinct, so the order is unique either way.
-    static void sort_by_cell(std::vector<std::pair<openvdb::Coord, std::uint32_t>>& keyed) {
+    /// comparison sort. The pairs are distinct, so the order is unique either way. `box`: the
+    /// range of their cells.
+    static void sort_by_cell(std::vector<std::pair<openvdb::Coord, std::uint32_t>>& keyed,
+                             const openvdb::CoordBBox& box) {
         if (keyed.empty()) return;
-        openvdb::Coord lo = keyed[0].first, hi = lo;
-        for (const auto& e : keyed) {
-            lo.minComponent(e.first);
-            hi.maxComponent(e.first);
-        }
+        const openvdb::Coord lo = box.min(), hi = box.max();
         int bits[3], total = 0;
         for (int a = 0; a < 3; ++a) {
             const std::uint64_t span = std::uint64_t(std::int64_t(hi[a]) - lo[a]);
@@ -258,15 +261,32 @@ class SampleCells {
     using Accessor = openvdb::tree::ValueAccessor<const openvdb::Int32Tree>;
     Accessor accessor() const { return Accessor(*index_); }
 
-    /// Calls fn(cell) for every non-empty cell in lo..hi (inclusive), in a fixed order.
+    /// Calls fn(cell) for every non-empty cell in lo..hi (inclusive), in x, y, z order. A row's
+    /// cells within one leaf of the index come from a byte of its value mask, not a probe each
+    /// (the crease test looks at 6^3 cells around every leaf of the splat: bunny at 0.5 mm, 1
+    /// thread, 21-22.6 -> 19.5-20.4 ms).
     template <typename Fn>
     void cells_in(Accessor& acc, const openvdb::Coord& lo, const openvdb::Coord& hi,
                   Fn&& fn) const {
+        using IndexLeaf = openvdb::Int32Tree::LeafNodeType;
         for (int x = lo[0]; x <= hi[0]; ++x) {
             for (int y = lo[1]; y <= hi[1]; ++y) {
-                for (int z = lo[2]; z <= hi[2]; ++z) {
-                    int c = -1;
-                    if (acc.probeValue(openvdb::Coord(x, y, z), c)) fn(cells_[std::size_t(c)]);
+                for (int z0 = lo[2]; z0 <= hi[2];) {
+                    const int z1 = std::min(hi[2], z0 | int(IndexLeaf::DIM - 1));  // one leaf's
+                    const openvdb::Coord c(x, y, z0);
+                    if (const IndexLeaf* leaf = acc.probeConstLeaf(c)) {
+                        // The row's offsets are row .. row + 7 (z fastest), one byte of a word.
+                        const openvdb::Index row = IndexLeaf::coordToOffset(c) & ~openvdb::Index(7);
+                        const std::uint64_t word =
+                            leaf->getValueMask().getWord<std::uint64_t>(row >> 6);
+                        unsigned bits = unsigned(word >> (row & 63)) & 0xffu;
+                        bits &= (0xffu << (z0 & 7)) & (0xffu >> (7 - (z1 & 7)));
+                        for (; bits != 0; bits &= bits - 1) {
+                            const int cell = leaf->getValue(row + unsigned(__builtin_ctz(bits)));
+                            fn(cells_[std::size_t(cell)]);
+                        }
+                    }
+                    z0 = z1 + 1;
                 }
             }
         }

@@ -49,6 +49,7 @@
 #include "detail/creases.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
 
@@ -341,7 +342,10 @@ struct LocalSamples {
 /// and left the leaf with one face, the splat's blend, and a hole: fan, 200k samples, seed 2.)
 template <typename Select>
 bool consistent(const LocalSamples& s, Select&& selected, double cos_group) {
-    std::vector<Eigen::Vector3d> p;
+    // The thread's array, kept between calls: grown afresh each call, its reallocations from
+    // both threads took the CLI's one heap lock from each other (detail/release.h, heap_lock).
+    static thread_local std::vector<Eigen::Vector3d> p;
+    p.clear();
     Eigen::Vector3d mean_n = Eigen::Vector3d::Zero(), centre = Eigen::Vector3d::Zero();
     for (std::size_t i = 0; i < s.size(); ++i) {
         if (!selected(i)) continue;
@@ -874,11 +878,18 @@ CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels, std
     std::vector<openvdb::FloatTree::LeafNodeType*> leaves;
     sdf.getNodes(leaves);
     std::vector<std::size_t> candidates(leaves.size(), 0), modelled(leaves.size(), 0);
+    // Each thread's samples and sums live through the loop (made per task, their arrays were
+    // allocated and freed from both threads at once: detail/release.h, heap_lock).
+    struct Scratch {
+        LocalSamples s;
+        LeafSums sums;
+    };
+    tbb::enumerable_thread_specific<Scratch> scratch;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 4),
                       [&](const tbb::blocked_range<std::size_t>& range) {
         SampleCells::Accessor acc = cells.accessor();
-        LocalSamples s;
-        LeafSums sums;
+        LocalSamples& s = scratch.local().s;
+        LeafSums& sums = scratch.local().sums;
         for (std::size_t L = range.begin(); L < range.end(); ++L) {
             auto& leaf = *leaves[L];
             if (!leaf_near_crease(cells, acc, leaf.origin(), margin, cos_group, cos_crease)) {

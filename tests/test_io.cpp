@@ -726,7 +726,19 @@ TEST_CASE("vdb files: the bytes openvdb::io::File writes, with a UUID from the c
     const std::size_t uuid = 8 + 4 + 4 + 4 + 1;
     REQUIRE(ours[uuid + 14] == '5');  // a version-5 UUID, ...
     write_volume(dir.file("again.vdb"), v);
-    REQUIRE(read_bytes(dir.file("again.vdb")) == ours);  // ... the same for the same grids
+    REQUIRE(read_bytes(dir.file("again.vdb")) == ours);  // ... the same for the same grids,
+    {
+        // ... another for another value anywhere in the file (the first voxel here).
+        Volume other = v;
+        other.sdf = v.sdf->deepCopy();
+        auto it = other.sdf->tree().beginValueOn();
+        REQUIRE(it);
+        it.setValue(*it + 0.25f);
+        write_volume(dir.file("other.vdb"), other);
+        const std::string o = read_bytes(dir.file("other.vdb"));
+        REQUIRE(o.size() > uuid + 36);
+        REQUIRE(o.compare(uuid, 36, ours, uuid, 36) != 0);
+    }
     ours.replace(uuid, 36, 36, '-');
     theirs.replace(uuid, 36, 36, '-');
     REQUIRE(ours == theirs);

@@ -191,6 +191,8 @@ struct Pair {
     Key key;
     std::uint32_t point;
 };
+template <typename Key>
+using PairList = detail::FillLaterVector<Pair<Key>>;
 
 struct Box {
     int lo[3], hi[3];
@@ -823,7 +825,7 @@ std::size_t for_each_pair(const Kernels& kernels, std::size_t i, int x0, int x1,
 /// memory estimate.
 template <typename Key>
 std::size_t make_state_leaves(SplatState& state, const BlockCodec& codec,
-                              const std::vector<Pair<Key>>& pairs,
+                              const PairList<Key>& pairs,
                               const std::vector<std::size_t>& block_begin,
                               const std::vector<std::uint8_t>& touched_leaves) {
     for (std::size_t B = 0; B + 1 < block_begin.size(); ++B) {
@@ -904,7 +906,7 @@ std::vector<std::size_t> pairs_per_slab(const Kernels& kernels, const std::vecto
 /// estimate and the state's leaves.
 template <typename Key>
 std::vector<std::uint8_t> touched_leaf_masks(const Kernels& kernels, const BlockCodec& codec,
-                                             const std::vector<Pair<Key>>& pairs,
+                                             const PairList<Key>& pairs,
                                              const std::vector<std::size_t>& block_begin) {
     const std::size_t num_blocks = block_begin.size() - 1;
     std::vector<std::uint8_t> touched(num_blocks, 0);
@@ -941,7 +943,7 @@ void sum_slab(const BlockSetup& setup, int x0, int x1, const std::vector<std::si
               std::size_t& num_leaves, std::vector<BlockOut>& blocks) {
     const Kernels& kernels = setup.kernels;
     const BlockCodec& codec = setup.codec;
-    std::vector<Pair<Key>> pairs(chunk_first.back());
+    PairList<Key> pairs(chunk_first.back());  // not zeroed: the loop below writes every pair
     detail::for_each_chunk(kernels.size(), [&](std::size_t c, std::size_t begin, std::size_t end) {
         std::size_t o = chunk_first[c];
         for (std::size_t i = begin; i < end; ++i) {

@@ -42,6 +42,7 @@
 #include <immintrin.h>
 #endif
 
+#include "detail/fill_later.h"
 #include "detail/knn_flann.h"
 #include "detail/radix_sort.h"
 #include "detail/select.h"
@@ -432,8 +433,8 @@ struct KnnIndex::Impl {
     int level = 0;                       ///< the cell level of the cell list
     /// The points in Morton order and their indices in the input, each followed by kCopy
     /// entries of padding (gather()'s copies). Filled in parallel, not zeroed first.
-    detail::FillLaterVector<float> x, y, z;
-    detail::FillLaterVector<int> id;
+    detail::FillLater<float> x, y, z;
+    detail::FillLater<int> id;
     static constexpr std::size_t kCopy = 16;
     std::vector<std::uint64_t> cell_key;   ///< occupied level-`level` cells, ascending prefixes
     std::vector<std::uint32_t> cell_first;  ///< first point of each (size = cells + 1)
@@ -792,7 +793,7 @@ KnnIndex::KnnIndex(Span<Vec3f> points, const KnnOptions& options) : impl_(std::m
     // The points in Morton order three levels below the cells (so that consecutive queries in
     // a cell are close, which tightens their bounds), ties in index order: a stable radix sort.
     const int fine = std::min(kBits, m.level + 3);
-    detail::FillLaterVector<Coded> keyed(n);  // not zeroed: the loop writes every entry
+    detail::FillLater<Coded> keyed(n);  // not zeroed: the loop writes every entry
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 8192),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
@@ -923,7 +924,7 @@ void KnnIndex::Impl::search(Span<Vec3f> q, Self self, int k, int* idx, float* di
         flann->search(q, self.is_query ? nullptr : self.ids, self.is_query ? 0 : -1, k, idx, dist);
         return;
     }
-    detail::FillLaterVector<Coded> keyed(q.size());  // not zeroed: the loop writes every entry
+    detail::FillLater<Coded> keyed(q.size());  // not zeroed: the loop writes every entry
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, q.size(), 8192),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {

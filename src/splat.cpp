@@ -32,6 +32,7 @@
 
 #include "detail/creases.h"
 #include "detail/exp8.h"
+#include "detail/fill_later.h"
 #include "detail/io_common.h"
 #include "detail/kernels.h"
 #include "detail/radix_sort.h"
@@ -192,7 +193,7 @@ struct Pair {
     std::uint32_t point;
 };
 template <typename Key>
-using PairList = detail::FillLaterVector<Pair<Key>>;
+using PairList = detail::FillLater<Pair<Key>>;
 
 struct Box {
     int lo[3], hi[3];

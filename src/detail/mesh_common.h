@@ -11,6 +11,7 @@
 #include <utility>
 #include <vector>
 
+#include "detail/fill_later.h"
 #include "vdbrecon/mesh.h"
 #include "vdbrecon/volume.h"
 
@@ -18,32 +19,6 @@ namespace vdbrecon::detail {
 
 using FloatAccessor = openvdb::tree::ValueAccessor<const openvdb::FloatTree>;
 using Vec3Accessor = openvdb::tree::ValueAccessor<const openvdb::Vec3fTree>;
-
-/// An allocator whose construct() without arguments default-initialises: a vector of trivial
-/// elements sized by its constructor or resize() is not zero-filled first. For per-element arrays
-/// that parallel loops fill anyway; the zero fill would be one serial pass over all of them.
-template <typename T>
-struct NoZeroFill : std::allocator<T> {
-    template <typename U>
-    struct rebind {
-        using other = NoZeroFill<U>;
-    };
-    NoZeroFill() = default;
-    template <typename U>
-    NoZeroFill(const NoZeroFill<U>&) noexcept {}
-    template <typename U>
-    void construct(U* p) noexcept {
-        ::new (static_cast<void*>(p)) U;
-    }
-    template <typename U, typename... Args>
-    void construct(U* p, Args&&... args) {
-        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
-    }
-};
-
-/// A vector whose sized construction leaves trivial elements uninitialised (see NoZeroFill).
-template <typename T>
-using FillLater = std::vector<T, NoZeroFill<T>>;
 
 /// What a mesher produces: points in index space and triangles, counter-clockwise seen from the
 /// positive (outside) side.

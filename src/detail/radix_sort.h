@@ -8,40 +8,9 @@
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
-#include <memory>
-#include <new>
-#include <type_traits>
-#include <utility>
 #include <vector>
 
 namespace vdbrecon::detail {
-
-/// An allocator whose vectors leave new elements of trivial types uninitialised (default-, not
-/// value-initialised): for large arrays that a parallel loop fills next. Zeroing them first was
-/// a serial pass over fresh memory, page faults included (the splat's 8 MB of (block, point)
-/// pairs and the sort's copy of them: bunny at 0.5 mm).
-template <typename T>
-struct DefaultInit : std::allocator<T> {
-    template <typename U>
-    struct rebind {
-        using other = DefaultInit<U>;
-    };
-    DefaultInit() = default;
-    template <typename U>
-    DefaultInit(const DefaultInit<U>&) noexcept {}
-    template <typename U>
-    void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
-        ::new (static_cast<void*>(p)) U;
-    }
-    template <typename U, typename... Args>
-    void construct(U* p, Args&&... args) {
-        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
-    }
-};
-
-/// A vector whose resize() leaves new elements of trivial types uninitialised (DefaultInit).
-template <typename T>
-using FillLaterVector = std::vector<T, DefaultInit<T>>;
 
 /// Elements per chunk of for_each_chunk().
 constexpr std::size_t kChunk = std::size_t(1) << 16;
@@ -70,7 +39,7 @@ void radix_sort(std::vector<T, A>& v, int bits, Key&& key) {
     constexpr int kDigit = 11;
     constexpr std::size_t kBuckets = std::size_t(1) << kDigit;
     const std::size_t chunks = chunk_count(n);
-    std::vector<T, A> tmp(n);  // with DefaultInit, not zeroed first: every pass writes it all
+    std::vector<T, A> tmp(n);  // a FillLater one is not zeroed first: every pass writes it all
     std::vector<std::size_t> count(chunks * kBuckets);  // [chunk][digit]
     for (int shift = 0; shift < bits; shift += kDigit) {
         auto digit = [&](const T& e) { return std::size_t(key(e) >> shift) & (kBuckets - 1); };

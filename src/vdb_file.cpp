@@ -65,9 +65,9 @@ class Archive : public vio::Archive {
 };
 
 /// Eight FNV-1a style lanes over the 8-byte words of the file after the UUID, word i into lane
-/// i mod 8 (independent multiply chains: two lanes, one chain each, hashed the bunny's 36 MB
-/// file in ~10 ms, longer than writing it), then the last bytes one by one; the lanes folded
-/// into 128 bits become a version-5 style UUID.
+/// i mod 8 (independent multiply chains; with two, the bunny's 36 MB file at 0.5 mm took the
+/// writer 0.064 s at 1 thread, with eight 0.060 s), then the last bytes one by one; the lanes
+/// folded into 128 bits become a version-5 style UUID.
 class ContentHash {
   public:
     void add(const char* p, std::size_t n) {

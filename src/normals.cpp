@@ -1577,8 +1577,7 @@ NormalResult estimate_normals_with(const PointCloud& cloud, const NormalOptions&
         // (3 ms of one thread on the bunny's 362k, the other idle). A file's negative or NaN
         // scales order after all others (select_rank).
         const Span<float> s = result.scales;
-        result.median_scale =
-            detail::select_rank(s.size() / 2, [&s](const auto& fn) { fn(s.data(), s.size()); });
+        result.median_scale = detail::select_rank(s.size() / 2, s);
     };
 
     if (needed == 0 && !need_scale) {

@@ -247,6 +247,12 @@ inline bool block_span(const Box& b, int lo[3], int hi[3]) {
     return true;
 }
 
+/// The blocks kernel k's support touches (block_span); false for a skipped kernel (r = 0) too.
+/// The one test behind measure_kernels' pair counts and for_each_pair's listing: the listed
+/// pairs fill an array sized by the counts, unzeroed.
+inline bool kernel_span(const Kernel& k, int lo[3], int hi[3]) {
+    return k.r > 0.0f && block_span(support_box(k), lo, hi);
+}
 
 using FloatLeaf = openvdb::FloatTree::LeafNodeType;
 using Vec3Leaf = openvdb::Vec3fTree::LeafNodeType;
@@ -806,7 +812,7 @@ template <typename Fn>
 std::size_t for_each_pair(const Kernels& kernels, std::size_t i, int x0, int x1, Fn&& fn) {
     int lo[3], hi[3];
     const Kernel k = kernels(i, false);
-    if (!(k.r > 0.0f) || !block_span(support_box(k), lo, hi)) return 0;
+    if (!kernel_span(k, lo, hi)) return 0;
     lo[0] = std::max(lo[0], x0);
     hi[0] = std::min(hi[0], x1);
     std::size_t count = 0;
@@ -1077,7 +1083,7 @@ struct ChunkMeasure {
     /// Counts the (block, point) pairs of kernel k and widens the blocks' range by its span.
     void add_pairs(const Kernel& k) {
         int blo[3], bhi[3];
-        if (!(k.r > 0.0f) || !block_span(support_box(k), blo, bhi)) return;
+        if (!kernel_span(k, blo, bhi)) return;
         std::size_t count = 1;
         for (int a = 0; a < 3; ++a) {
             count *= std::size_t(bhi[a] - blo[a] + 1);

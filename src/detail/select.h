@@ -9,6 +9,8 @@
 #include <cstring>
 #include <vector>
 
+#include "vdbrecon/types.h"
+
 namespace vdbrecon::detail {
 
 /// The value of rank `rank` among the values >= 0 that scan(fn) hands over a chunk at a time
@@ -42,9 +44,12 @@ float select_rank(std::uint64_t rank, const Scan& scan) {
     return *at;
 }
 
-/// The same over the values of a vector.
+/// The same over the values of an array (a vector, a column).
+inline float select_rank(std::uint64_t rank, Span<float> v) {
+    return select_rank(rank, [v](const auto& fn) { fn(v.data(), v.size()); });
+}
 inline float select_rank(std::uint64_t rank, const std::vector<float>& v) {
-    return select_rank(rank, [&v](const auto& fn) { fn(v.data(), v.size()); });
+    return select_rank(rank, Span<float>(v));
 }
 
 }  // namespace vdbrecon::detail

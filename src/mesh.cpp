@@ -261,16 +261,29 @@ std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::ve
     sides.erase(std::remove_if(sides.begin(), sides.end(),
                                [](const EdgeSide& e) { return (e.key >> 32) == (e.key & 0xffffffffu); }),
                 sides.end());
-    // How many faces of the whole mesh use each of those edges (1: the open border).
+    // How many faces of the whole mesh use each of those edges (1: the open border): the
+    // unsupported faces' sides of each key, plus the supported faces with that edge (found by
+    // a search for their edges between two points of unsupported faces, the few next to them;
+    // with every face's such edges searched, the mesh stage of the Kinect frames fused at 1 cm,
+    // 113k faces trimmed, took 0.127 / 0.076 s at 1 / 2 threads, now 0.112 / 0.066 s).
     std::vector<std::uint64_t> keys;
+    std::vector<std::uint32_t> own_uses;
     for (std::size_t i = 0; i < sides.size(); ++i) {
-        if (i == 0 || sides[i].key != sides[i - 1].key) keys.push_back(sides[i].key);
+        if (i == 0 || sides[i].key != sides[i - 1].key) {
+            keys.push_back(sides[i].key);
+            own_uses.push_back(0);
+        }
+        ++own_uses.back();
     }
     std::vector<std::atomic<std::uint32_t>> uses(keys.size());
-    for (auto& u : uses) u.store(0, std::memory_order_relaxed);
+    for (std::size_t e = 0; e < keys.size(); ++e) {
+        uses[e].store(own_uses[e], std::memory_order_relaxed);
+    }
+    release(own_uses);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 16384),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t f = r.begin(); f < r.end(); ++f) {
+                              if (slot[f] >= 0) continue;  // counted in own_uses
                               const Triangle& t = tris[f];
                               for (int k = 0; k < 3; ++k) {
                                   const std::int32_t a = t[k], b = t[(k + 1) % 3];

@@ -136,6 +136,10 @@ class DepthRows {
             r_[s].resize(std::size_t(w));
             valid_[s].resize(std::size_t(w));
         }
+        // Each column's ray x, made once: the same quotient as per pixel (Kinect frames fused
+        // at 1 cm: integrate 0.296 -> 0.292 s at 2 threads).
+        ray_x_.resize(std::size_t(w));
+        for (int u = 0; u < w; ++u) ray_x_[std::size_t(u)] = (u - K_.cx) / K_.fx;
     }
 
     /// Row v's points into p, r, valid (w entries each; p and r left as they are where
@@ -143,6 +147,7 @@ class DepthRows {
     void project(int v, V3* p, double* r, char* valid) const {
         const float* d = depth_.depth.data() + std::size_t(v) * std::size_t(w);
         std::fill(valid, valid + w, 0);
+        const double ray_y = (v - K_.cy) / K_.fy;
         for (int u = 0; u < w;) {
             if (u + 8 <= w && none_of_8(d + u)) {  // background (0) is skipped 8 pixels at a time
                 u += 8;
@@ -151,7 +156,7 @@ class DepthRows {
             for (const int end = std::min(w, u + 8); u < end; ++u) {
                 const double z = double(d[u]);
                 if (!measured(z)) continue;
-                const V3 x = point(u, v, z);
+                const V3 x = point(ray_x_[std::size_t(u)], ray_y, z);
                 p[u] = x;
                 r[u] = std::sqrt(dot(x, x));
                 valid[u] = r[u] > 0.0;
@@ -171,7 +176,7 @@ class DepthRows {
         const int v = int(i / std::size_t(w)), u = int(i % std::size_t(w));
         const double z = double(depth_.depth[i]);
         if (!measured(z)) return 0.0;
-        const V3 x = point(u, v, z);
+        const V3 x = point(ray_x_[std::size_t(u)], (v - K_.cy) / K_.fy, z);
         return std::sqrt(dot(x, x));
     }
 
@@ -180,8 +185,9 @@ class DepthRows {
     bool measured(double z) const {
         return std::isfinite(z) && z > min_depth_ && z > 0.0 && z <= max_depth_;
     }
-    V3 point(int u, int v, double z) const {
-        const V3 ray = {(u - K_.cx) / K_.fx, (v - K_.cy) / K_.fy, 1.0};
+    /// The point of a pixel whose ray is (rx, ry, 1): rx = (u - cx) / fx, ry = (v - cy) / fy.
+    V3 point(double rx, double ry, double z) const {
+        const V3 ray = {rx, ry, 1.0};
         if (kind_ == DepthKind::ray) z /= std::sqrt(dot(ray, ray));
         return {ray[0] * z, ray[1] * z, z};
     }
@@ -194,6 +200,7 @@ class DepthRows {
     mutable std::vector<double> r_[3];
     mutable std::vector<char> valid_[3];
     mutable int row_[3] = {-1, -1, -1};  ///< the row each buffer holds
+    std::vector<double> ray_x_;          ///< per column
 };
 
 FramePoints back_project(const DepthImage& depth, const Intrinsics& K, const DepthOptions& o) {

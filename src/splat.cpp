@@ -568,15 +568,6 @@ openvdb::util::NodeMask<3> valid_mask(const At& at, const ValidRule& rule, std::
     return mask;
 }
 
-/// A leaf at `origin`, all voxels off, with its buffer allocated but not filled.
-template <typename Leaf>
-std::unique_ptr<Leaf> unfilled_leaf(const openvdb::Coord& origin) {
-    auto leaf = std::make_unique<Leaf>(openvdb::PartialCreate(), origin,
-                                       typename Leaf::ValueType(0), false);
-    leaf->buffer().allocate();
-    return leaf;
-}
-
 /// One output leaf (sdf, weight, nearest and colour) at lo_world from the sums of its voxels
 /// (`at(v)`, v the leaf offset): the valid voxels (valid_mask) get sdf = u phi / u (clamped to
 /// the band), weight w, the nearest vector and the mean colour, written into the new leaves'
@@ -593,10 +584,10 @@ void emit_leaf(const openvdb::Coord& lo_world, At&& at, bool colors, const Valid
     {
         // Allocated under the heap lock (detail/release.h), filled after it.
         const tbb::spin_mutex::scoped_lock lock(detail::heap_lock());
-        out.sdf[s] = unfilled_leaf<FloatLeaf>(lo_world);
-        out.weight[s] = unfilled_leaf<FloatLeaf>(lo_world);
-        out.nearest[s] = unfilled_leaf<Vec3Leaf>(lo_world);
-        if (colors) out.color[s] = unfilled_leaf<Vec3Leaf>(lo_world);
+        out.sdf[s] = detail::unfilled_leaf<FloatLeaf>(lo_world);
+        out.weight[s] = detail::unfilled_leaf<FloatLeaf>(lo_world);
+        out.nearest[s] = detail::unfilled_leaf<Vec3Leaf>(lo_world);
+        if (colors) out.color[s] = detail::unfilled_leaf<Vec3Leaf>(lo_world);
     }
     float* sdf = out.sdf[s]->buffer().data();
     float* weight = out.weight[s]->buffer().data();

@@ -1,8 +1,10 @@
 // Truncated signed distance fusion with space carving (see detail/tsdf.h).
 #include "detail/tsdf.h"
 
+#include <openvdb/tree/LeafManager.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/spin_mutex.h>
 
 #include <algorithm>
 #include <cmath>
@@ -14,6 +16,7 @@
 #endif
 
 #include "detail/ray_image.h"
+#include "detail/release.h"
 #include "detail/simd.h"
 #include "detail/volume_grids.h"
 #include "vdbrecon/error.h"
@@ -663,41 +666,72 @@ std::size_t TsdfVolume::memory_bytes() const {
                        (color_ ? color_->memUsage() + color_weight_->memUsage() : 0));
 }
 
+void TsdfVolume::result_leaves(const FloatLeaf& value, float background, ResultLeaves& out) const {
+    const openvdb::Coord& origin = value.origin();
+    const FloatLeaf* wt = weight_->tree().probeConstLeaf(origin);
+    const ColorLeaf* cs = color_ ? color_->tree().probeConstLeaf(origin) : nullptr;
+    // The voxels seen (weight > 0) and near a surface (|value| < 1); free space goes.
+    openvdb::util::NodeMask<3> mask;
+    for (auto v = value.cbeginValueOn(); v; ++v) {
+        ++out.touched;
+        if (wt->getValue(v.pos()) > 0.0f && std::fabs(*v) < 1.0f) mask.setOn(v.pos());
+    }
+    out.active = mask.countOn();
+    if (out.active == 0) return;
+    {
+        // Allocated under the heap lock (detail/release.h), filled after it.
+        const tbb::spin_mutex::scoped_lock lock(heap_lock());
+        out.sdf = unfilled_leaf<FloatLeaf>(origin);
+        out.weight = unfilled_leaf<FloatLeaf>(origin);
+        out.nearest = unfilled_leaf<ColorLeaf>(origin);
+        if (color_) out.color = unfilled_leaf<ColorLeaf>(origin);
+    }
+    float* sdf = out.sdf->buffer().data();
+    float* weight = out.weight->buffer().data();
+    openvdb::Vec3f* color = color_ ? out.color->buffer().data() : nullptr;
+    std::fill(sdf, sdf + FloatLeaf::SIZE, background);
+    std::fill(weight, weight + FloatLeaf::SIZE, 0.0f);
+    out.nearest->buffer().fill(openvdb::Vec3f(0.0f));
+    if (color) std::fill(color, color + ColorLeaf::SIZE, openvdb::Vec3f(0.0f));
+    for (auto v = mask.beginOn(); v; ++v) {
+        const openvdb::Index i = v.pos();
+        sdf[i] = value.getValue(i) * background;
+        weight[i] = wt->getValue(i);
+        if (color && cs) color[i] = cs->getValue(i);
+    }
+    out.sdf->setValueMask(mask);
+    out.weight->setValueMask(mask);
+    out.nearest->setValueMask(mask);
+    if (color) out.color->setValueMask(mask);
+}
+
 SplatResult TsdfVolume::result() const {
     const float background = float(truncation_);
     auto sdf = openvdb::FloatGrid::create(background);
     auto weight = openvdb::FloatGrid::create(0.0f);
     auto nearest = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
     auto color = color_ ? openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f)) : openvdb::Vec3fGrid::Ptr();
+    // Each TSDF leaf's output leaves are made on their own, in parallel, then added in leaf
+    // order (dragon frames at 4 mm, 2 threads: the volume 0.050 -> 0.038 s, against one loop
+    // over the leaves).
+    openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(value_->tree());
+    std::vector<ResultLeaves> out(leaves.leafCount());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, out.size(), 16),
+                      [&](const tbb::blocked_range<std::size_t>& range) {
+                          for (std::size_t i = range.begin(); i < range.end(); ++i) {
+                              result_leaves(leaves.leaf(i), background, out[i]);
+                          }
+                      });
     SplatResult r;
-    for (auto it = value_->tree().cbeginLeaf(); it; ++it) {
-        const FloatLeaf* wt = weight_->tree().probeConstLeaf(it->origin());
-        std::unique_ptr<FloatLeaf> s, wl;
-        std::unique_ptr<openvdb::Vec3fTree::LeafNodeType> nl, cl;
-        const ColorLeaf* cs = color_ ? color_->tree().probeConstLeaf(it->origin()) : nullptr;
-        for (auto v = it->cbeginValueOn(); v; ++v) {
-            const openvdb::Index idx = v.pos();
-            const float wv = wt->getValue(idx);
-            ++r.touched_voxels;
-            if (!(wv > 0.0f) || !(std::fabs(*v) < 1.0f)) continue;  // unseen or free space
-            if (!s) {
-                s = std::make_unique<FloatLeaf>(it->origin(), background, false);
-                wl = std::make_unique<FloatLeaf>(it->origin(), 0.0f, false);
-                nl = std::make_unique<openvdb::Vec3fTree::LeafNodeType>(it->origin(), openvdb::Vec3f(0.0f), false);
-                if (color) cl = std::make_unique<ColorLeaf>(it->origin(), openvdb::Vec3f(0.0f), false);
-            }
-            if (cl) cl->setValueOn(idx, cs ? cs->getValue(idx) : openvdb::Vec3f(0.0f));
-            s->setValueOn(idx, *v * background);
-            wl->setValueOn(idx, wv);
-            nl->setValueOn(idx, openvdb::Vec3f(0.0f));
-            ++r.active_voxels;
-        }
-        if (!s) continue;
+    for (ResultLeaves& o : out) {
+        r.touched_voxels += o.touched;
+        r.active_voxels += o.active;
+        if (!o.sdf) continue;
         ++r.leaves;
-        sdf->tree().addLeaf(s.release());
-        weight->tree().addLeaf(wl.release());
-        nearest->tree().addLeaf(nl.release());
-        if (cl) color->tree().addLeaf(cl.release());
+        sdf->tree().addLeaf(o.sdf.release());
+        weight->tree().addLeaf(o.weight.release());
+        nearest->tree().addLeaf(o.nearest.release());
+        if (color) color->tree().addLeaf(o.color.release());
     }
     if (r.active_voxels == 0) {
         throw NumericalError("tsdf: no voxel near a measured surface");

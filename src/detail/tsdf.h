@@ -109,6 +109,13 @@ class TsdfVolume {
     /// update: those, or with carving every leaf held; makes the colour grids' leaves too.
     std::vector<FloatLeaf*> candidates(const std::vector<openvdb::Coord>& leaves, bool colors);
     LeafColors leaf_colors(const std::vector<Vec3f>* colors, const openvdb::Coord& origin) const;
+    /// result()'s leaves of one TSDF leaf (none where no voxel is kept).
+    struct ResultLeaves {
+        std::unique_ptr<FloatLeaf> sdf, weight;
+        std::unique_ptr<ColorLeaf> nearest, color;
+        std::size_t touched = 0, active = 0;
+    };
+    void result_leaves(const FloatLeaf& value, float background, ResultLeaves& out) const;
 
     double voxel_, truncation_;
     bool carve_;

@@ -3,6 +3,8 @@
 
 #include <openvdb/openvdb.h>
 
+#include <memory>
+
 #include "vdbrecon/volume.h"
 
 namespace vdbrecon::detail {
@@ -11,6 +13,16 @@ namespace vdbrecon::detail {
 /// (2^23 less a margin): block and leaf indices then fit the 20-21 bits their packed keys give
 /// each axis.
 constexpr double kMaxVoxelIndex = double(1 << 23) - 64.0;
+
+/// A leaf at `origin`, all voxels off, with its buffer allocated but not filled. (Output
+/// leaves made inside a parallel loop are allocated under detail::heap_lock(), filled after.)
+template <typename Leaf>
+std::unique_ptr<Leaf> unfilled_leaf(const openvdb::Coord& origin) {
+    auto leaf = std::make_unique<Leaf>(openvdb::PartialCreate(), origin,
+                                       typename Leaf::ValueType(0), false);
+    leaf->buffer().allocate();
+    return leaf;
+}
 
 /// Flood-fills the sdf's signs, gives every grid the linear transform (voxel, origin), its
 /// name and class (see volume.h), and puts them in a Volume (no metadata). color may be null.

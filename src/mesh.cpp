@@ -14,6 +14,7 @@
 #include <memory>
 #include <numeric>
 #include <optional>
+#include <utility>
 
 #include "detail/compact.h"
 #include "detail/mesh_common.h"
@@ -228,100 +229,160 @@ std::vector<char> classify_points(const Volume& volume, const MeshOptions& optio
     return status;
 }
 
-/// Which unsupported faces to trim: the edge-connected regions of unsupported faces (a vertex
-/// weak or far) that hold a far vertex or an edge of the open border (an edge no other face
-/// shares). Faces in invalid cells must be gone already. Works on the unsupported faces'
-/// edges only (memory in proportion to them, not to the mesh: a 24 M face terrain had built
-/// every edge of the mesh twice over, 1.2 GB, to answer for its 27 k unsupported faces).
-std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::vector<char>& status,
-                                std::size_t npoints) {
+/// The unsupported faces (a vertex not kSupported), numbered in face order: slot[f] their number
+/// (-1 for the others), face_of their faces, mine[v] set for their points. Counted, then
+/// numbered, by chunks in parallel.
+struct UnsupportedFaces {
+    std::vector<std::int32_t> slot, face_of;
+    std::vector<char> mine;
+};
+
+UnsupportedFaces unsupported_faces(const std::vector<Triangle>& tris,
+                                   const std::vector<char>& status, std::size_t npoints) {
     const std::size_t nf = tris.size();
-    std::vector<char> trim(nf, 0);
-    std::vector<char> mine(npoints, 0);  // the points of unsupported faces
-    std::vector<std::int32_t> slot(nf), face_of;  // unsupported faces, numbered in order
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 16384),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                          for (std::size_t f = r.begin(); f < r.end(); ++f) {
-                              bool unsupported = false;
-                              for (std::int32_t v : tris[f])
-                                  unsupported |= status[std::size_t(v)] != kSupported;
-                              slot[f] = unsupported ? 0 : -1;
-                          }
-                      });
-    for (std::size_t f = 0; f < nf; ++f) {
-        if (slot[f] < 0) continue;
-        slot[f] = std::int32_t(face_of.size());
-        face_of.push_back(std::int32_t(f));
-        for (std::int32_t v : tris[f]) mine[std::size_t(v)] = 1;
-    }
-    if (face_of.empty()) return trim;
-    // The unsupported faces' edges, sorted: faces with one key share that edge. A degenerate
-    // edge (a, a) joins nothing.
-    std::vector<EdgeSide> sides = sorted_sides(tris, [&](std::size_t f) { return slot[f] >= 0; });
-    sides.erase(std::remove_if(sides.begin(), sides.end(),
-                               [](const EdgeSide& e) { return (e.key >> 32) == (e.key & 0xffffffffu); }),
-                sides.end());
-    // How many faces of the whole mesh use each of those edges (1: the open border): the
-    // unsupported faces' sides of each key, plus the supported faces with that edge (found by
-    // a search for their edges between two points of unsupported faces, the few next to them;
-    // with every face's such edges searched, the mesh stage of the Kinect frames fused at 1 cm,
-    // 113k faces trimmed, took 0.127 / 0.076 s at 1 / 2 threads, now 0.112 / 0.066 s).
+    UnsupportedFaces u;
+    u.slot.resize(nf);
+    u.mine.assign(npoints, 0);
+    std::vector<std::int32_t> first(chunk_count(nf), 0);
+    for_each_chunk(nf, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        std::int32_t count = 0;
+        for (std::size_t f = begin; f < end; ++f) {
+            bool unsupported = false;
+            for (std::int32_t v : tris[f]) unsupported |= status[std::size_t(v)] != kSupported;
+            u.slot[f] = unsupported ? 0 : -1;
+            count += std::int32_t(unsupported);
+        }
+        first[c] = count;
+    });
+    std::int32_t total = 0;
+    for (std::int32_t& f : first) total += std::exchange(f, total);
+    u.face_of.resize(std::size_t(total));
+    for_each_chunk(nf, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        std::int32_t next = first[c];
+        for (std::size_t f = begin; f < end; ++f) {
+            if (u.slot[f] < 0) continue;
+            u.face_of[std::size_t(next)] = std::int32_t(f);
+            u.slot[f] = next++;
+            for (std::int32_t v : tris[f]) {
+                __atomic_store_n(&u.mine[std::size_t(v)], char(1), __ATOMIC_RELAXED);
+            }
+        }
+    });
+    return u;
+}
+
+/// The runs of the unsupported faces' sorted sides (one edge each): the first side of each
+/// (first.back() = the number of sides) and how many faces of the whole mesh use its edge
+/// (1: the open border). Those are the run's own sides plus the supported faces with that
+/// edge, found by a search for their edges between two points of unsupported faces, the few
+/// next to them. (With every face's such edges searched, the mesh stage of the Kinect frames
+/// fused at 1 cm, 113k faces trimmed, took 0.127 / 0.076 s at 1 / 2 threads; 0.112 / 0.066 s
+/// so.)
+struct EdgeRuns {
+    std::vector<std::size_t> first;
+    std::vector<std::atomic<std::uint32_t>> uses;
+};
+
+EdgeRuns count_edge_uses(const std::vector<Triangle>& tris, const EdgeSides& sides,
+                         const UnsupportedFaces& u) {
+    EdgeRuns runs;
     std::vector<std::uint64_t> keys;
-    std::vector<std::uint32_t> own_uses;
     for (std::size_t i = 0; i < sides.size(); ++i) {
         if (i == 0 || sides[i].key != sides[i - 1].key) {
             keys.push_back(sides[i].key);
-            own_uses.push_back(0);
+            runs.first.push_back(i);
         }
-        ++own_uses.back();
     }
-    std::vector<std::atomic<std::uint32_t>> uses(keys.size());
+    runs.first.push_back(sides.size());
+    runs.uses = std::vector<std::atomic<std::uint32_t>>(keys.size());
     for (std::size_t e = 0; e < keys.size(); ++e) {
-        uses[e].store(own_uses[e], std::memory_order_relaxed);
+        runs.uses[e].store(std::uint32_t(runs.first[e + 1] - runs.first[e]),
+                           std::memory_order_relaxed);
     }
-    release(own_uses);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nf, 16384),
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, tris.size(), 16384),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t f = r.begin(); f < r.end(); ++f) {
-                              if (slot[f] >= 0) continue;  // counted in own_uses
+                              if (u.slot[f] >= 0) continue;  // its sides are counted
                               const Triangle& t = tris[f];
                               for (int k = 0; k < 3; ++k) {
                                   const std::int32_t a = t[k], b = t[(k + 1) % 3];
-                                  if (a == b || !mine[std::size_t(a)] || !mine[std::size_t(b)])
+                                  if (a == b || !u.mine[std::size_t(a)] || !u.mine[std::size_t(b)])
                                       continue;
                                   const auto it =
                                       std::lower_bound(keys.begin(), keys.end(), edge_key(a, b));
                                   if (it != keys.end() && *it == edge_key(a, b)) {
-                                      uses[std::size_t(it - keys.begin())].fetch_add(
+                                      runs.uses[std::size_t(it - keys.begin())].fetch_add(
                                           1, std::memory_order_relaxed);
                                   }
                               }
                           }
                       });
-    // Regions: union-find over the unsupported faces, joined where they share an edge; roots
-    // are the smallest number, so the labels do not depend on the order of the unions.
-    MinUnionFind sets(face_of.size());
-    std::vector<char> seeded(face_of.size(), 0);
-    for (std::size_t i = 0, e = 0; i < sides.size(); ++i) {
-        if (i > 0 && sides[i].key != sides[i - 1].key) ++e;
-        const std::int32_t me = slot[std::size_t(sides[i].face)];
-        if (uses[e] == 1) seeded[std::size_t(me)] = 1;  // on the open border
-        if (i > 0 && sides[i].key == sides[i - 1].key) {
-            sets.unite(me, slot[std::size_t(sides[i - 1].face)]);
-        }
-    }
-    for (std::size_t j = 0; j < face_of.size(); ++j) {
-        for (std::int32_t v : tris[std::size_t(face_of[j])]) {
-            if (status[std::size_t(v)] == kFar) seeded[j] = 1;
-        }
-    }
-    const std::vector<std::int32_t> label = std::move(sets).labels();
-    for (std::size_t j = 0; j < face_of.size(); ++j) {
-        if (seeded[j]) seeded[std::size_t(label[j])] = 1;
-    }
-    for (std::size_t j = 0; j < face_of.size(); ++j) {
-        trim[std::size_t(face_of[j])] = seeded[std::size_t(label[j])];
-    }
+    return runs;
+}
+
+/// Which unsupported faces to trim: the edge-connected regions of unsupported faces (a vertex
+/// weak or far) that hold a far vertex or an edge of the open border (an edge no other face
+/// shares). Faces in invalid cells must be gone already. Works on the unsupported faces'
+/// edges only (memory in proportion to them, not to the mesh: a 24 M face terrain had built
+/// every edge of the mesh twice over, 1.2 GB, to answer for its 27 k unsupported faces). In
+/// parallel: the regions are a union-find whose roots are the smallest number, so the labels
+/// do not depend on the order of the unions.
+std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::vector<char>& status,
+                                std::size_t npoints) {
+    std::vector<char> trim(tris.size(), 0);
+    const UnsupportedFaces u = unsupported_faces(tris, status, npoints);
+    const std::size_t n = u.face_of.size();
+    if (n == 0) return trim;
+    // The unsupported faces' edges, sorted: faces with one key share that edge. A degenerate
+    // edge (a, a) joins nothing.
+    EdgeSides sides = sorted_sides(tris, [&](std::size_t f) { return u.slot[f] >= 0; });
+    sides.erase(std::remove_if(sides.begin(), sides.end(),
+                               [](const EdgeSide& e) { return (e.key >> 32) == (e.key & 0xffffffffu); }),
+                sides.end());
+    const EdgeRuns runs = count_edge_uses(tris, sides, u);
+    // Regions, and their seeds: a face on the open border or with a far point.
+    ConcurrentMinUnionFind sets(n);
+    std::vector<char> seeded(n, 0);
+    const auto seed = [&](std::size_t j) {
+        __atomic_store_n(&seeded[j], char(1), __ATOMIC_RELAXED);
+    };
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, runs.uses.size(), 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t e = r.begin(); e < r.end(); ++e) {
+                              const bool border = runs.uses[e].load(std::memory_order_relaxed) == 1;
+                              const std::int32_t head =
+                                  u.slot[std::size_t(sides[runs.first[e]].face)];
+                              for (std::size_t i = runs.first[e]; i < runs.first[e + 1]; ++i) {
+                                  const std::int32_t me = u.slot[std::size_t(sides[i].face)];
+                                  if (border) seed(std::size_t(me));
+                                  if (i > runs.first[e]) sets.unite(me, head);
+                              }
+                          }
+                      });
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t j = r.begin(); j < r.end(); ++j) {
+                              for (std::int32_t v : tris[std::size_t(u.face_of[j])]) {
+                                  if (status[std::size_t(v)] == kFar) seed(j);
+                              }
+                          }
+                      });
+    // A set is trimmed when one of its faces is seeded: each seed marks its root (only roots
+    // are written, so no face's own seed changes while it is read).
+    const std::vector<std::int32_t> label = sets.labels();
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t j = r.begin(); j < r.end(); ++j) {
+                              if (__atomic_load_n(&seeded[j], __ATOMIC_RELAXED))
+                                  seed(std::size_t(label[j]));
+                          }
+                      });
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                          for (std::size_t j = r.begin(); j < r.end(); ++j) {
+                              trim[std::size_t(u.face_of[j])] = seeded[std::size_t(label[j])];
+                          }
+                      });
     return trim;
 }
 

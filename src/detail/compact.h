@@ -25,10 +25,11 @@ std::size_t compact_in_place(std::vector<T>& v, Keep&& keep) {
         }
         kept[c] = out - begin;
     });
+    const std::size_t size = chunk_size(n);
     std::size_t out = 0;
     for (std::size_t c = 0; c < kept.size(); ++c) {
-        const auto from = v.begin() + std::ptrdiff_t(c * kChunk);
-        if (out != c * kChunk)
+        const auto from = v.begin() + std::ptrdiff_t(c * size);
+        if (out != c * size)
             std::move(from, from + std::ptrdiff_t(kept[c]), v.begin() + std::ptrdiff_t(out));
         out += kept[c];
     }

@@ -7,6 +7,7 @@
 // allocated, so a hostile header cannot make us reserve terabytes.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
 #include <charconv>
@@ -733,6 +734,35 @@ std::uint8_t to_byte(float c) {
     return std::uint8_t(v);
 }
 
+/// Writes `rows` binary rows of `row` bytes each to the stream, rows [first, last) made by
+/// put(first, last, at) at `at`, a block of about 1 MB at a time: a block's rows are made in
+/// parallel while the block before is written. (The bunny's 17 MB mesh at 0.5 mm, the run's
+/// serial tail: 9 -> 6 ms at 2 threads, 10 -> 9 ms at 1, against rows packed in a 64 kB block
+/// copied into the ByteWriter's buffer.)
+template <typename Put>
+void write_rows(std::FILE* file, std::size_t rows, std::size_t row, const Put& put) {
+    const std::size_t per_block = std::max<std::size_t>(1, (std::size_t(1) << 20) / row);
+    std::vector<char> making(per_block * row), ready(per_block * row);
+    std::size_t ready_bytes = 0;
+    for (std::size_t first = 0; first < rows || ready_bytes > 0;) {
+        const std::size_t last = std::min(rows, first + per_block);
+        tbb::parallel_invoke(
+            [&] {
+                tbb::parallel_for(tbb::blocked_range<std::size_t>(first, last, 4096),
+                                  [&](const tbb::blocked_range<std::size_t>& r) {
+                                      put(r.begin(), r.end(),
+                                          making.data() + (r.begin() - first) * row);
+                                  });
+            },
+            [&] {  // a failure sets the stream's error flag, which AtomicFile::commit reports
+                if (ready_bytes > 0) std::fwrite(ready.data(), 1, ready_bytes, file);
+            });
+        making.swap(ready);
+        ready_bytes = (last - first) * row;
+        first = last;
+    }
+}
+
 }  // namespace
 
 void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& origin,
@@ -803,44 +833,50 @@ void write_ply(const std::string& path, Span<Vec3f> positions, const Vec3d& orig
             }
         }
     } else {
-        // Binary rows are packed into a block of memory, written a block at a time. The block
-        // is flushed once kBlock bytes are reached, so it needs room for one more row past it:
-        // at most 47 bytes (3 doubles, 3 floats, 3 bytes, 2 floats; a face row is 13).
-        constexpr std::size_t kBlock = std::size_t(1) << 16;
-        std::vector<char> block(kBlock + 64);
-        char* p = block.data();
-        auto flush_if_full = [&] {
-            if (std::size_t(p - block.data()) < kBlock) return;
-            out.write(block.data(), std::size_t(p - block.data()));
-            p = block.data();
-        };
-        for (std::size_t i = 0; i < positions.size(); ++i) {
-            for (int a = 0; a < 3; ++a) {
-                if (far) {
-                    put_binary(p, origin[a] + double(positions[i][a]), big);
-                } else {
-                    put_binary(p, positions[i][a], big);
-                }
-            }
-            if (!normals.empty()) {
-                for (float v : normals[i]) put_binary(p, v, big);
-            }
-            if (!colors.empty()) {
-                for (float v : colors[i]) put_binary(p, to_byte(v), big);
-            }
-            if (!scales.empty()) put_binary(p, scales[i], big);
-            if (!confidences.empty()) put_binary(p, confidences[i], big);
-            flush_if_full();
-        }
+        out.flush();  // the header; the rows go to the stream after it
+        const std::size_t vertex_row = (far ? 24 : 12) + (normals.empty() ? 0 : 12) +
+                                       (colors.empty() ? 0 : 3) + (scales.empty() ? 0 : 4) +
+                                       (confidences.empty() ? 0 : 4);
+        // The rows' inputs in locals: the rows' byte stores could alias anything reached through
+        // a reference, which was then read again for every value.
+        write_rows(file.stream(), positions.size(), vertex_row,
+                   [&](std::size_t first, std::size_t last, char* p) {
+                       const Span<Vec3f> pos = positions, nrm = normals, col = colors;
+                       const Span<float> scl = scales, cnf = confidences;
+                       const Vec3d o = origin;
+                       const bool b = big, wide = far;
+                       for (std::size_t i = first; i < last; ++i) {
+                           for (int a = 0; a < 3; ++a) {
+                               if (wide) {
+                                   put_binary(p, o[a] + double(pos[i][a]), b);
+                               } else {
+                                   put_binary(p, pos[i][a], b);
+                               }
+                           }
+                           if (!nrm.empty()) {
+                               for (float v : nrm[i]) put_binary(p, v, b);
+                           }
+                           if (!col.empty()) {
+                               for (float v : col[i]) put_binary(p, to_byte(v), b);
+                           }
+                           if (!scl.empty()) put_binary(p, scl[i], b);
+                           if (!cnf.empty()) put_binary(p, cnf[i], b);
+                       }
+                   });
         if (faces) {
-            for (std::size_t f = 0; f < faces->size(); ++f) {
-                put_binary(p, std::uint8_t(3), big);
-                for (std::int32_t v : (*faces)[f]) put_binary(p, v, big);
-                if (!regions.empty()) put_binary(p, regions[f], big);
-                flush_if_full();
-            }
+            const std::size_t face_row = 13 + (regions.empty() ? 0 : 4);
+            write_rows(file.stream(), faces->size(), face_row,
+                       [&](std::size_t first, std::size_t last, char* p) {
+                           const Triangle* tri = faces->data();
+                           const Span<std::int32_t> reg = regions;
+                           const bool b = big;
+                           for (std::size_t f = first; f < last; ++f) {
+                               put_binary(p, std::uint8_t(3), b);
+                               for (std::int32_t v : tri[f]) put_binary(p, v, b);
+                               if (!reg.empty()) put_binary(p, reg[f], b);
+                           }
+                       });
         }
-        out.write(block.data(), std::size_t(p - block.data()));
     }
     out.flush();
     file.commit();

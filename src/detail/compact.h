@@ -14,8 +14,8 @@ namespace vdbrecon::detail {
 /// dropped. keep(i) may read v[i] (it is called before v[i] is moved). Each chunk is compacted
 /// within itself in parallel, then the kept runs are moved down in chunk order: one memmove per
 /// chunk instead of a serial pass of element copies over the whole vector.
-template <typename T, typename Keep>
-std::size_t compact_in_place(std::vector<T>& v, Keep&& keep) {
+template <typename T, typename A, typename Keep>
+std::size_t compact_in_place(std::vector<T, A>& v, Keep&& keep) {
     const std::size_t n = v.size();
     std::vector<std::size_t> kept(chunk_count(n), 0);
     for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {

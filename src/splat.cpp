@@ -257,10 +257,10 @@ inline bool kernel_span(const Kernel& k, int lo[3], int hi[3]) {
 using FloatLeaf = openvdb::FloatTree::LeafNodeType;
 using Vec3Leaf = openvdb::Vec3fTree::LeafNodeType;
 
-/// What one block contributes: its eight leaves per grid (null where no voxel is valid), counts.
+/// What one block contributes: the grids' leaves at its eight leaf places (none made where no
+/// voxel is valid), counts.
 struct BlockOut {
-    std::unique_ptr<FloatLeaf> sdf[8], weight[8];
-    std::unique_ptr<Vec3Leaf> nearest[8], color[8];
+    detail::VolumeLeaves leaf[8];
     std::size_t updates = 0, touched = 0, active = 0;
     std::uint8_t leaves = 0;  ///< the leaves its kernels reach (leaf_mask)
 };
@@ -581,22 +581,12 @@ void emit_leaf(const openvdb::Coord& lo_world, At&& at, bool colors, const Valid
     out.active += active;
     if (active == 0) return;
     const float background = rule.background;
-    {
-        // Allocated under the heap lock (detail/release.h), filled after it.
-        const tbb::spin_mutex::scoped_lock lock(detail::heap_lock());
-        out.sdf[s] = detail::unfilled_leaf<FloatLeaf>(lo_world);
-        out.weight[s] = detail::unfilled_leaf<FloatLeaf>(lo_world);
-        out.nearest[s] = detail::unfilled_leaf<Vec3Leaf>(lo_world);
-        if (colors) out.color[s] = detail::unfilled_leaf<Vec3Leaf>(lo_world);
-    }
-    float* sdf = out.sdf[s]->buffer().data();
-    float* weight = out.weight[s]->buffer().data();
-    openvdb::Vec3f* nearest = out.nearest[s]->buffer().data();
-    openvdb::Vec3f* color = colors ? out.color[s]->buffer().data() : nullptr;
-    std::fill(sdf, sdf + FloatLeaf::SIZE, background);
-    std::fill(weight, weight + FloatLeaf::SIZE, 0.0f);
-    std::fill(nearest, nearest + Vec3Leaf::SIZE, openvdb::Vec3f(0.0f));
-    if (color) std::fill(color, color + Vec3Leaf::SIZE, openvdb::Vec3f(0.0f));
+    detail::VolumeLeaves& place = out.leaf[s];
+    place.make(lo_world, background, colors);
+    float* sdf = place.sdf->buffer().data();
+    float* weight = place.weight->buffer().data();
+    openvdb::Vec3f* nearest = place.nearest->buffer().data();
+    openvdb::Vec3f* color = colors ? place.color->buffer().data() : nullptr;
     for (auto it = mask.beginOn(); it; ++it) {
         const int v = int(it.pos());
         const VoxelSums x = at(v);
@@ -607,10 +597,7 @@ void emit_leaf(const openvdb::Coord& lo_world, At&& at, bool colors, const Valid
         if (color)
             color[v] = openvdb::Vec3f(float(x.r * inv_u), float(x.g * inv_u), float(x.b * inv_u));
     }
-    out.sdf[s]->setValueMask(mask);
-    out.weight[s]->setValueMask(mask);
-    out.nearest[s]->setValueMask(mask);
-    if (colors) out.color[s]->setValueMask(mask);
+    place.set_mask(mask);
 }
 
 constexpr std::uint32_t kNoPoint = std::numeric_limits<std::uint32_t>::max();
@@ -1191,19 +1178,12 @@ Grids assemble(std::vector<BlockOut>& blocks, bool colors, float background,
     g.weight = openvdb::FloatGrid::create(0.0f);
     g.nearest = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
     if (colors) g.color = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
-    auto &sdf = g.sdf, &weight = g.weight;
-    auto &nearest = g.nearest, &color = g.color;
     for (BlockOut& l : blocks) {
         result.updates += l.updates;
         result.touched_voxels += l.touched;
         result.active_voxels += l.active;
-        for (int s = 0; s < 8; ++s) {
-            if (!l.sdf[s]) continue;
-            ++result.leaves;
-            sdf->tree().addLeaf(l.sdf[s].release());
-            weight->tree().addLeaf(l.weight[s].release());
-            nearest->tree().addLeaf(l.nearest[s].release());
-            if (colors) color->tree().addLeaf(l.color[s].release());
+        for (detail::VolumeLeaves& leaves : l.leaf) {
+            result.leaves += leaves.add_to(*g.sdf, *g.weight, *g.nearest, g.color.get());
         }
     }
     if (result.active_voxels == 0) {
@@ -1239,7 +1219,52 @@ void finish_volume(Grids g, const Vec3d& origin, std::size_t points, const Splat
     result.memory_bytes = vol.memory_bytes();
 }
 
+/// A leaf at `origin`, all voxels off, with its buffer allocated but not filled.
+template <typename Leaf>
+std::unique_ptr<Leaf> unfilled_leaf(const openvdb::Coord& origin) {
+    auto leaf = std::make_unique<Leaf>(openvdb::PartialCreate(), origin,
+                                       typename Leaf::ValueType(0), false);
+    leaf->buffer().allocate();
+    return leaf;
+}
+
 }  // namespace
+
+void detail::VolumeLeaves::make(const openvdb::Coord& origin, float background, bool colors) {
+    {
+        const tbb::spin_mutex::scoped_lock lock(detail::heap_lock());
+        sdf = unfilled_leaf<FloatLeaf>(origin);
+        weight = unfilled_leaf<FloatLeaf>(origin);
+        nearest = unfilled_leaf<Vec3Leaf>(origin);
+        if (colors) color = unfilled_leaf<Vec3Leaf>(origin);
+    }
+    std::fill(sdf->buffer().data(), sdf->buffer().data() + FloatLeaf::SIZE, background);
+    std::fill(weight->buffer().data(), weight->buffer().data() + FloatLeaf::SIZE, 0.0f);
+    std::fill(nearest->buffer().data(), nearest->buffer().data() + Vec3Leaf::SIZE,
+              openvdb::Vec3f(0.0f));
+    if (color) {
+        std::fill(color->buffer().data(), color->buffer().data() + Vec3Leaf::SIZE,
+                  openvdb::Vec3f(0.0f));
+    }
+}
+
+void detail::VolumeLeaves::set_mask(const openvdb::util::NodeMask<3>& mask) {
+    sdf->setValueMask(mask);
+    weight->setValueMask(mask);
+    nearest->setValueMask(mask);
+    if (color) color->setValueMask(mask);
+}
+
+bool detail::VolumeLeaves::add_to(openvdb::FloatGrid& sdf_grid, openvdb::FloatGrid& weight_grid,
+                                  openvdb::Vec3fGrid& nearest_grid,
+                                  openvdb::Vec3fGrid* color_grid) {
+    if (!sdf) return false;
+    sdf_grid.tree().addLeaf(sdf.release());
+    weight_grid.tree().addLeaf(weight.release());
+    nearest_grid.tree().addLeaf(nearest.release());
+    if (color_grid && color) color_grid->tree().addLeaf(color.release());
+    return true;
+}
 
 Volume detail::make_volume(openvdb::FloatGrid::Ptr sdf, openvdb::FloatGrid::Ptr weight,
                            openvdb::Vec3fGrid::Ptr nearest, openvdb::Vec3fGrid::Ptr color,

@@ -4,7 +4,6 @@
 #include <openvdb/tree/LeafManager.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <tbb/spin_mutex.h>
 
 #include <algorithm>
 #include <cmath>
@@ -16,7 +15,6 @@
 #endif
 
 #include "detail/ray_image.h"
-#include "detail/release.h"
 #include "detail/simd.h"
 #include "detail/volume_grids.h"
 #include "vdbrecon/error.h"
@@ -678,31 +676,18 @@ void TsdfVolume::result_leaves(const FloatLeaf& value, float background, ResultL
     }
     out.active = mask.countOn();
     if (out.active == 0) return;
-    {
-        // Allocated under the heap lock (detail/release.h), filled after it.
-        const tbb::spin_mutex::scoped_lock lock(heap_lock());
-        out.sdf = unfilled_leaf<FloatLeaf>(origin);
-        out.weight = unfilled_leaf<FloatLeaf>(origin);
-        out.nearest = unfilled_leaf<ColorLeaf>(origin);
-        if (color_) out.color = unfilled_leaf<ColorLeaf>(origin);
-    }
-    float* sdf = out.sdf->buffer().data();
-    float* weight = out.weight->buffer().data();
-    openvdb::Vec3f* color = color_ ? out.color->buffer().data() : nullptr;
-    std::fill(sdf, sdf + FloatLeaf::SIZE, background);
-    std::fill(weight, weight + FloatLeaf::SIZE, 0.0f);
-    out.nearest->buffer().fill(openvdb::Vec3f(0.0f));
-    if (color) std::fill(color, color + ColorLeaf::SIZE, openvdb::Vec3f(0.0f));
+    VolumeLeaves& leaves = out.leaves;
+    leaves.make(origin, background, color_ != nullptr);  // nearest: 0, no sample positions
+    float* sdf = leaves.sdf->buffer().data();
+    float* weight = leaves.weight->buffer().data();
+    openvdb::Vec3f* color = color_ ? leaves.color->buffer().data() : nullptr;
     for (auto v = mask.beginOn(); v; ++v) {
         const openvdb::Index i = v.pos();
         sdf[i] = value.getValue(i) * background;
         weight[i] = wt->getValue(i);
         if (color && cs) color[i] = cs->getValue(i);
     }
-    out.sdf->setValueMask(mask);
-    out.weight->setValueMask(mask);
-    out.nearest->setValueMask(mask);
-    if (color) out.color->setValueMask(mask);
+    leaves.set_mask(mask);
 }
 
 SplatResult TsdfVolume::result() const {
@@ -726,12 +711,7 @@ SplatResult TsdfVolume::result() const {
     for (ResultLeaves& o : out) {
         r.touched_voxels += o.touched;
         r.active_voxels += o.active;
-        if (!o.sdf) continue;
-        ++r.leaves;
-        sdf->tree().addLeaf(o.sdf.release());
-        weight->tree().addLeaf(o.weight.release());
-        nearest->tree().addLeaf(o.nearest.release());
-        if (color) color->tree().addLeaf(o.color.release());
+        r.leaves += o.leaves.add_to(*sdf, *weight, *nearest, color.get());
     }
     if (r.active_voxels == 0) {
         throw NumericalError("tsdf: no voxel near a measured surface");

@@ -32,6 +32,7 @@
 #include <functional>
 #include <vector>
 
+#include "detail/volume_grids.h"
 #include "vdbrecon/fusion.h"
 #include "vdbrecon/splat.h"
 
@@ -109,10 +110,9 @@ class TsdfVolume {
     /// update: those, or with carving every leaf held; makes the colour grids' leaves too.
     std::vector<FloatLeaf*> candidates(const std::vector<openvdb::Coord>& leaves, bool colors);
     LeafColors leaf_colors(const std::vector<Vec3f>* colors, const openvdb::Coord& origin) const;
-    /// result()'s leaves of one TSDF leaf (none where no voxel is kept).
+    /// result()'s leaves of one TSDF leaf (none made where no voxel is kept).
     struct ResultLeaves {
-        std::unique_ptr<FloatLeaf> sdf, weight;
-        std::unique_ptr<ColorLeaf> nearest, color;
+        VolumeLeaves leaves;
         std::size_t touched = 0, active = 0;
     };
     void result_leaves(const FloatLeaf& value, float background, ResultLeaves& out) const;

@@ -14,15 +14,24 @@ namespace vdbrecon::detail {
 /// each axis.
 constexpr double kMaxVoxelIndex = double(1 << 23) - 64.0;
 
-/// A leaf at `origin`, all voxels off, with its buffer allocated but not filled. (Output
-/// leaves made inside a parallel loop are allocated under detail::heap_lock(), filled after.)
-template <typename Leaf>
-std::unique_ptr<Leaf> unfilled_leaf(const openvdb::Coord& origin) {
-    auto leaf = std::make_unique<Leaf>(openvdb::PartialCreate(), origin,
-                                       typename Leaf::ValueType(0), false);
-    leaf->buffer().allocate();
-    return leaf;
-}
+/// The leaves at one place of a volume's grids (see make_volume): sdf, weight, nearest and, with
+/// colours, colour, as the splat and the TSDF rule make them inside parallel loops.
+struct VolumeLeaves {
+    using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+    using Vec3Leaf = openvdb::Vec3fTree::LeafNodeType;
+    std::unique_ptr<FloatLeaf> sdf, weight;
+    std::unique_ptr<Vec3Leaf> nearest, color;
+
+    /// Makes them at `origin`, every voxel off and at its grid's background (sdf `background`,
+    /// the others 0): allocated under detail::heap_lock() (detail/release.h), filled after it.
+    /// The caller writes the active voxels' values, then activates them with set_mask().
+    void make(const openvdb::Coord& origin, float background, bool colors);
+    void set_mask(const openvdb::util::NodeMask<3>& mask);
+    /// Hands them, when made, to the grids' trees (`color` null without colours); false when
+    /// there were none.
+    bool add_to(openvdb::FloatGrid& sdf_grid, openvdb::FloatGrid& weight_grid,
+                openvdb::Vec3fGrid& nearest_grid, openvdb::Vec3fGrid* color_grid);
+};
 
 /// Flood-fills the sdf's signs, gives every grid the linear transform (voxel, origin), its
 /// name and class (see volume.h), and puts them in a Volume (no metadata). color may be null.

@@ -213,18 +213,19 @@ class SampleCells {
         const std::size_t m = keyed.size();
         order_.resize(m);
         where_.resize(m);
-        std::vector<std::size_t> first(chunk_count(m), 0);
-        for_each_chunk(m, [&](std::size_t c, std::size_t begin, std::size_t end) {
-            std::size_t starts = 0;
-            for (std::size_t j = begin; j < end; ++j) {
-                order_[j] = keyed[j].sample;
-                where_[j] = where[keyed[j].sample];
-                starts += j == 0 || !same_cell(keyed[j], keyed[j - 1]);
-            }
-            first[c] = starts;
-        });
         std::size_t cells = 0;
-        for (std::size_t& f : first) cells += std::exchange(f, cells);
+        const std::vector<std::size_t> first = chunk_offsets(
+            m,
+            [&](std::size_t, std::size_t begin, std::size_t end) {
+                std::size_t starts = 0;
+                for (std::size_t j = begin; j < end; ++j) {
+                    order_[j] = keyed[j].sample;
+                    where_[j] = where[keyed[j].sample];
+                    starts += j == 0 || !same_cell(keyed[j], keyed[j - 1]);
+                }
+                return starts;
+            },
+            cells);
         cells_.resize(cells);
         for_each_chunk(m, [&](std::size_t c, std::size_t begin, std::size_t end) {
             std::size_t at = first[c];

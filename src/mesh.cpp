@@ -243,22 +243,23 @@ UnsupportedFaces unsupported_faces(const std::vector<Triangle>& tris,
     UnsupportedFaces u;
     u.slot.resize(nf);
     u.mine.assign(npoints, 0);
-    std::vector<std::int32_t> first(chunk_count(nf), 0);
+    std::size_t total = 0;
+    const std::vector<std::size_t> first = chunk_offsets(
+        nf,
+        [&](std::size_t, std::size_t begin, std::size_t end) {
+            std::size_t count = 0;
+            for (std::size_t f = begin; f < end; ++f) {
+                bool unsupported = false;
+                for (std::int32_t v : tris[f]) unsupported |= status[std::size_t(v)] != kSupported;
+                u.slot[f] = unsupported ? 0 : -1;
+                count += unsupported;
+            }
+            return count;
+        },
+        total);
+    u.face_of.resize(total);
     for_each_chunk(nf, [&](std::size_t c, std::size_t begin, std::size_t end) {
-        std::int32_t count = 0;
-        for (std::size_t f = begin; f < end; ++f) {
-            bool unsupported = false;
-            for (std::int32_t v : tris[f]) unsupported |= status[std::size_t(v)] != kSupported;
-            u.slot[f] = unsupported ? 0 : -1;
-            count += std::int32_t(unsupported);
-        }
-        first[c] = count;
-    });
-    std::int32_t total = 0;
-    for (std::int32_t& f : first) total += std::exchange(f, total);
-    u.face_of.resize(std::size_t(total));
-    for_each_chunk(nf, [&](std::size_t c, std::size_t begin, std::size_t end) {
-        std::int32_t next = first[c];
+        std::int32_t next = std::int32_t(first[c]);
         for (std::size_t f = begin; f < end; ++f) {
             if (u.slot[f] < 0) continue;
             u.face_of[std::size_t(next)] = std::int32_t(f);

@@ -132,15 +132,16 @@ std::vector<std::int32_t> compact_vertices(std::vector<Triangle>& faces, std::si
     // the faces rewritten.
     std::vector<std::int32_t> remap(vertex_count, -1);
     mark_used_vertices(faces, remap.data(), std::int32_t(0));
-    std::vector<std::int32_t> first(chunk_count(vertex_count), 0);
+    std::size_t next = 0;
+    const std::vector<std::size_t> first = chunk_offsets(
+        vertex_count,
+        [&](std::size_t, std::size_t begin, std::size_t end) {
+            return std::size_t(std::count(remap.begin() + std::ptrdiff_t(begin),
+                                          remap.begin() + std::ptrdiff_t(end), 0));
+        },
+        next);
     for_each_chunk(vertex_count, [&](std::size_t c, std::size_t begin, std::size_t end) {
-        first[c] = std::int32_t(std::count(remap.begin() + std::ptrdiff_t(begin),
-                                           remap.begin() + std::ptrdiff_t(end), 0));
-    });
-    std::int32_t next = 0;
-    for (std::int32_t& f : first) next += std::exchange(f, next);
-    for_each_chunk(vertex_count, [&](std::size_t c, std::size_t begin, std::size_t end) {
-        std::int32_t k = first[c];
+        std::int32_t k = std::int32_t(first[c]);
         for (std::size_t i = begin; i < end; ++i) {
             if (remap[i] == 0) remap[i] = k++;
         }

@@ -56,21 +56,22 @@ using EdgeSides = FillLater<EdgeSide>;
 template <typename Take>
 EdgeSides sorted_sides(Span<Triangle> faces, Take take) {
     const std::size_t nf = faces.size();
-    std::vector<std::size_t> first(chunk_count(nf), 0);
-    std::vector<std::uint32_t> largest(first.size(), 0);  // per chunk, vertex index
-    for_each_chunk(nf, [&](std::size_t c, std::size_t begin, std::size_t end) {
-        std::size_t count = 0;
-        std::uint32_t most = 0;
-        for (std::size_t f = begin; f < end; ++f) {
-            if (!take(f)) continue;
-            count += 3;
-            for (std::int32_t v : faces[f]) most = std::max(most, std::uint32_t(v));
-        }
-        first[c] = count;
-        largest[c] = most;
-    });
+    std::vector<std::uint32_t> largest(chunk_count(nf), 0);  // per chunk, vertex index
     std::size_t total = 0;
-    for (std::size_t& f : first) total += std::exchange(f, total);
+    const std::vector<std::size_t> first = chunk_offsets(
+        nf,
+        [&](std::size_t c, std::size_t begin, std::size_t end) {
+            std::size_t count = 0;
+            std::uint32_t most = 0;
+            for (std::size_t f = begin; f < end; ++f) {
+                if (!take(f)) continue;
+                count += 3;
+                for (std::int32_t v : faces[f]) most = std::max(most, std::uint32_t(v));
+            }
+            largest[c] = most;
+            return count;
+        },
+        total);
     EdgeSides sides(total);
     for_each_chunk(nf, [&](std::size_t c, std::size_t begin, std::size_t end) {
         EdgeSide* out = sides.data() + first[c];

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace vdbrecon::detail {
@@ -41,6 +42,21 @@ void for_each_chunk(std::size_t n, Fn&& fn) {
             fn(c, c * size, std::min(n, (c + 1) * size));
         }
     });
+}
+
+/// Each chunk's offset (for_each_chunk's chunks of [0, n)): the sum of count(chunk, begin, end)
+/// over the chunks before it, the counts made in parallel; `total` gets the sum of all. For
+/// listing a varying number of items per element into one array in order, by chunks in
+/// parallel: counted first, then each chunk written from its offset.
+template <typename Count>
+std::vector<std::size_t> chunk_offsets(std::size_t n, Count&& count, std::size_t& total) {
+    std::vector<std::size_t> first(chunk_count(n), 0);
+    for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        first[c] = count(c, begin, end);
+    });
+    total = 0;
+    for (std::size_t& f : first) total += std::exchange(f, total);
+    return first;
 }
 
 /// Sorts v stably by key(element), whose values lie below 2^bits: 11-bit digits, each pass a

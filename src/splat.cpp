@@ -1178,13 +1178,12 @@ Grids assemble(std::vector<BlockOut>& blocks, bool colors, float background,
     g.weight = openvdb::FloatGrid::create(0.0f);
     g.nearest = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
     if (colors) g.color = openvdb::Vec3fGrid::create(openvdb::Vec3f(0.0f));
+    detail::VolumeTrees trees(*g.sdf, *g.weight, *g.nearest, g.color.get());
     for (BlockOut& l : blocks) {
         result.updates += l.updates;
         result.touched_voxels += l.touched;
         result.active_voxels += l.active;
-        for (detail::VolumeLeaves& leaves : l.leaf) {
-            result.leaves += leaves.add_to(*g.sdf, *g.weight, *g.nearest, g.color.get());
-        }
+        for (detail::VolumeLeaves& leaves : l.leaf) result.leaves += leaves.add_to(trees);
     }
     if (result.active_voxels == 0) {
         std::ostringstream s;
@@ -1255,14 +1254,12 @@ void detail::VolumeLeaves::set_mask(const openvdb::util::NodeMask<3>& mask) {
     if (color) color->setValueMask(mask);
 }
 
-bool detail::VolumeLeaves::add_to(openvdb::FloatGrid& sdf_grid, openvdb::FloatGrid& weight_grid,
-                                  openvdb::Vec3fGrid& nearest_grid,
-                                  openvdb::Vec3fGrid* color_grid) {
+bool detail::VolumeLeaves::add_to(VolumeTrees& trees) {
     if (!sdf) return false;
-    sdf_grid.tree().addLeaf(sdf.release());
-    weight_grid.tree().addLeaf(weight.release());
-    nearest_grid.tree().addLeaf(nearest.release());
-    if (color_grid && color) color_grid->tree().addLeaf(color.release());
+    trees.sdf_.addLeaf(sdf.release());
+    trees.weight_.addLeaf(weight.release());
+    trees.nearest_.addLeaf(nearest.release());
+    if (trees.color_ && color) trees.color_->addLeaf(color.release());
     return true;
 }
 

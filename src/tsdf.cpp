@@ -708,10 +708,11 @@ SplatResult TsdfVolume::result() const {
                           }
                       });
     SplatResult r;
+    VolumeTrees trees(*sdf, *weight, *nearest, color.get());
     for (ResultLeaves& o : out) {
         r.touched_voxels += o.touched;
         r.active_voxels += o.active;
-        r.leaves += o.leaves.add_to(*sdf, *weight, *nearest, color.get());
+        r.leaves += o.leaves.add_to(trees);
     }
     if (r.active_voxels == 0) {
         throw NumericalError("tsdf: no voxel near a measured surface");

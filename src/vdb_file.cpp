@@ -38,6 +38,11 @@
 #include <emmintrin.h>
 #endif
 
+#include "detail/simd.h"
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+#include <immintrin.h>
+#endif
+
 #include "detail/io_common.h"
 #include "vdbrecon/error.h"
 
@@ -275,6 +280,107 @@ void equal_bits(const openvdb::Vec3f* values, const openvdb::Vec3f& v, std::uint
 }
 #endif
 
+/// Whether the writer takes its vector forms below (AVX-512 CPUs, with BMI2 as all of them
+/// have it): the bits compared sixteen floats at a time, and the active values copied by
+/// compress-stores instead of one voxel at a time. The same bits and bytes as the forms above
+/// (the test "vdb files: the bytes openvdb::io::File writes" runs both). On the bunny at
+/// 0.5 mm (4 grids, 29k leaves), 1 thread, 8 runs each: the leaves' classification 15.2-17.0
+/// -> 11.5-13.4 ms, their serialisation 12.0-13.5 -> 10.3-11.4 ms.
+bool wide_writer() {
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+    static const bool bmi2 = __builtin_cpu_supports("bmi2");
+    return bmi2 && wide_vector_loops();
+#else
+    return false;
+#endif
+}
+
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+
+/// Every third bit of a 48-bit word (bits 0, 3, ..., 45).
+constexpr std::uint64_t kEveryThird = 0x249249249249ULL;
+
+__attribute__((target("avx512f"))) void equal_bits_wide(const float* values, float v,
+                                                        std::uint64_t* out) {
+    const __m512 b = _mm512_set1_ps(v);
+    for (int w = 0; w < 8; ++w) {
+        std::uint64_t bits = 0;
+        for (int j = 0; j < 64; j += 16) {
+            const __m512 x = _mm512_loadu_ps(values + w * 64 + j);
+            bits |= std::uint64_t(_mm512_cmp_ps_mask(x, b, _CMP_EQ_OQ)) << j;
+        }
+        out[w] = bits;
+    }
+}
+
+/// Sixteen voxels are three vectors of sixteen floats, the components in turn: voxel j's compare
+/// bits are 3j, 3j + 1 and 3j + 2 of the 48.
+__attribute__((target("avx512f,bmi2"))) void equal_bits_wide(const openvdb::Vec3f* values,
+                                                             const openvdb::Vec3f& v,
+                                                             std::uint64_t* out) {
+    __m512 b[3];
+    for (int r = 0; r < 3; ++r) {
+        alignas(64) float lane[16];
+        for (int i = 0; i < 16; ++i) lane[i] = v[(16 * r + i) % 3];
+        b[r] = _mm512_load_ps(lane);
+    }
+    const float* f = values[0].asPointer();
+    for (int w = 0; w < 8; ++w) {
+        std::uint64_t bits = 0;
+        for (int j = 0; j < 64; j += 16, f += 48) {
+            std::uint64_t m = 0;
+            for (int r = 0; r < 3; ++r) {
+                const __mmask16 eq =
+                    _mm512_cmp_ps_mask(_mm512_loadu_ps(f + 16 * r), b[r], _CMP_EQ_OQ);
+                m |= std::uint64_t(eq) << (16 * r);
+            }
+            bits |= _pext_u64(m & m >> 1 & m >> 2, kEveryThird) << j;
+        }
+        out[w] = bits;
+    }
+}
+
+/// The active values of a leaf (bits `on`), in order, at `out`; returns the end.
+__attribute__((target("avx512f"))) char* active_values_wide(const std::uint64_t* on,
+                                                            const float* values, char* out) {
+    for (int g = 0; g < 32; ++g) {
+        const auto m = __mmask16(on[g >> 2] >> (16 * (g & 3)));
+        _mm512_mask_compressstoreu_ps(out, m, _mm512_loadu_ps(values + 16 * g));
+        out += sizeof(float) * std::size_t(__builtin_popcount(unsigned(m)));
+    }
+    return out;
+}
+
+__attribute__((target("avx512f,bmi2"))) char* active_values_wide(const std::uint64_t* on,
+                                                                 const openvdb::Vec3f* values,
+                                                                 char* out) {
+    const float* f = values[0].asPointer();
+    for (int g = 0; g < 32; ++g, f += 48) {
+        const std::uint64_t m16 = (on[g >> 2] >> (16 * (g & 3))) & 0xffffu;
+        const std::uint64_t m48 = _pdep_u64(m16, kEveryThird) * 7;  // each voxel's three bits
+        for (int r = 0; r < 3; ++r) {
+            const auto m = __mmask16(m48 >> (16 * r));
+            _mm512_mask_compressstoreu_ps(out, m, _mm512_loadu_ps(f + 16 * r));
+            out += sizeof(float) * std::size_t(__builtin_popcount(unsigned(m)));
+        }
+    }
+    return out;
+}
+#endif
+
+/// equal_bits, by the vector form when `wide` (wide_writer()).
+template <typename T>
+void equal_bits(const T* values, const T& v, std::uint64_t* out, bool wide) {
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+    if (wide) {
+        equal_bits_wide(values, v, out);
+        return;
+    }
+#endif
+    (void)wide;
+    equal_bits(values, v, out);
+}
+
 /// How one leaf goes into the file: OpenVDB's per-node indicator (the enum in Compression.h),
 /// the inactive values it stores (codes 2, 4, 5; inactive[1] is the one a selection mask marks)
 /// and the leaf's size in bytes.
@@ -306,13 +412,13 @@ int stored_inactive_values(const LeafCode<T>& c) {
 /// bunny at 0.5 mm (its volume written at 1 thread: 0.081 -> 0.064 s). False, with nothing set,
 /// for other leaves.
 template <typename T>
-bool inactive_of_background(const std::uint64_t* on, const T* values, const T& bg, T* seen,
-                            int& n) {
+bool inactive_of_background(const std::uint64_t* on, const T* values, const T& bg, T* seen, int& n,
+                            bool wide) {
     std::uint64_t plus[8], minus[8];
-    equal_bits(values, bg, plus);
+    equal_bits(values, bg, plus, wide);
     const T minus_bg = -bg;
     const bool symmetric = minus_bg == bg;  // a zero background
-    if (!symmetric) equal_bits(values, minus_bg, minus);
+    if (!symmetric) equal_bits(values, minus_bg, minus, wide);
     std::uint64_t any_plus = 0, any_minus = 0;
     for (int w = 0; w < 8; ++w) {
         const std::uint64_t off = ~on[w];
@@ -335,11 +441,11 @@ bool inactive_of_background(const std::uint64_t* on, const T* values, const T& b
 /// for the second), with +bg left implicit and -bg flagged; more than two, every value is
 /// stored.
 template <typename T>
-LeafCode<T> classify_leaf(const std::uint64_t* on, const T* values, const T& bg) {
+LeafCode<T> classify_leaf(const std::uint64_t* on, const T* values, const T& bg, bool wide) {
     LeafCode<T> c;
     T seen[2] = {bg, bg};
     int n = 0;
-    if (!inactive_of_background(on, values, bg, seen, n)) {
+    if (!inactive_of_background(on, values, bg, seen, n, wide)) {
         for_each_bit(on, /*off=*/true, [&](int i) {
             const T& v = values[i];
             if (!((n > 0 && v == seen[0]) || (n > 1 && v == seen[1]))) {
@@ -372,7 +478,8 @@ LeafCode<T> classify_leaf(const std::uint64_t* on, const T* values, const T& bg)
 
 /// Serialises one leaf (c.bytes bytes) at `out`.
 template <typename T>
-void write_leaf(const std::uint64_t* on, const T* values, const LeafCode<T>& c, char* out) {
+void write_leaf(const std::uint64_t* on, const T* values, const LeafCode<T>& c, char* out,
+                bool wide) {
     std::memcpy(out, on, kMaskBytes);
     out += kMaskBytes;
     *out++ = char(c.code);
@@ -385,11 +492,17 @@ void write_leaf(const std::uint64_t* on, const T* values, const LeafCode<T>& c, 
     }
     if (has_selection_mask(c)) {
         std::uint64_t selection[8];  // the inactive voxels of the second value
-        equal_bits(values, c.inactive[1], selection);
+        equal_bits(values, c.inactive[1], selection, wide);
         for (int w = 0; w < 8; ++w) selection[w] &= ~on[w];
         std::memcpy(out, selection, kMaskBytes);
         out += kMaskBytes;
     }
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+    if (wide) {
+        active_values_wide(on, values, out);
+        return;
+    }
+#endif
     for_each_bit(on, /*off=*/false, [&](int i) {
         std::memcpy(out, &values[i], sizeof(T));
         out += sizeof(T);
@@ -415,7 +528,7 @@ struct LeafBuffers {
                               for (std::size_t i = r.begin(); i < r.end(); ++i) {
                                   leaves[i] = &manager.leaf(i);
                                   words(i, w);
-                                  codes[i] = classify_leaf(w, leaves[i]->buffer().data(), bg);
+                                  codes[i] = classify_leaf(w, leaves[i]->buffer().data(), bg, wide);
                               }
                           });
         offsets.assign(leaves.size() + 1, 0);
@@ -436,7 +549,7 @@ struct LeafBuffers {
                               for (std::size_t i = r.begin(); i < r.end(); ++i) {
                                   words(i, w);
                                   write_leaf(w, leaves[i]->buffer().data(), codes[i],
-                                             out + (offsets[i] - offsets[first]));
+                                             out + (offsets[i] - offsets[first]), wide);
                               }
                           });
     }
@@ -444,6 +557,7 @@ struct LeafBuffers {
     std::vector<const Leaf*> leaves;
     std::vector<LeafCode<T>> codes;
     std::vector<std::size_t> offsets;
+    bool wide = wide_writer();  ///< the vector forms
 };
 
 /// A grid's bytes between its descriptor and its buffers, written by OpenVDB as

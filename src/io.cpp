@@ -248,13 +248,12 @@ Vec3d choose_origin(const RawPoints& raw) {
 
 namespace {
 
-/// The first `rows` xyz triples of a flat attribute array as Vec3f rows (empty when the array
-/// is: the file has no such attribute); the flat array is freed.
-std::vector<Vec3f> take_rows(std::vector<float>&& flat, std::size_t rows) {
-    std::vector<Vec3f> out(flat.empty() ? 0 : rows);
-    if (!out.empty()) std::memcpy(out.data(), flat.data(), rows * sizeof(Vec3f));
-    detail::release(flat);
-    return out;
+/// The first `rows` rows of an attribute column (empty when it is: the file has no such
+/// attribute), moved out. (The readers fill Vec3f rows directly: a flat float array copied
+/// into rows took 1.4 ms of the bunny's read, on one thread, and its memory twice.)
+std::vector<Vec3f> take_rows(std::vector<Vec3f>&& column, std::size_t rows) {
+    if (!column.empty()) column.resize(rows);
+    return std::move(column);
 }
 
 }  // namespace
@@ -327,12 +326,11 @@ std::size_t compact_rows(RawPoints& raw, const Vec3d& origin, std::vector<Vec3f>
         if (!finite_row(p.data())) continue;
         in_frame(p.data(), origin, positions[kept]);
         if (kept != i) {
-            for (auto* v : {&raw.normals, &raw.colors}) {
-                if (!v->empty()) std::copy_n(v->data() + 3 * i, 3, v->data() + 3 * kept);
-            }
             auto keep = [&](auto& v) {
                 if (!v.empty()) v[kept] = v[i];
             };
+            keep(raw.normals);
+            keep(raw.colors);
             keep(raw.scales);
             keep(raw.confidences);
             keep(raw.scans);

@@ -127,7 +127,7 @@ RawPoints read_las_raw(const std::string& path, std::string_view b, const std::v
     RawPoints raw;
     const std::size_t hold = std::size_t(sink ? std::min<std::uint64_t>(count, kStreamRows) : count);
     raw.xyz.reserve(3 * hold);
-    if (rgb) raw.colors.reserve(3 * hold);
+    if (rgb) raw.colors.reserve(hold);
     LasAttributes& las = raw.las;
     las.classification.reserve(hold);
     las.intensity.reserve(hold);
@@ -146,8 +146,13 @@ RawPoints read_las_raw(const std::string& path, std::string_view b, const std::v
             raw.xyz.push_back(double(get<std::int32_t>(b, at + 4 * std::size_t(a))) * scale[a] +
                               offset[a]);
         }
-        for (int c = 0; c < 3 && rgb; ++c) {
-            raw.colors.push_back(float(get<std::uint16_t>(b, at + rgb + 2 * std::size_t(c))) / full);
+        if (rgb) {
+            Vec3f c;
+            for (int k = 0; k < 3; ++k) {
+                c[std::size_t(k)] =
+                    float(get<std::uint16_t>(b, at + rgb + 2 * std::size_t(k))) / full;
+            }
+            raw.colors.push_back(c);
         }
         if (raw.rows() % kStreamRows == 0) {
             hand_rows(raw, sink, handed, false);

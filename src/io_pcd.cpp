@@ -200,8 +200,8 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
                    std::to_string(available) + " bytes");
     }
     out.raw.xyz.resize(points * 3);
-    if (normals) out.raw.normals.resize(points * 3);
-    if (colors) out.raw.colors.resize(points * 3);
+    if (normals) out.raw.normals.resize(points);
+    if (colors) out.raw.colors.resize(points);
 
     // Each point's record bytes: a pointer for binary data, a field-major gather for compressed.
     std::vector<unsigned char> unpacked;
@@ -242,12 +242,13 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
             auto at = [&](const Field* f) { return row[f->element]; };
             for (int a = 0; a < 3; ++a) out.raw.xyz[3 * i + std::size_t(a)] = at(a == 0 ? fx : a == 1 ? fy : fz);
             if (normals) {
-                for (int a = 0; a < 3; ++a) out.raw.normals[3 * i + std::size_t(a)] = float(at(a == 0 ? nx : a == 1 ? ny : nz));
+                for (int a = 0; a < 3; ++a)
+                    out.raw.normals[i][std::size_t(a)] = float(at(a == 0 ? nx : a == 1 ? ny : nz));
             }
             if (colors) {
                 const float f = float(at(rgb));
                 const auto c = unpack_rgb(reinterpret_cast<const unsigned char*>(&f));
-                for (int a = 0; a < 3; ++a) out.raw.colors[3 * i + std::size_t(a)] = c[std::size_t(a)];
+                out.raw.colors[i] = c;
             }
         }
         return out;
@@ -257,13 +258,12 @@ PcdData read_pcd(const std::string& path, std::string_view content) {
         out.raw.xyz[3 * i + 1] = read_value(value(i, *fy), *fy);
         out.raw.xyz[3 * i + 2] = read_value(value(i, *fz), *fz);
         if (normals) {
-            out.raw.normals[3 * i] = float(read_value(value(i, *nx), *nx));
-            out.raw.normals[3 * i + 1] = float(read_value(value(i, *ny), *ny));
-            out.raw.normals[3 * i + 2] = float(read_value(value(i, *nz), *nz));
+            out.raw.normals[i] = {float(read_value(value(i, *nx), *nx)),
+                                  float(read_value(value(i, *ny), *ny)),
+                                  float(read_value(value(i, *nz), *nz))};
         }
         if (colors) {
-            const auto c = unpack_rgb(value(i, *rgb));
-            for (int a = 0; a < 3; ++a) out.raw.colors[3 * i + std::size_t(a)] = c[std::size_t(a)];
+            out.raw.colors[i] = unpack_rgb(value(i, *rgb));
         }
     }
     return out;

@@ -455,8 +455,8 @@ class VertexColumns {
         };
         size(raw_.xyz_float, float_xyz_, m);
         size(raw_.xyz, !float_xyz_, 3 * m);
-        size(raw_.normals, normals_, 3 * m);
-        size(raw_.colors, colors_, 3 * m);
+        size(raw_.normals, normals_, m);
+        size(raw_.colors, colors_, m);
         size(raw_.scales, has_[int(Role::scale)], m);
         size(raw_.confidences, has_[int(Role::confidence)], m);
         size(raw_.scans, has_[int(Role::scan)], m);
@@ -480,22 +480,22 @@ class VertexColumns {
                 put_coordinate(row, 2, v);
                 break;
             case Role::nx:
-                if (normals_) raw_.normals[3 * row] = float(v);
+                if (normals_) raw_.normals[row][0] = float(v);
                 break;
             case Role::ny:
-                if (normals_) raw_.normals[3 * row + 1] = float(v);
+                if (normals_) raw_.normals[row][1] = float(v);
                 break;
             case Role::nz:
-                if (normals_) raw_.normals[3 * row + 2] = float(v);
+                if (normals_) raw_.normals[row][2] = float(v);
                 break;
             case Role::red:
-                if (colors_) raw_.colors[3 * row] = float(v * cscale_);
+                if (colors_) raw_.colors[row][0] = float(v * cscale_);
                 break;
             case Role::green:
-                if (colors_) raw_.colors[3 * row + 1] = float(v * cscale_);
+                if (colors_) raw_.colors[row][1] = float(v * cscale_);
                 break;
             case Role::blue:
-                if (colors_) raw_.colors[3 * row + 2] = float(v * cscale_);
+                if (colors_) raw_.colors[row][2] = float(v * cscale_);
                 break;
             case Role::scale:
                 raw_.scales[row] = float(v);

@@ -84,9 +84,9 @@ RawPoints read_xyz_raw(const std::string& path, std::string_view content,
         }
         raw.xyz.insert(raw.xyz.end(), v, v + 3);
         if (columns == 6) {
-            for (int a = 3; a < 6; ++a) raw.normals.push_back(float(v[a]));
+            raw.normals.push_back({float(v[3]), float(v[4]), float(v[5])});
         } else if (columns == 7) {
-            for (int a = 4; a < 7; ++a) raw.colors.push_back(float(v[a] / 255.0));
+            raw.colors.push_back({float(v[4] / 255.0), float(v[5] / 255.0), float(v[6] / 255.0)});
         }
         if (raw.rows() % kStreamRows == 0) {
             hand_rows(raw, sink, handed, false);
@@ -99,7 +99,7 @@ RawPoints read_xyz_raw(const std::string& path, std::string_view content,
 
 RawPoints read_obj_raw(const std::string& path, std::string_view content, bool want_faces) {
     RawPoints raw;
-    std::vector<float> vn;                 // 3 per vn line
+    std::vector<Vec3f> vn;                 // per vn line
     std::vector<std::int64_t> vertex_vn;   // per v: index of a vn from the faces, or -1
     bool all_colored = true;
     std::vector<std::pair<const char*, const char*>> tok;
@@ -119,16 +119,16 @@ RawPoints read_obj_raw(const std::string& path, std::string_view content, bool w
         if (key == "v") {
             for (std::size_t i = 1; i <= 3; ++i) raw.xyz.push_back(number(i));
             if (tok.size() >= 7) {
-                for (std::size_t i = 4; i <= 6; ++i) raw.colors.push_back(float(number(i)));
+                raw.colors.push_back({float(number(4)), float(number(5)), float(number(6))});
             } else {
                 all_colored = false;
             }
             vertex_vn.push_back(-1);
         } else if (key == "vn") {
-            for (std::size_t i = 1; i <= 3; ++i) vn.push_back(float(number(i)));
+            vn.push_back({float(number(1)), float(number(2)), float(number(3))});
         } else if (key == "f") {
             const std::int64_t nv = std::int64_t(raw.rows());
-            const std::int64_t nn = std::int64_t(vn.size() / 3);
+            const std::int64_t nn = std::int64_t(vn.size());
             poly.clear();
             for (std::size_t i = 1; i < tok.size(); ++i) {
                 // v, v/t, v//n or v/t/n; indices are 1-based, negative ones count from the end.
@@ -166,22 +166,18 @@ RawPoints read_obj_raw(const std::string& path, std::string_view content, bool w
         }
     });
     const std::size_t n = raw.rows();
-    if (!all_colored || raw.colors.size() != 3 * n) raw.colors.clear();
+    if (!all_colored || raw.colors.size() != n) raw.colors.clear();
     if (!vn.empty()) {
-        if (vn.size() == 3 * n) {
+        if (vn.size() == n) {
             raw.normals = std::move(vn);  // one vn per v, in the same order
         } else {
             std::size_t mapped = 0;
             for (std::int64_t k : vertex_vn) mapped += k >= 0;
             if (mapped == n) {
-                raw.normals.resize(3 * n);
-                for (std::size_t i = 0; i < n; ++i) {
-                    for (int a = 0; a < 3; ++a) {
-                        raw.normals[3 * i + a] = vn[3 * std::size_t(vertex_vn[i]) + a];
-                    }
-                }
+                raw.normals.resize(n);
+                for (std::size_t i = 0; i < n; ++i) raw.normals[i] = vn[std::size_t(vertex_vn[i])];
             } else {
-                log_warning(where(path, "normals ignored: " + std::to_string(vn.size() / 3) +
+                log_warning(where(path, "normals ignored: " + std::to_string(vn.size()) +
                                             " vn lines do not match " + std::to_string(n) +
                                             " vertices"));
             }

@@ -420,12 +420,7 @@ OrganizedCloud read_organized_cloud(const std::string& path) {
         }
     }
     if (pcd.viewpoint) c.sensor = {(*pcd.viewpoint)[0], (*pcd.viewpoint)[1], (*pcd.viewpoint)[2]};
-    if (pcd.raw.colors.size() == 3 * n) {
-        c.colors.resize(n);
-        for (std::size_t i = 0; i < n; ++i) {
-            c.colors[i] = {pcd.raw.colors[3 * i], pcd.raw.colors[3 * i + 1], pcd.raw.colors[3 * i + 2]};
-        }
-    }
+    if (pcd.raw.colors.size() == n) c.colors = std::move(pcd.raw.colors);
     return c;
 }
 

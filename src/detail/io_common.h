@@ -24,8 +24,8 @@ struct RawPoints {
     std::vector<double> xyz;            ///< 3 per row, or empty when xyz_float holds the rows
     std::vector<Vec3f> xyz_float;       ///< the rows, when every coordinate came as a float
                                         ///< (exact in single precision: half the memory)
-    std::vector<float> normals;         ///< 3 per row or empty
-    std::vector<float> colors;          ///< 3 per row or empty, 0..1
+    std::vector<Vec3f> normals;         ///< per row or empty
+    std::vector<Vec3f> colors;          ///< per row or empty, 0..1
     std::vector<float> scales;          ///< 1 per row or empty
     std::vector<float> confidences;     ///< 1 per row or empty
     std::vector<std::int32_t> scans;    ///< 1 per row or empty: the scan a row came from

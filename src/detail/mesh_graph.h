@@ -111,7 +111,7 @@ std::vector<std::uint64_t> border_edge_keys(Span<Triangle> faces);
 /// around[first[v] .. first[v + 1]).
 struct VertexFaces {
     std::vector<std::size_t> first;
-    std::vector<std::int32_t> around;
+    FillLater<std::int32_t> around;  ///< not zeroed first: every entry is written
 };
 VertexFaces vertex_faces(Span<Triangle> faces, std::size_t vertex_count);
 

@@ -759,7 +759,8 @@ class LeafSums {
     }
 
     void add(const LocalSamples& s, const openvdb::Coord& origin, double voxel) {
-        reach(s, origin, [&](std::size_t i, int v, double u, const openvdb::Vec3d& d) {
+        prepare(s, origin);
+        reach(s, [&](std::size_t i, int v, double u, const openvdb::Vec3d& d) {
             all_[std::size_t(v)] += u;
             const int f = s.face[i];
             if (f < 0) {
@@ -790,8 +791,7 @@ class LeafSums {
     /// Only the leaf's active voxels (`active`) are scored: value() is asked of no other. A
     /// voxel where stray samples carry more than kMaxStray of the weight gets no faces: the
     /// splat's blend is safer there.
-    void score(const LocalSamples& s, const openvdb::Coord& origin, double voxel,
-               const openvdb::util::NodeMask<3>& active) {
+    void score(const LocalSamples& s, double voxel, const openvdb::util::NodeMask<3>& active) {
         present_.assign(512, {-1, -1, -1});
         score_.assign(512 * kMaxWays, 0.0);
         for (int v = 0; v < 512; ++v) {
@@ -805,7 +805,7 @@ class LeafSums {
             }
             if (count > 3 || count < 2) present_[std::size_t(v)][0] = -1;
         }
-        reach(s, origin, [&](std::size_t i, int v, double u, const openvdb::Vec3d& d) {
+        reach(s, [&](std::size_t i, int v, double u, const openvdb::Vec3d& d) {
             const std::array<int, 3>& p = present_[std::size_t(v)];
             const int f = s.face[i];
             if (p[0] < 0 || f < 0 || (f != p[0] && f != p[1] && f != p[2])) return;
@@ -844,33 +844,52 @@ class LeafSums {
     }
 
   private:
-    /// Calls fn(sample, voxel offset, u, voxel - sample centre) for every voxel of the leaf
-    /// within each local sample's support, in the samples' order.
-    template <typename Fn>
-    static void reach(const LocalSamples& s, const openvdb::Coord& origin, Fn&& fn) {
-        double g[3][8], e[3][8], e2[3][8];
+    /// Each local sample's support within the leaf at `origin`: per axis the voxel range and,
+    /// per voxel t of it, the offset e from the centre and the Gaussian factor. Made once for
+    /// add() and score(), not twice (bunny at 0.5 mm,
+    /// 1 thread, 75 leaves 16.4 -> 15.0 ms, median of 8).
+    struct Axes {
+        int lo[3], hi[3];
+        double e[3][8], g[3][8];
+    };
+    void prepare(const LocalSamples& s, const openvdb::Coord& origin) {
+        axes_.resize(s.size());
         for (std::size_t i = 0; i < s.size(); ++i) {
             const Kernel& k = s.kernel[i];
-            const double c[3] = {k.cx, k.cy, k.cz}, r2 = double(k.r) * double(k.r);
-            int lo[3], hi[3];
+            const double c[3] = {k.cx, k.cy, k.cz};
+            Axes& x = axes_[i];
             for (int a = 0; a < 3; ++a) {
-                lo[a] = std::max(0, int(std::ceil(c[a] - k.r)) - origin[a]);
-                hi[a] = std::min(7, int(std::floor(c[a] + k.r)) - origin[a]);
-                for (int t = lo[a]; t <= hi[a]; ++t) {
-                    e[a][t] = double(origin[a] + t) - c[a];
-                    e2[a][t] = e[a][t] * e[a][t];
-                    g[a][t] = std::exp(-e2[a][t] * k.inv_s2);
+                x.lo[a] = std::max(0, int(std::ceil(c[a] - k.r)) - origin[a]);
+                x.hi[a] = std::min(7, int(std::floor(c[a] + k.r)) - origin[a]);
+                for (int t = x.lo[a]; t <= x.hi[a]; ++t) {
+                    x.e[a][t] = double(origin[a] + t) - c[a];
+                    x.g[a][t] = std::exp(-(x.e[a][t] * x.e[a][t]) * k.inv_s2);
                 }
             }
-            for (int x = lo[0]; x <= hi[0]; ++x) {
-                for (int y = lo[1]; y <= hi[1]; ++y) {
-                    const double dxy2 = e2[0][x] + e2[1][y];
+        }
+    }
+
+    /// Calls fn(sample, voxel offset, u, voxel - sample centre) for every voxel of the leaf
+    /// within each local sample's support, in the samples' order (prepare() first).
+    template <typename Fn>
+    void reach(const LocalSamples& s, Fn&& fn) const {
+        double e2[3][8];
+        for (std::size_t i = 0; i < s.size(); ++i) {
+            const Kernel& k = s.kernel[i];
+            const Axes& x = axes_[i];
+            const double r2 = double(k.r) * double(k.r);
+            for (int a = 0; a < 3; ++a) {
+                for (int t = x.lo[a]; t <= x.hi[a]; ++t) e2[a][t] = x.e[a][t] * x.e[a][t];
+            }
+            for (int ix = x.lo[0]; ix <= x.hi[0]; ++ix) {
+                for (int iy = x.lo[1]; iy <= x.hi[1]; ++iy) {
+                    const double dxy2 = e2[0][ix] + e2[1][iy];
                     if (dxy2 > r2) continue;
-                    for (int z = lo[2]; z <= hi[2]; ++z) {
-                        if (dxy2 + e2[2][z] > r2) continue;
-                        const double u = double(k.amp) * g[0][x] * g[1][y] * g[2][z];
-                        fn(i, (x << 6) | (y << 3) | z, u,
-                           openvdb::Vec3d(e[0][x], e[1][y], e[2][z]));
+                    for (int iz = x.lo[2]; iz <= x.hi[2]; ++iz) {
+                        if (dxy2 + e2[2][iz] > r2) continue;
+                        const double u = double(k.amp) * x.g[0][ix] * x.g[1][iy] * x.g[2][iz];
+                        fn(i, (ix << 6) | (iy << 3) | iz, u,
+                           openvdb::Vec3d(x.e[0][ix], x.e[1][iy], x.e[2][iz]));
                     }
                 }
             }
@@ -882,6 +901,7 @@ class LeafSums {
     std::vector<double> all_, stray_;
     std::vector<std::array<int, 3>> present_;  ///< per voxel its 2-3 faces, or -1 first
     std::vector<double> score_;                ///< per voxel and way (score())
+    std::vector<Axes> axes_;                   ///< per local sample (prepare())
 };
 
 }  // namespace
@@ -937,7 +957,7 @@ CreaseStats sharpen_creases(openvdb::FloatTree& sdf, const Kernels& kernels, std
             if (faces < 2) continue;
             sums.reset(faces);
             sums.add(s, leaf.origin(), voxel);
-            sums.score(s, leaf.origin(), voxel, leaf.getValueMask());
+            sums.score(s, voxel, leaf.getValueMask());
             for (auto it = leaf.beginValueOn(); it; ++it) {
                 ++candidates[L];
                 double value = 0.0;

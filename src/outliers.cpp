@@ -11,6 +11,7 @@
 #include <limits>
 #include <string>
 
+#include "detail/compact.h"
 #include "detail/outlier_rules.h"
 #include "detail/parked.h"
 #include "detail/release.h"
@@ -196,10 +197,8 @@ std::vector<char> apply_rules(const KnnIndex& index, Span<Vec3f> pts, const Outl
         }
     });
     detail::release(verdict);
-    std::vector<std::size_t> candidates;
-    for (std::size_t i = 0; i < n; ++i) {
-        if (rule[i] == 3) candidates.push_back(i);
-    }
+    const std::vector<std::size_t> candidates =
+        detail::indices_where(n, [&](std::size_t i) { return rule[i] == 3; });
     std::vector<const int*> list(candidates.size(), nullptr);
     if (hand_over.lists) {
         for (std::size_t c = 0; c < candidates.size(); ++c) {
@@ -239,12 +238,25 @@ void respace_touched(const KnnIndex& index, Span<Vec3f> pts, const OutlierOption
                      std::vector<std::uint16_t>&& near_code, const OutlierResult& r,
                      std::vector<float>& first_spacing) {
     const std::size_t n = pts.size();
-    std::vector<std::size_t> again;
-    for (std::size_t i = 0; i < n; ++i) {
-        const bool planar_near = options.planarity_ratio > 0.0 &&
-                                 largest_bound(near_code[i]) > options.planarity_spacing * median;
-        if (rule[i] == 0 && (near_code[i] == kTouched || planar_near)) again.push_back(i);
+    // largest_bound(code) > planarity_spacing x median, as a least code (largest_bound does
+    // not fall as the code grows), not an exp2 for each point.
+    const double least = options.planarity_spacing * median;
+    std::uint32_t planar_from = 1u << 16;  // no code
+    if (options.planarity_ratio > 0.0) {
+        std::uint32_t lo = 0, hi = 1u << 16;  // the first code above `least` is in [lo, hi]
+        while (lo < hi) {
+            const std::uint32_t mid = (lo + hi) / 2;
+            if (largest_bound(std::uint16_t(mid)) > least) {
+                hi = mid;
+            } else {
+                lo = mid + 1;
+            }
+        }
+        planar_from = lo;
     }
+    std::vector<std::size_t> again = detail::indices_where(n, [&](std::size_t i) {
+        return rule[i] == 0 && (near_code[i] == kTouched || near_code[i] >= planar_from);
+    });
     detail::release(near_code);
     // Their spacing from the first ks kept points of their K nearest: the nearest ks kept ones,
     // ties broken by index as among the kept points alone. K grows (from k) for the few rows

@@ -1,5 +1,5 @@
-// Stable in-place compaction of a vector in parallel (the mesh stage's face filters), on the
-// fixed chunks of detail/radix_sort.h.
+// Stable in-place compaction of a vector in parallel (the mesh stage's face filters), and the
+// indices where a predicate holds, on the fixed chunks of detail/radix_sort.h.
 #pragma once
 
 #include <algorithm>
@@ -35,6 +35,29 @@ std::size_t compact_in_place(std::vector<T, A>& v, Keep&& keep) {
     }
     v.resize(out);
     return n - out;
+}
+
+/// The indices i in [0, n) where keep(i) holds, ascending: counted, then listed, by chunks in
+/// parallel (keep(i) is called twice).
+template <typename Keep>
+std::vector<std::size_t> indices_where(std::size_t n, Keep&& keep) {
+    std::size_t total = 0;
+    const std::vector<std::size_t> first = chunk_offsets(
+        n,
+        [&](std::size_t, std::size_t begin, std::size_t end) {
+            std::size_t count = 0;
+            for (std::size_t i = begin; i < end; ++i) count += keep(i) ? 1 : 0;
+            return count;
+        },
+        total);
+    std::vector<std::size_t> out(total);
+    for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        std::size_t at = first[c];
+        for (std::size_t i = begin; i < end; ++i) {
+            if (keep(i)) out[at++] = i;
+        }
+    });
+    return out;
 }
 
 }  // namespace vdbrecon::detail

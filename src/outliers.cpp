@@ -117,10 +117,21 @@ struct KeptLists {
         const auto mid = d.begin() + std::ptrdiff_t(d.size() / 2);
         std::nth_element(d.begin(), mid, d.end());
         const double least = kKeepShare * planarity_spacing * double(*mid);
-        for (std::size_t t = 0; t < count && !full(); ++t) {
-            if (double(spacing[std::size_t(batch_rows[t])]) <= least) continue;
-            lists.add(batch_rows[t], idx + t * lists.width);
-        }
+        std::vector<std::size_t> keep = detail::indices_where(count, [&](std::size_t t) {
+            return double(spacing[std::size_t(batch_rows[t])]) > least;
+        });
+        keep.resize(std::min(keep.size(), most - lists.rows.size()));  // the first, until full
+        const std::size_t at = lists.rows.size(), w = lists.width;
+        lists.rows.resize(at + keep.size());
+        lists.lists.resize((at + keep.size()) * w);
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, keep.size(), 1024),
+                          [&](const tbb::blocked_range<std::size_t>& rg) {
+                              for (std::size_t j = rg.begin(); j < rg.end(); ++j) {
+                                  lists.rows[at + j] = batch_rows[keep[j]];
+                                  std::copy_n(idx + keep[j] * w, w,
+                                              lists.lists.data() + (at + j) * w);
+                              }
+                          });
     }
 
     /// The lists of the rows `wanted` (ascending), null where none is kept.
@@ -151,6 +162,51 @@ std::vector<char> try_rows(const std::vector<RowList>& work, const Try& try_row)
         }
     });
     return done;
+}
+
+/// The batch's rows (their lists at idx, `width` apart), then the rows that wait, as entries
+/// of `work`, in parallel (one serial pass of appends was a per-batch tail).
+void batch_work(const int* rows, std::size_t count, const int* idx, std::size_t width,
+                const RowLists& waiting, std::vector<RowList>& work) {
+    work.resize(count + waiting.rows.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, work.size(), 8192),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+                          for (std::size_t e = rg.begin(); e < rg.end(); ++e) {
+                              work[e] = e < count ? RowList{rows[e], idx + e * width}
+                                                  : RowList{waiting.rows[e - count],
+                                                            waiting.list(e - count)};
+                          }
+                      });
+}
+
+/// The entries of `work` that are not `done`, with the first `width` entries of their lists
+/// (copied: the lists may be a batch's, which the search reuses), in order: the rows that wait.
+RowLists waiting_rows(const std::vector<RowList>& work, const std::vector<char>& done,
+                      std::size_t width) {
+    RowLists out{width, {}, {}};
+    for (std::size_t e :
+         detail::indices_where(work.size(), [&](std::size_t e) { return !done[e]; })) {
+        out.add(work[e].row, work[e].nb);
+    }
+    return out;
+}
+
+/// The `done` entries of `work`, in order, then the rows of `waiting`: those whose near code
+/// is to be tried.
+std::vector<RowList> picked(const std::vector<RowList>& work, const std::vector<char>& done,
+                            const RowLists& waiting) {
+    const std::vector<std::size_t> take =
+        detail::indices_where(work.size(), [&](std::size_t e) { return done[e] != 0; });
+    std::vector<RowList> out(take.size() + waiting.rows.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, out.size(), 8192),
+                      [&](const tbb::blocked_range<std::size_t>& rg) {
+                          for (std::size_t j = rg.begin(); j < rg.end(); ++j) {
+                              out[j] = j < take.size() ? work[take[j]]
+                                                       : RowList{waiting.rows[j - take.size()],
+                                                                 waiting.list(j - take.size())};
+                          }
+                      });
+    return out;
 }
 
 /// Codes of a bound (largest_code); kInfinite and above are no finite bound.
@@ -382,31 +438,13 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
         }
         // Verdicts of the batch's rows and of the waiting ones (two parallel passes, so no row
         // reads a verdict while it is written); the rows still short of something wait.
-        work.clear();
-        for (std::size_t t = 0; t < count; ++t) work.push_back({rows[t], idx + t * ku});
-        for (std::size_t e = 0; e < for_spacing.rows.size(); ++e) {
-            work.push_back({for_spacing.rows[e], for_spacing.list(e)});
-        }
+        batch_work(rows, count, idx, ku, for_spacing, work);
         const std::vector<char> done = try_rows(work, try_verdict);
-        RowLists still{ku, {}, {}};
-        work_near.clear();
-        for (std::size_t e = 0; e < work.size(); ++e) {
-            if (!done[e]) {
-                still.add(work[e].row, work[e].nb);
-            } else if (ks > 0) {
-                work_near.push_back(work[e]);
-            }
-        }
+        RowLists still = waiting_rows(work, done, ku);
         if (ks > 0) {
-            for (std::size_t e = 0; e < for_verdicts.rows.size(); ++e) {
-                work_near.push_back({for_verdicts.rows[e], for_verdicts.list(e)});
-            }
+            work_near = picked(work, done, for_verdicts);
             const std::vector<char> near_done = try_rows(work_near, try_near);
-            RowLists near_still{std::size_t(ks), {}, {}};
-            for (std::size_t e = 0; e < work_near.size(); ++e) {
-                if (!near_done[e]) near_still.add(work_near[e].row, work_near[e].nb);
-            }
-            for_verdicts = std::move(near_still);
+            for_verdicts = waiting_rows(work_near, near_done, std::size_t(ks));
         }
         for_spacing = std::move(still);
     }, std::max<std::size_t>(std::size_t(1) << 16, n / 64));  // 1/64: a large cloud's lists

@@ -17,6 +17,11 @@
 #include <emmintrin.h>
 #endif
 
+#include "detail/simd.h"
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+#include <immintrin.h>
+#endif
+
 #include "detail/io_common.h"
 #include "detail/vdb_file.h"
 #include "vdbrecon/error.h"
@@ -52,12 +57,34 @@ inline float density_of(float s, float ramp) {
 }
 
 /// Writes into `leaf` (at the sdf leaf's origin; every value and the mask are written) the
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+/// fill_density's loop over one mask word (64 voxels) sixteen at a time (AVX-512): the same
+/// operations and values as the SSE2 form below; returns the word of voxels kept on. The
+/// bunny's density grid at 0.5 mm, 1 thread: 9.5 -> 7.8 ms (median of 8, with the tree).
+__attribute__((target("avx512f"))) std::uint64_t density_word_wide(const float* sv, float* dv,
+                                                                   std::uint64_t on, float ramp) {
+    const __m512 half = _mm512_set1_ps(0.5f), width = _mm512_set1_ps(2.0f * ramp);
+    const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f);
+    std::uint64_t kept = 0;
+    for (int j = 0; j < 64; j += 16) {
+        const __m512 v = _mm512_sub_ps(half, _mm512_div_ps(_mm512_loadu_ps(sv + j), width));
+        const __mmask16 hi = _mm512_cmp_ps_mask(one, v, _CMP_LT_OS);
+        const __mmask16 lo = _mm512_cmp_ps_mask(v, zero, _CMP_LT_OS);
+        const __m512 d = _mm512_mask_blend_ps(lo, _mm512_mask_blend_ps(hi, v, one), zero);
+        const __mmask16 keep = __mmask16(on >> j) & _mm512_cmp_ps_mask(d, zero, _CMP_NEQ_UQ);
+        _mm512_storeu_ps(dv + j, _mm512_maskz_mov_ps(keep, d));
+        kept |= std::uint64_t(keep) << j;
+    }
+    return kept;
+}
+#endif
+
 /// density of each active voxel of `s`, those of density 0 switched off; whether any is left
 /// on (all off and 0 is the background). Four voxels at a time over the buffers and the mask's
 /// words where SSE2 is there (x86-64 always), the same values as density_of one at a time. The
 /// bunny's density grid at 0.5 mm, 1 thread: 8.6 -> 2.8 ms against a value iterator and
 /// setValueOn.
-bool fill_density(const FloatLeaf& s, FloatLeaf* leaf, float ramp) {
+bool fill_density(const FloatLeaf& s, FloatLeaf* leaf, float ramp, bool wide) {
     const float* sv = s.buffer().data();
     float* dv = leaf->buffer().data();
     FloatLeaf::NodeMaskType mask;
@@ -66,6 +93,12 @@ bool fill_density(const FloatLeaf& s, FloatLeaf* leaf, float ramp) {
         const std::uint64_t on = s.getValueMask().getWord<std::uint64_t>(w);
         std::uint64_t kept = 0;
         openvdb::Index j = 0;
+#ifdef VDBRECON_HAVE_AVX2_PATHS
+        if (wide) {
+            kept = density_word_wide(sv + 64 * w, dv + 64 * w, on, ramp);
+            j = 64;
+        }
+#endif
 #if defined(__SSE2__)
         const __m128 half = _mm_set1_ps(0.5f), width = _mm_set1_ps(2.0f * ramp);
         const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.0f);
@@ -101,12 +134,13 @@ bool fill_density(const FloatLeaf& s, FloatLeaf* leaf, float ramp) {
 /// The density tree as a copy of the sdf's topology with every active voxel's density, the
 /// voxels of density 0 switched off, then pruned (make_density's definition).
 openvdb::FloatTree::Ptr density_by_copy(const openvdb::FloatTree& sdf, float ramp) {
+    const bool wide = detail::wide_vector_loops();
     openvdb::FloatTree::Ptr tree =
         std::make_shared<openvdb::FloatTree>(sdf, 0.0f, 0.0f, openvdb::TopologyCopy());
     openvdb::tree::LeafManager<openvdb::FloatTree> leaves(*tree);
     leaves.foreach ([&](FloatLeaf& leaf, std::size_t) {
         const auto* src = sdf.probeConstLeaf(leaf.origin());
-        if (src) fill_density(*src, &leaf, ramp);  // a leaf left all off goes in the prune
+        if (src) fill_density(*src, &leaf, ramp, wide);  // one left all off goes in the prune
     });
     tree->prune(0.0f);
     return tree;
@@ -118,6 +152,7 @@ openvdb::FloatTree::Ptr density_by_copy(const openvdb::FloatTree& sdf, float ram
 /// internal levels. (OpenVDB's topology copy allocates every leaf from all threads at once and
 /// keeps the empty ones for the prune to free.)
 openvdb::FloatTree::Ptr density_direct(const openvdb::FloatTree& sdf, float ramp) {
+    const bool wide = detail::wide_vector_loops();
     openvdb::tree::LeafManager<const openvdb::FloatTree> src(sdf);
     // The leaves are allocated on one thread, then filled in parallel: allocated from two
     // threads at once they contended for the CLI's one heap arena (bunny at 0.5 mm, 2 threads,
@@ -130,7 +165,7 @@ openvdb::FloatTree::Ptr density_direct(const openvdb::FloatTree& sdf, float ramp
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, made.size(), 64),
                       [&](const tbb::blocked_range<std::size_t>& r) {
                           for (std::size_t i = r.begin(); i < r.end(); ++i) {
-                              keep[i] = fill_density(src.leaf(i), made[i].get(), ramp);
+                              keep[i] = fill_density(src.leaf(i), made[i].get(), ramp, wide);
                           }
                       });
     openvdb::FloatTree::Ptr tree = std::make_shared<openvdb::FloatTree>(0.0f);

@@ -620,6 +620,13 @@ TEST_CASE("vdb files: the density grid is the sdf's valid voxels' ramp, pruned",
         }
     }
     REQUIRE_FALSE(sdf->tree().hasActiveTiles());
+    {
+        // The same tree without the AVX-512 form of the voxels' ramp.
+        ::setenv("VDBRECON_NO_AVX512", "1", 1);
+        const openvdb::FloatGrid::Ptr narrow = make_density(*sdf);
+        ::unsetenv("VDBRECON_NO_AVX512");
+        require_same_tree(narrow->tree(), *density_by_definition(*sdf));
+    }
     const openvdb::FloatGrid::Ptr density = make_density(*sdf);
     REQUIRE(density->getName() == "density");
     REQUIRE(density->getGridClass() == openvdb::GRID_FOG_VOLUME);

@@ -164,19 +164,20 @@ std::vector<char> try_rows(const std::vector<RowList>& work, const Try& try_row)
     return done;
 }
 
-/// The batch's rows (their lists at idx, `width` apart), then the rows that wait, as entries
-/// of `work`, in parallel (one serial pass of appends was a per-batch tail).
-void batch_work(const int* rows, std::size_t count, const int* idx, std::size_t width,
-                const RowLists& waiting, std::vector<RowList>& work) {
-    work.resize(count + waiting.rows.size());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, work.size(), 8192),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-                          for (std::size_t e = rg.begin(); e < rg.end(); ++e) {
-                              work[e] = e < count ? RowList{rows[e], idx + e * width}
-                                                  : RowList{waiting.rows[e - count],
-                                                            waiting.list(e - count)};
-                          }
-                      });
+/// `head` entries head_at(e), then the rows that wait, as the entries of `out`, in parallel
+/// (serial appends were a per-batch tail).
+template <typename HeadAt>
+void then_waiting(std::size_t head, const HeadAt& head_at, const RowLists& waiting,
+                  std::vector<RowList>& out) {
+    out.resize(head + waiting.rows.size());
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, out.size(), 8192),
+        [&](const tbb::blocked_range<std::size_t>& rg) {
+            for (std::size_t e = rg.begin(); e < rg.end(); ++e) {
+                out[e] =
+                    e < head ? head_at(e) : RowList{waiting.rows[e - head], waiting.list(e - head)};
+            }
+        });
 }
 
 /// The entries of `work` that are not `done`, with the first `width` entries of their lists
@@ -188,24 +189,6 @@ RowLists waiting_rows(const std::vector<RowList>& work, const std::vector<char>&
          detail::indices_where(work.size(), [&](std::size_t e) { return !done[e]; })) {
         out.add(work[e].row, work[e].nb);
     }
-    return out;
-}
-
-/// The `done` entries of `work`, in order, then the rows of `waiting`: those whose near code
-/// is to be tried.
-std::vector<RowList> picked(const std::vector<RowList>& work, const std::vector<char>& done,
-                            const RowLists& waiting) {
-    const std::vector<std::size_t> take =
-        detail::indices_where(work.size(), [&](std::size_t e) { return done[e] != 0; });
-    std::vector<RowList> out(take.size() + waiting.rows.size());
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, out.size(), 8192),
-                      [&](const tbb::blocked_range<std::size_t>& rg) {
-                          for (std::size_t j = rg.begin(); j < rg.end(); ++j) {
-                              out[j] = j < take.size() ? work[take[j]]
-                                                       : RowList{waiting.rows[j - take.size()],
-                                                                 waiting.list(j - take.size())};
-                          }
-                      });
     return out;
 }
 
@@ -438,11 +421,20 @@ void classify(const PointCloud& cloud, const OutlierOptions& options,
         }
         // Verdicts of the batch's rows and of the waiting ones (two parallel passes, so no row
         // reads a verdict while it is written); the rows still short of something wait.
-        batch_work(rows, count, idx, ku, for_spacing, work);
+        then_waiting(
+            count,
+            [&](std::size_t t) {
+                return RowList{rows[t], idx + t * ku};
+            },
+            for_spacing, work);
         const std::vector<char> done = try_rows(work, try_verdict);
         RowLists still = waiting_rows(work, done, ku);
         if (ks > 0) {
-            work_near = picked(work, done, for_verdicts);
+            const std::vector<std::size_t> resolved =
+                detail::indices_where(work.size(), [&](std::size_t e) { return done[e] != 0; });
+            then_waiting(
+                resolved.size(), [&](std::size_t j) { return work[resolved[j]]; }, for_verdicts,
+                work_near);
             const std::vector<char> near_done = try_rows(work_near, try_near);
             for_verdicts = waiting_rows(work_near, near_done, std::size_t(ks));
         }

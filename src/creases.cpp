@@ -846,8 +846,8 @@ class LeafSums {
   private:
     /// Each local sample's support within the leaf at `origin`: per axis the voxel range and,
     /// per voxel t of it, the offset e from the centre and the Gaussian factor. Made once for
-    /// add() and score(), not twice (bunny at 0.5 mm,
-    /// 1 thread, 75 leaves 16.4 -> 15.0 ms, median of 8).
+    /// add() and score(), not twice (bunny at 0.5 mm, 1 thread, 75 leaves 16.4 -> 15.0 ms,
+    /// median of 8).
     struct Axes {
         int lo[3], hi[3];
         double e[3][8], g[3][8];

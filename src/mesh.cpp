@@ -337,9 +337,8 @@ std::vector<char> trimmed_faces(const std::vector<Triangle>& tris, const std::ve
     // The unsupported faces' edges, sorted: faces with one key share that edge. A degenerate
     // edge (a, a) joins nothing.
     EdgeSides sides = sorted_sides(tris, [&](std::size_t f) { return u.slot[f] >= 0; });
-    sides.erase(std::remove_if(sides.begin(), sides.end(),
-                               [](const EdgeSide& e) { return (e.key >> 32) == (e.key & 0xffffffffu); }),
-                sides.end());
+    compact_in_place(
+        sides, [&](std::size_t i) { return (sides[i].key >> 32) != (sides[i].key & 0xffffffffu); });
     const EdgeRuns runs = count_edge_uses(tris, sides, u);
     // Regions, and their seeds: a face on the open border or with a far point.
     ConcurrentMinUnionFind sets(n);

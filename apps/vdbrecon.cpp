@@ -173,7 +173,8 @@ void help_points() {
 /// The reconstruction options of the stage group "splat", with their defaults.
 void help_splat() {
     const PipelineOptions d;
-    std::cout << "\nsplat options:\n"
+    std::cout
+        << "\nsplat options:\n"
         << "  --voxel V              voxel edge, world units [auto: " << fmt(d.auto_voxel_factor)
         << " x median point spacing]\n"
         << "  --sigma S              kernel width, sigma = S x per-point scale ["
@@ -189,8 +190,14 @@ void help_splat() {
         << "  --min-weight W         voxels with less weight are empty (W/5 near the surface) ["
         << fmt(d.splat.min_weight) << "]\n"
         << "  --crease-angle A       sample normals this far apart (degrees) meet at a sharp\n"
-        << "                         crease: each face's own field, no blend [" << fmt(d.splat.crease_angle)
-        << "; 0: off]\n";
+        << "                         crease: each face's own field, no blend ["
+        << fmt(d.splat.crease_angle) << "; 0: off]\n"
+        << "  --aggregate C          presum the samples of one cell of C sigmas (one sigma\n"
+        << "                         level, normals within the crease angle) into one kernel:\n"
+        << "                         fewer kernels, rougher open borders; a point cloud's\n"
+        << "                         cells at most " << fmt(d.splat.aggregate_max_cell)
+        << " voxels; 0 = off [" << fmt(d.splat.aggregate)
+        << "; fuse: " << fmt(DepthOptions{}.aggregate) << "]\n";
 }
 
 /// The reconstruction options of the stage group "close", with their defaults.
@@ -340,9 +347,6 @@ void help_fuse() {
         << "  --sdf-trunc T          tsdf truncation, voxels [4]; --no-carve: no carving\n"
         << "  --merge-footprint F    merge pixel blocks of frames whose footprint is below F,\n"
         << "                         world units; 0 = never [min-sigma x voxel / 2]\n"
-        << "  --aggregate C          presum samples of one cell of C sigmas, one normal\n"
-        << "                         direction and sigma level into one kernel; 0 = off ["
-        << fmt(DepthOptions{}.aggregate) << "]\n"
         << "  --frame-step N, --max-frames N  every N-th frame; at most N frames [1, all]\n"
         << "  --skip-bad-frames      a frame that cannot be read or fused is skipped with a\n"
            "                         warning naming it [off: the run stops with its error]\n"
@@ -530,6 +534,8 @@ bool parse_pipeline_option(const std::string& a, Args& args, PipelineOptions& o)
         o.splat.min_weight = parse_number(a, args.value(a));
     } else if (a == "--crease-angle") {
         o.splat.crease_angle = parse_number(a, args.value(a));
+    } else if (a == "--aggregate") {
+        o.splat.aggregate = parse_number(a, args.value(a));
     } else if (a == "--surface-weight") {
         o.mesh.min_surface_weight = parse_number(a, args.value(a));
     } else if (a == "--max-gap") {
@@ -723,9 +729,14 @@ void report(const RunResult& r, const PipelineOptions& o,
               << " leaves (halos counted in each tile)\n";
         } else {
             s << "vdbrecon: splat: sigma " << p.splat.sigma_min << " .. " << p.splat.sigma_max
-              << " (median " << p.splat.sigma_median << "), " << p.splat.active_voxels
-              << " valid voxels in " << p.splat.leaves << " leaves, " << p.splat.updates
-              << " kernel updates, grids " << fmt_megabytes(p.splat.memory_bytes) << " in memory";
+              << " (median " << p.splat.sigma_median << "), ";
+            if (p.splat.samples > p.splat.points) {
+                s << p.splat.samples << " samples presummed into " << p.splat.points
+                  << " kernels, ";
+            }
+            s << p.splat.active_voxels << " valid voxels in " << p.splat.leaves << " leaves, "
+              << p.splat.updates << " kernel updates, grids " << fmt_megabytes(p.splat.memory_bytes)
+              << " in memory";
             if (p.splat.skipped_points) s << ", " << p.splat.skipped_points << " points without normal";
             if (p.splat.crease_voxels) s << ", " << p.splat.crease_voxels << " voxels at creases";
             s << "\n";

@@ -599,7 +599,7 @@ std::size_t Fusion::samples() const {
 }
 
 PointCloud Fusion::presum(PointCloud samples) const {
-    return aggregate_samples(std::move(samples), options_.splat, depth_.aggregate);
+    return detail::presum_in_order(std::move(samples), options_.splat, depth_.aggregate);
 }
 
 // A frame's samples are presummed on their own (they fit the caches), the batch's groups once

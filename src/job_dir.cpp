@@ -72,11 +72,18 @@ std::string job_options_text(const PipelineOptions& o) {
         .add("normals.up", n.up).add("normals.orient", int(n.orient)).add("normals.scale", int(n.scale))
         .add("normals.knn", int(n.knn.backend)).add("normals.knn_eps", n.knn.eps);
     const SplatOptions& s = o.splat;
-    l.add("splat.voxel_size", s.voxel_size).add("splat.scale_factor", s.scale_factor)
-        .add("splat.sigma_voxels", s.sigma_voxels).add("splat.min_sigma_voxels", s.min_sigma_voxels)
-        .add("splat.max_sigma_voxels", s.max_sigma_voxels).add("splat.support", s.support)
-        .add("splat.min_weight", s.min_weight).add("splat.crease_angle", s.crease_angle)
-        .add("splat.max_memory", s.max_memory).add("auto_voxel_factor", o.auto_voxel_factor)
+    l.add("splat.voxel_size", s.voxel_size)
+        .add("splat.scale_factor", s.scale_factor)
+        .add("splat.sigma_voxels", s.sigma_voxels)
+        .add("splat.min_sigma_voxels", s.min_sigma_voxels)
+        .add("splat.max_sigma_voxels", s.max_sigma_voxels)
+        .add("splat.support", s.support)
+        .add("splat.min_weight", s.min_weight)
+        .add("splat.crease_angle", s.crease_angle)
+        .add("splat.aggregate", s.aggregate)
+        .add("splat.aggregate_max_cell", s.aggregate_max_cell)
+        .add("splat.max_memory", s.max_memory)
+        .add("auto_voxel_factor", o.auto_voxel_factor)
         .add("auto_voxel_max_cells", o.auto_voxel_max_cells);
     l.add("close.hole_radius", o.close.hole_radius).add("close.solid_radius", o.close.solid_radius);
     const MeshOptions& m = o.mesh;

@@ -111,6 +111,14 @@ void SplatOptions::validate() const {
         throw InvalidArgument("splat.crease_angle = " + std::to_string(crease_angle) +
                               ": must be in 0..90 degrees (0 = off)");
     }
+    if (!(aggregate >= 0.0 && aggregate <= 4.0)) {
+        throw InvalidArgument("splat.aggregate = " + std::to_string(aggregate) +
+                              ": must be in 0..4 (sigmas; 0 = off)");
+    }
+    if (!(aggregate_max_cell >= 0.0 && std::isfinite(aggregate_max_cell))) {
+        throw InvalidArgument("splat.aggregate_max_cell = " + std::to_string(aggregate_max_cell) +
+                              ": must be a non-negative number (voxels; 0 = no cap)");
+    }
 }
 
 namespace detail {
@@ -1308,6 +1316,7 @@ SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
     CloudSums sums;
     measure_kernels(kernels, voxel, sums, !frame && options.crease_angle > 0.0);
     result.skipped_points = sums.skipped;
+    result.samples = cloud.size();
     result.sigma_min = sums.sigma_min;
     result.sigma_median = sums.sigma_median;
     result.sigma_max = sums.sigma_max;
@@ -1337,7 +1346,19 @@ SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
 }  // namespace
 
 SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
-    return splat_cloud(cloud, options, nullptr);
+    if (!(options.aggregate > 0.0)) return splat_cloud(cloud, options, nullptr);
+    // The groups' kernels in the samples' frame (median sigma, band, crease reach), as the
+    // tiles of the same cloud splat them (tiles.cpp).
+    const detail::KernelFrame frame = detail::kernel_frame(cloud, options);
+    SplatResult r = splat_cloud(detail::presum(cloud, options), options, &frame);
+    r.samples = cloud.size();
+    r.skipped_points = frame.skipped;
+    return r;
+}
+
+PointCloud detail::presum(const PointCloud& cloud, const SplatOptions& options) {
+    return aggregate_samples(cloud.view(), options, options.aggregate, options.aggregate_max_cell,
+                             options.crease_angle > 0.0 ? options.crease_angle : 90.0);
 }
 
 void detail::check_kernel_range(double max_index, float max_r, std::size_t skipped,
@@ -1389,6 +1410,7 @@ detail::KernelFrame detail::kernel_frame(const PointCloud& cloud, const SplatOpt
     frame.sigma_median = sums.sigma_median;
     frame.max_r = sums.max_r;
     frame.r_typical = sums.r_typical;
+    frame.skipped = sums.skipped;
     return frame;
 }
 
@@ -1457,6 +1479,7 @@ SplatResult single_cloud_result(const SplatOptions& options, const PointCloud& c
     sum_kernels(kernels, cloud, options, nullptr, sums);
     SplatResult result;
     result.skipped_points = sums.skipped;
+    result.samples = cloud.size();
     result.sigma_min = sums.sigma_min;
     result.sigma_median = sums.sigma_median;
     result.sigma_max = sums.sigma_max;

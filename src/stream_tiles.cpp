@@ -176,7 +176,7 @@ class StreamJob {
     }
     PointCloud samples(const Unit& u, std::vector<std::uint32_t>& rows) const;
     KernelFrame frame(const SplatOptions& splat);
-    void buckets(const TileGrid& g, double voxel, TilePlan& plan);
+    void buckets(const TileGrid& g, const TileAnchors& anchors, TilePlan& plan);
     double sample_spacing();
     double file_scale_median() const;
 
@@ -872,7 +872,7 @@ KernelFrame StreamJob::frame(const SplatOptions& splat) {
 }
 
 /// Pass 4: the kept samples into the buckets of their tiles, and the tiles to visit.
-void StreamJob::buckets(const TileGrid& g, double voxel, TilePlan& plan) {
+void StreamJob::buckets(const TileGrid& g, const TileAnchors& anchors, TilePlan& plan) {
     std::map<Key, std::string> parts;  // occupied tile -> its file while being written
     std::vector<TileKey> near;
     std::vector<std::uint32_t> rows;
@@ -880,7 +880,7 @@ void StreamJob::buckets(const TileGrid& g, double voxel, TilePlan& plan) {
         const PointCloud part = samples(u, rows);
         std::map<Key, std::vector<std::uint32_t>> by_tile;
         for (std::size_t i = 0; i < part.size(); ++i) {
-            const openvdb::Vec3d c = kernel_centre(part, i, voxel);
+            const openvdb::Vec3d c = anchors(part, i);
             by_tile[tile_of(c, g)].push_back(std::uint32_t(i));
             add_tiles_near(c, g, near);
         }
@@ -1047,10 +1047,10 @@ void StreamJob::run(TileJob& job) {
     plan.points = kept_;
     plan.setup.frame = frame(splat);
     TileGrid& g = plan.setup.grid;
-    g = tile_margins(plan.setup.frame, to.close);
+    g = tile_margins(plan.setup.frame, to.close, to.splat);
     g.n = tile_edge(to, 0, g.halo);
     place_grid(g, lowest_, splat.voxel_size);
-    buckets(g, splat.voxel_size, plan);
+    buckets(g, TileAnchors(to.splat), plan);
     write_tile_plan(dir_, plan);
     r.stream_units = units_.size();
     r.stream_largest = largest_;

@@ -18,7 +18,7 @@
 namespace vdbrecon::detail {
 namespace {
 
-constexpr char kPlanTag[8] = {'v', 'd', 'b', 'r', 'P', 'L', 'N', '1'};
+constexpr char kPlanTag[8] = {'v', 'd', 'b', 'r', 'P', 'L', 'N', '2'};
 constexpr char kBucketTag[8] = {'v', 'd', 'b', 'r', 'B', 'K', 'T', '1'};
 constexpr char kPieceTag[8] = {'v', 'd', 'b', 'r', 'P', 'C', 'E', '2'};
 
@@ -144,16 +144,20 @@ TiledOptions tile_options(const Plan& plan, const TiledOptions& given) {
     o.splat.voxel_size = plan.voxel;
     o.sample_spacing = plan.sample_spacing;
     o.tile = plan.setup.grid.n;
-    const TileGrid g = tile_margins(plan.setup.frame, o.close);
-    if (g.halo != plan.setup.grid.halo || g.reach != plan.setup.grid.reach) {
-        throw InvalidArgument("tile job: the options differ from those it was prepared with "
-                              "(the closing radius sets the tiles' halo)");
+    const TileGrid g = tile_margins(plan.setup.frame, o.close, o.splat);
+    const TileGrid& p = plan.setup.grid;
+    if (g.halo != p.halo || g.reach != p.reach || g.aggregate != p.aggregate ||
+        g.aggregate_max_cell != p.aggregate_max_cell) {
+        throw InvalidArgument(
+            "tile job: the options differ from those it was prepared with "
+            "(the closing radius and the presumming set the tiles' halo)");
     }
     return o;
 }
 
 /// Tile t's samples from the buckets around it, in the whole cloud's order.
-PointCloud read_tile_samples(const std::string& dir, const Plan& plan, const TileKey& t) {
+PointCloud read_tile_samples(const std::string& dir, const Plan& plan, const TileKey& t,
+                             const TileAnchors& anchors) {
     PointCloud loaded;  // the buckets' samples, one bucket after another
     std::vector<std::uint32_t> index;  // ... and their rows in the whole cloud
     for_each_bucket_near(plan.buckets, t, plan.setup.grid, [&](std::size_t j) {
@@ -172,7 +176,7 @@ PointCloud read_tile_samples(const std::string& dir, const Plan& plan, const Til
     });
     std::vector<std::uint32_t> rows;
     for (std::size_t i = 0; i < index.size(); ++i) {
-        if (in_halo(kernel_centre(loaded, i, plan.voxel), t, plan.setup.grid)) {
+        if (in_halo(anchors(loaded, i), t, plan.setup.grid)) {
             rows.push_back(std::uint32_t(i));
         }
     }
@@ -215,8 +219,9 @@ std::size_t write_tile_job(const PointCloud& cloud, const TiledOptions& options,
     plan.origin = cloud.origin;
     plan.sample_spacing = options.sample_spacing;
     plan.points = cloud.size();
-    const Buckets b = bucket_points(cloud, plan.voxel, plan.setup.grid);
-    plan.tiles = tiles_to_visit(cloud, b, plan.setup.grid, plan.voxel);
+    const TileAnchors anchors(options.splat);
+    const Buckets b = bucket_points(cloud, anchors, plan.setup.grid);
+    plan.tiles = tiles_to_visit(cloud, b, plan.setup.grid, anchors);
     plan.buckets = b.keys;
     for (std::size_t j = 0; j < b.keys.size(); ++j) {
         const std::vector<std::uint32_t> index(b.order.begin() + std::ptrdiff_t(b.begin[j]),
@@ -239,8 +244,8 @@ std::string run_tile_job(const std::string& dir, std::size_t index, const TiledO
     const TiledOptions o = tile_options(plan, options);
     const TileKey& t = plan.tiles[index];
     TiledResult stats;
-    const ClassifiedSurface s =
-        tile_surface(read_tile_samples(dir, plan, t), o, plan.setup, t, stats);
+    const ClassifiedSurface s = tile_surface(read_tile_samples(dir, plan, t, TileAnchors(o.splat)),
+                                             o, plan.setup, t, stats);
     return piece_bytes(s, index, stats);
 }
 

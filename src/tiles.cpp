@@ -82,12 +82,35 @@ void add_tiles_near(const openvdb::Vec3d& c, const TileGrid& g, std::vector<Tile
     }
 }
 
-Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g) {
+TileAnchors::TileAnchors(const SplatOptions& options) : options_(options) {
+    if (options.aggregate > 0.0) {
+        cells_.emplace(options, options.aggregate, options.aggregate_max_cell);
+        slack_ = cells_->max_half_diagonal() / options.voxel_size;
+    }
+}
+
+openvdb::Vec3d TileAnchors::operator()(const PointCloud& cloud, std::size_t i) const {
+    const double voxel = options_.voxel_size;
+    if (!cells_) return kernel_centre(cloud, i, voxel);
+    const Vec3f& p = cloud.positions[i];
+    const int level =
+        cells_->level(kernel_sigma_voxels(options_, cloud.has_scales() ? cloud.scales[i] : 0.0f));
+    openvdb::Vec3d a;
+    for (int k = 0; k < 3; ++k) {
+        std::int64_t c;
+        // A sample beyond the cells' range is splat as it is (aggregate_samples).
+        if (!cells_->cell(double(p[k]), level, c)) return kernel_centre(cloud, i, voxel);
+        a[k] = cells_->centre(c, level) / voxel;
+    }
+    return a;
+}
+
+Buckets bucket_points(const PointCloud& cloud, const TileAnchors& anchors, const TileGrid& g) {
     // A counting sort by tile, stable (increasing index within a tile): two passes over the
     // points and a table of the occupied tiles, no key stored per point.
     std::unordered_map<TileKey, std::size_t, TileKeyHash> slot;  // points per tile, then its bucket
     const std::size_t np = cloud.size();
-    for (std::size_t i = 0; i < np; ++i) ++slot[tile_of(kernel_centre(cloud, i, voxel), g)];
+    for (std::size_t i = 0; i < np; ++i) ++slot[tile_of(anchors(cloud, i), g)];
     Buckets b;
     for (const auto& e : slot) b.keys.push_back(e.first);
     std::sort(b.keys.begin(), b.keys.end());
@@ -100,18 +123,18 @@ Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g) 
     std::vector<std::size_t> fill(b.begin.begin(), b.begin.end() - 1);
     b.order.resize(np);
     for (std::size_t i = 0; i < np; ++i) {
-        const std::size_t j = slot.find(tile_of(kernel_centre(cloud, i, voxel), g))->second;
+        const std::size_t j = slot.find(tile_of(anchors(cloud, i), g))->second;
         b.order[fill[j]++] = std::uint32_t(i);
     }
     return b;
 }
 
 std::vector<TileKey> tiles_to_visit(const PointCloud& cloud, const Buckets& b, const TileGrid& g,
-                                    double voxel) {
+                                    const TileAnchors& anchors) {
     std::vector<TileKey> out = b.keys;
     const std::size_t flush = 2 * b.keys.size() + (std::size_t(1) << 20);
     for (std::size_t i = 0; i < cloud.size(); ++i) {
-        add_tiles_near(kernel_centre(cloud, i, voxel), g, out);
+        add_tiles_near(anchors(cloud, i), g, out);
         if (out.size() > flush) sort_unique(out);
     }
     sort_unique(out);
@@ -120,13 +143,13 @@ std::vector<TileKey> tiles_to_visit(const PointCloud& cloud, const Buckets& b, c
 
 namespace {
 
-/// The points whose kernel centre lies within `halo` voxels of tile t, in increasing order.
+/// The points whose anchor lies within `halo` voxels of tile t, in increasing order.
 std::vector<std::uint32_t> tile_points(const PointCloud& cloud, const Buckets& b, const TileKey& t,
-                                       const TileGrid& g, double voxel) {
+                                       const TileGrid& g, const TileAnchors& anchors) {
     std::vector<std::uint32_t> idx;
     for_each_bucket_near(b.keys, t, g, [&](std::size_t j) {
         for (std::size_t q = b.begin[j]; q < b.begin[j + 1]; ++q) {
-            if (in_halo(kernel_centre(cloud, b.order[q], voxel), t, g)) idx.push_back(b.order[q]);
+            if (in_halo(anchors(cloud, b.order[q]), t, g)) idx.push_back(b.order[q]);
         }
     });
     std::sort(idx.begin(), idx.end());
@@ -250,7 +273,7 @@ ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& optio
     if (part.empty() || !any_usable(part)) return {};
     SplatResult s;
     try {
-        s = splat_in_frame(part, options.splat, setup.frame);
+        s = splat_in_frame(presum(part, options.splat), options.splat, setup.frame);
     } catch (const NumericalError&) {
         return {};  // no valid voxel near this tile: no surface in it
     }
@@ -279,21 +302,28 @@ namespace {
 /// Every tile's piece, in tile order, into the spool.
 void all_tiles(const PointCloud& cloud, const TiledOptions& options, const TileSetup& setup,
                TiledResult& stats, Spool& spool) {
-    const double voxel = options.splat.voxel_size;
-    const Buckets buckets = bucket_points(cloud, voxel, setup.grid);
-    for (const TileKey& t : tiles_to_visit(cloud, buckets, setup.grid, voxel)) {
-        const PointCloud part = subset(cloud, tile_points(cloud, buckets, t, setup.grid, voxel));
+    const TileAnchors anchors(options.splat);
+    const Buckets buckets = bucket_points(cloud, anchors, setup.grid);
+    for (const TileKey& t : tiles_to_visit(cloud, buckets, setup.grid, anchors)) {
+        const PointCloud part = subset(cloud, tile_points(cloud, buckets, t, setup.grid, anchors));
         spool.add(piece_bytes(tile_surface(part, options, setup, t, stats), spool.size(), {}));
     }
 }
 
 }  // namespace
 
-TileGrid tile_margins(const KernelFrame& frame, const CloseOptions& close) {
+TileGrid tile_margins(const KernelFrame& frame, const CloseOptions& close,
+                      const SplatOptions& splat) {
+    // Anchors lie up to `slack` voxels from the kernels' centres (presumming cells).
+    const int slack = int(std::ceil(TileAnchors(splat).slack()));
     TileGrid g;
-    g.halo = round_up(exact_margin(close) + sample_margin(frame), 8);
+    g.halo = round_up(exact_margin(close) + sample_margin(frame) + slack, 8);
     // A face lies within the kernels' reach of a sample, or in a hole a closing bridges.
-    g.reach = double(frame.max_r) + exact_margin(close);
+    g.reach = double(frame.max_r) + exact_margin(close) + slack;
+    if (splat.aggregate > 0.0) {
+        g.aggregate = splat.aggregate;
+        g.aggregate_max_cell = splat.aggregate_max_cell;
+    }
     return g;
 }
 
@@ -325,7 +355,7 @@ TileSetup tile_setup(const PointCloud& cloud, const TiledOptions& options) {
     TileSetup setup;
     setup.frame = kernel_frame(cloud, options.splat);
     TileGrid& g = setup.grid;
-    g = tile_margins(setup.frame, options.close);
+    g = tile_margins(setup.frame, options.close, options.splat);
     g.n = tile_edge(options, cloud.memory_bytes(), g.halo);
     place_grid(g, bounding_box(cloud.positions).min, options.splat.voxel_size);
     return setup;

@@ -55,6 +55,7 @@ SplatOptions accumulator_options() {
     SplatOptions o;
     o.voxel_size = 0.01;
     o.crease_angle = 0.0;
+    o.aggregate = 0.0;  // splat() as an accumulator sums: every sample its own kernel
     return o;
 }
 

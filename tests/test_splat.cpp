@@ -8,9 +8,12 @@
 #include <random>
 #include <set>
 #include <tuple>
+#include <utility>
 
+#include "detail/cell_groups.h"
 #include "detail/exp8.h"
 #include "detail/kernels.h"
+#include "detail/splat_frame.h"
 #include "grid_compare.h"
 #include "shapes.h"
 #include "support.h"
@@ -148,6 +151,7 @@ TEST_CASE("the memory budget counts the leaves the kernels reach, in one slab or
     const PointCloud c = noisy_sphere(40000, 1.0, 5);
     SplatOptions o;
     o.voxel_size = 0.01;
+    o.aggregate = 0.0;  // the kernels counted below are the samples'
     // Room for the points and their (block, point) pairs, not the leaves: the refusal names the
     // count of the one slab, which holds every leaf.
     o.max_memory = c.size() * 64 + (std::size_t(4) << 20);
@@ -357,20 +361,26 @@ TEST_CASE("colour is the weighted mean of the point colours", "[splat]") {
     }
 }
 
-TEST_CASE("the nearest-sample grid points at a real sample", "[splat]") {
-    const PointCloud s = sample_sphere(2000, 1.0);
+TEST_CASE("the nearest-sample grid points at a real kernel centre", "[splat]") {
+    // A sample's, or with presumming its group's (detail::presum).
+    const PointCloud s = sample_sphere(8000, 1.0);
     SplatOptions o;
     o.voxel_size = 0.05;
-    const SplatResult r = splat(s, o);
-    const auto& g = *r.volume.nearest;
-    std::size_t n = 0;
-    for (auto it = g.cbeginValueOn(); it && n < 2000; ++it, ++n) {
-        const openvdb::Vec3d p = g.indexToWorld(it.getCoord()) + openvdb::Vec3d(*it);
-        double best = 1e9;
-        for (const Vec3f& q : s.positions) {
-            best = std::min(best, (p - openvdb::Vec3d(q[0], q[1], q[2])).length());
+    for (double aggregate : {0.0, 1.5}) {
+        o.aggregate = aggregate;
+        const PointCloud centres = detail::presum(s, o);
+        CHECK((aggregate > 0.0 ? centres.size() < s.size() : centres.size() == s.size()));
+        const SplatResult r = splat(s, o);
+        const auto& g = *r.volume.nearest;
+        std::size_t n = 0;
+        for (auto it = g.cbeginValueOn(); it && n < 2000; ++it, ++n) {
+            const openvdb::Vec3d p = g.indexToWorld(it.getCoord()) + openvdb::Vec3d(*it);
+            double best = 1e9;
+            for (const Vec3f& q : centres.positions) {
+                best = std::min(best, (p - openvdb::Vec3d(q[0], q[1], q[2])).length());
+            }
+            REQUIRE(best < 1e-5);
         }
-        REQUIRE(best < 1e-5);
     }
 }
 
@@ -428,6 +438,7 @@ TEST_CASE("presummed samples splat the same sphere with a fraction of the kernel
         SplatOptions o;
         o.voxel_size = voxel;
         o.crease_angle = 0.0;
+        o.aggregate = 0.0;  // splat() of the samples as they are, and of the groups
         const PointCloud g = aggregate_samples(s.view(), o, 1.5);
         INFO("voxel " << voxel << ": " << g.size() << " groups of " << s.size() << " samples");
         CHECK(g.size() * 10 < s.size());
@@ -570,4 +581,125 @@ TEST_CASE("crease model: samples spread over more than 64 bits of cells index th
     }
     REQUIRE(compared == a.active_voxels);
     REQUIRE(b.active_voxels > a.active_voxels);  // and the far samples' own voxels
+}
+
+namespace {
+
+/// A sphere of random samples with what presumming reads: confidences, colours, scales over
+/// several sigma levels, a third of the normals flipped (more than one group a cell) and a few
+/// samples the splat skips.
+PointCloud mixed_sphere(std::size_t n, unsigned seed) {
+    PointCloud c = random_sphere(n, 0.5, seed);
+    std::mt19937 rng(seed + 1);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    std::vector<Vec3f>& normals = c.normals.edit();
+    for (std::size_t i = 0; i < c.size(); ++i) {
+        c.confidences.push_back(0.5f + u(rng));
+        c.scales.push_back(0.01f * (0.8f + 4.0f * u(rng)));
+        c.colors.push_back({u(rng), u(rng), u(rng)});
+        if (i % 3 == 0) normals[i] = {-normals[i][0], -normals[i][1], -normals[i][2]};
+    }
+    normals[7] = {0.0f, 0.0f, 0.0f};
+    c.confidences.edit()[9] = 0.0f;
+    return c;
+}
+
+template <typename T>
+bool same_bits(const Column<T>& a, const Column<T>& b) {
+    return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(T)) == 0;
+}
+
+}  // namespace
+
+TEST_CASE(
+    "presumming a cloud at once gives the open cell groups' samples bit for bit, at any thread "
+    "count",
+    "[splat][aggregate]") {
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    const PointCloud c = mixed_sphere(60000, 21);
+    detail::CellGroups open(o, 1.5, true);
+    REQUIRE(open.add(c));
+    const PointCloud expected = open.take(c.origin);
+    PointCloud one;
+    {
+        tbb::global_control g(tbb::global_control::max_allowed_parallelism, 1);
+        one = aggregate_samples(c.view(), o, 1.5);
+    }
+    const PointCloud many = aggregate_samples(c.view(), o, 1.5);
+    for (const PointCloud* x : {&std::as_const(one), &many}) {
+        REQUIRE(x->size() == expected.size());
+        CHECK(same_bits(x->positions, expected.positions));
+        CHECK(same_bits(x->normals, expected.normals));
+        CHECK(same_bits(x->colors, expected.colors));
+        CHECK(same_bits(x->scales, expected.scales));
+        CHECK(same_bits(x->confidences, expected.confidences));
+    }
+    CHECK(expected.size() * 2 < c.size());
+}
+
+TEST_CASE("presumming caps its cells and splats samples beyond the cells' range on their own",
+          "[splat][aggregate]") {
+    SplatOptions o;
+    o.voxel_size = 0.01;
+    PointCloud c = mixed_sphere(40000, 4);
+    const PointCloud wide = aggregate_samples(c.view(), o, 1.5);
+    const PointCloud capped = aggregate_samples(c.view(), o, 1.5, 1.0);
+    CHECK(capped.size() > wide.size());  // the larger sigmas' cells are narrower
+    // Samples 2^19 cells of a voxel or more from the origin: each a group of its own, after the
+    // groups of the rest, which stay those of the cloud without them.
+    const float far = float(o.voxel_size * 600000.0);
+    for (int i = 0; i < 3; ++i) {
+        c.positions.push_back({far + float(i), 0.0f, 0.0f});
+        c.normals.push_back({0.0f, 0.0f, 2.0f});
+        c.confidences.push_back(1.0f);
+        c.scales.push_back(0.01f);
+        c.colors.push_back({1.0f, 0.0f, 0.0f});
+    }
+    const PointCloud with = aggregate_samples(c.view(), o, 1.5, 1.0);
+    REQUIRE(with.size() == capped.size() + 3);
+    CHECK(std::memcmp(with.positions.data(), capped.positions.data(),
+                      capped.size() * sizeof(Vec3f)) == 0);
+    for (int i = 0; i < 3; ++i) {
+        const std::size_t k = capped.size() + std::size_t(i);
+        CHECK(with.positions[k][0] == far + float(i));
+        CHECK(with.normals[k][2] == 2.0f);
+        CHECK(with.confidences[k] == 1.0f);
+    }
+}
+
+TEST_CASE(
+    "splat() presumming: the sphere's field within a hundredth of a voxel of every sample's own "
+    "kernel",
+    "[splat][aggregate]") {
+    const double radius = 0.5, voxel = 0.01;
+    const PointCloud s = random_sphere(150000, radius, 8);  // spacing ~ 0.0023: 4 a voxel
+    SplatOptions exact;
+    exact.voxel_size = voxel;
+    CHECK(exact.aggregate == 0.0);  // off by default
+    SplatOptions o = exact;
+    o.aggregate = 1.5;
+    const SplatResult a = splat(s, o), b = splat(s, exact);
+    CHECK(a.samples == s.size());
+    CHECK(a.points * 3 < s.size());
+    CHECK(b.points == s.size());
+    CHECK(a.updates * 3 < b.updates);
+    CHECK(a.sigma_median == b.sigma_median);  // the samples' frame
+    auto acc = a.volume.sdf->getConstAccessor();
+    double worst = 0.0, mean = 0.0;
+    std::size_t near = 0;
+    for (auto it = b.volume.sdf->cbeginValueOn(); it; ++it) {
+        const double d = b.volume.sdf->indexToWorld(it.getCoord()).length() - radius;
+        if (std::fabs(d) > 1.5 * voxel) continue;
+        REQUIRE(acc.isValueOn(it.getCoord()));
+        const double e = std::fabs(double(acc.getValue(it.getCoord())) - double(*it));
+        worst = std::max(worst, e);
+        mean += e;
+        ++near;
+    }
+    INFO("presummed - exact: worst " << worst / voxel << ", mean " << mean / near / voxel
+                                     << " voxel");
+    CHECK(near > 20000);
+    CHECK(worst < 0.05 * voxel);
+    CHECK(mean / double(near) < 0.01 * voxel);
 }

@@ -129,6 +129,37 @@ TEST_CASE("tiles give the untiled mesh on CAD parts and smooth shapes with every
     }
 }
 
+TEST_CASE("tiles presum whole cells: wide presumming cells and samples beyond their range too",
+          "[tiles][aggregate]") {
+    // Cells of up to 3 voxels (a cell's samples reach into several tiles) and of the default
+    // cap, and a patch of samples 2^19 cells or more from the origin, splat each on its own.
+    const Shape shape = make_shape("boss");
+    PointCloud sample = sample_uniform(shape.mesh, 12000, 5);
+    const double voxel = spacing_of(shape.area, 12000);
+    PointCloud far = sample_uniform(make_shape("cube").mesh, 400, 6);
+    for (std::size_t i = 0; i < far.size(); ++i) {
+        const Vec3f& p = far.positions[i];  // a cube a few voxels wide
+        const float k = float(10.0 * voxel);
+        sample.positions.push_back({k * p[0] + float(voxel * 1.3e6), k * p[1], k * p[2]});
+        sample.normals.push_back(far.normals[i]);
+    }
+    for (const auto& [aggregate, cap] : {std::pair{2.0, 3.0}, std::pair{1.5, 1.25}}) {
+        for (int tile : {16}) {
+            INFO("cells of " << aggregate << " sigmas, cap " << cap << ", tile " << tile);
+            PipelineOptions o = options_at(voxel, Mesher::dual, 0);
+            o.outliers.enabled = false;  // the far patch stays
+            o.splat.aggregate = aggregate;
+            o.splat.aggregate_max_cell = cap;
+            const PipelineResult whole = run_on(sample, o);
+            CHECK(whole.splat.points < whole.splat.samples);
+            o.tile = tile;
+            const PipelineResult tiled = run_on(sample, o);
+            CHECK(tiled.tiles > 1);
+            check_same_mesh(whole.mesh, tiled.mesh, voxel);
+        }
+    }
+}
+
 TEST_CASE("tiles with hole closing give the untiled mesh", "[tiles][close]") {
     PointCloud sample = sample_sphere(8000, 1.0);
     punch_holes(sample, 4, 0.1, 5);

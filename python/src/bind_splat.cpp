@@ -24,6 +24,11 @@ void bind_splat(py::module_& m) {
         .field("min_weight", &SplatOptions::min_weight,
                "Voxels with less summed weight are invalid (inactive), but for those within two "
                "voxels of the surface, which need a fifth of it; dimensionless (CLI --min-weight).")
+        .field("aggregate", &SplatOptions::aggregate,
+               "Presumming: the samples of one cell of this many sigmas (one sigma level, normals "
+               "within 90 degrees) become one kernel; 0 = every sample its own (CLI --aggregate).")
+        .field("aggregate_max_cell", &SplatOptions::aggregate_max_cell,
+               "... cells no wider than this, voxels; 0 = no cap.")
         .field("max_memory", &SplatOptions::max_memory,
                "Memory budget of the run, bytes; 0 = half the physical memory. splat() refuses "
                "with a suggested voxel size, before allocating the grids, when its estimate "
@@ -37,6 +42,9 @@ void bind_splat(py::module_& m) {
                       "Voxels with any weight (valid or not).")
         .def_readonly("leaves", &SplatResult::leaves, "8^3 leaves allocated.")
         .def_readonly("memory_bytes", &SplatResult::memory_bytes, "Memory of the grids, bytes.")
+        .def_readonly("points", &SplatResult::points,
+                      "Kernels splatted (samples, or their presummed groups).")
+        .def_readonly("samples", &SplatResult::samples, "Samples given.")
         .def_readonly("updates", &SplatResult::updates,
                       "Point-voxel kernel evaluations inside the support.")
         .def_readonly("sigma_min", &SplatResult::sigma_min, "World units.")

@@ -16,6 +16,7 @@ struct KernelFrame {
     double sigma_median = 0.0;  ///< median sigma of the usable kernels, world units (area weights)
     float max_r = 0.0f;         ///< largest support radius, voxels (the band's half width)
     float r_typical = 0.0f;     ///< the 95th percentile radius, voxels (the crease test's reach)
+    std::size_t skipped = 0;    ///< points without a usable kernel (kernel_frame only)
 };
 
 /// The frame of a whole cloud (throws as splat() does for a cloud it refuses).
@@ -32,8 +33,12 @@ void kernel_sizes(const PointCloud& cloud, const SplatOptions& options, std::vec
 void check_kernel_range(double max_index, float max_r, std::size_t skipped, std::size_t n,
                         double voxel);
 
+/// The cloud presummed as splat() presums it (SplatOptions::aggregate, aggregate_max_cell).
+PointCloud presum(const PointCloud& cloud, const SplatOptions& options);
+
 /// splat() in a given frame instead of the cloud's own: every voxel whose kernels are all in
-/// `cloud` gets the value the whole cloud's splat gives it, bit for bit.
+/// `cloud` gets the value the whole cloud's splat gives it, bit for bit. Splats the kernels it
+/// is given: no presumming (a presummed splat() is this of presum() in the samples' frame).
 SplatResult splat_in_frame(const PointCloud& cloud, const SplatOptions& options,
                            const KernelFrame& frame);
 

@@ -9,10 +9,12 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
 
+#include "detail/cell_groups.h"
 #include "detail/mesh_common.h"
 #include "detail/splat_frame.h"
 #include "vdbrecon/close.h"
@@ -63,7 +65,9 @@ struct TileGrid {
     int n = 0;
     std::array<int, 3> origin{0, 0, 0};
     int halo = 0;
-    double reach = 0.0;  ///< voxels from a sample's kernel centre within which faces can lie
+    double reach = 0.0;  ///< voxels from a sample's anchor within which faces can lie
+    /// The presumming the samples were placed for (SplatOptions::aggregate, aggregate_max_cell).
+    double aggregate = 0.0, aggregate_max_cell = 0.0;
 };
 
 /// What every tile of a cloud shares: the whole cloud's kernel statistics and the grid.
@@ -73,7 +77,8 @@ struct TileSetup {
 };
 
 /// The halo and reach of tiles for these kernels and options (n and origin left 0).
-TileGrid tile_margins(const KernelFrame& frame, const CloseOptions& close);
+TileGrid tile_margins(const KernelFrame& frame, const CloseOptions& close,
+                      const SplatOptions& splat);
 
 /// The tile edge for `--tile auto`: the largest multiple of 8 (at least 32) whose tile with its
 /// halo should fit the memory budget left beside `beside` bytes held through the tiles.
@@ -98,7 +103,24 @@ inline openvdb::Vec3d kernel_centre(const PointCloud& cloud, std::size_t i, doub
     return {double(p[0]) / voxel, double(p[1]) / voxel, double(p[2]) / voxel};
 }
 
-/// Whether a kernel centre (index space) lies within the halo of tile t.
+/// Where the tiles place a sample (index space): its kernel centre, or, where the splat
+/// presums (SplatOptions::aggregate), the centre of its presumming cell, so that a cell's
+/// samples go to the same tiles and each tile presums whole cells into the groups the whole
+/// cloud's splat makes. A group's centre lies within slack() voxels of its cell's centre.
+class TileAnchors {
+  public:
+    explicit TileAnchors(const SplatOptions& options);
+    openvdb::Vec3d operator()(const PointCloud& cloud, std::size_t i) const;
+    double slack() const { return slack_; }
+    double voxel() const { return options_.voxel_size; }
+
+  private:
+    SplatOptions options_;
+    std::optional<PresumCells> cells_;
+    double slack_ = 0.0;
+};
+
+/// Whether an anchor (index space) lies within the halo of tile t.
 inline bool in_halo(const openvdb::Vec3d& c, const TileKey& t, const TileGrid& g) {
     for (int a = 0; a < 3; ++a) {
         const double lo = g.origin[std::size_t(a)] + double(t[std::size_t(a)]) * g.n - g.halo;
@@ -124,30 +146,31 @@ void for_each_bucket_near(const std::vector<TileKey>& keys, const TileKey& t, co
     }
 }
 
-/// The tile holding a kernel centre (index space).
+/// The tile holding an anchor (index space).
 TileKey tile_of(const openvdb::Vec3d& c, const TileGrid& g);
 
 /// Sorts v and drops repeated keys.
 void sort_unique(std::vector<TileKey>& v);
 
-/// Appends the tiles other than its own within g.reach voxels of a kernel centre (tiles_to_visit
+/// Appends the tiles other than its own within g.reach voxels of an anchor (tiles_to_visit
 /// is those of every sample, and the occupied tiles).
 void add_tiles_near(const openvdb::Vec3d& c, const TileGrid& g, std::vector<TileKey>& out);
 
-/// The points of a cloud bucketed by the tile of their kernel centre.
+/// The points of a cloud bucketed by the tile of their anchor.
 struct Buckets {
     std::vector<TileKey> keys;         ///< occupied tiles, sorted
     std::vector<std::size_t> begin;    ///< their ranges in `order` (keys.size() + 1)
     std::vector<std::uint32_t> order;  ///< point indices by (tile, index)
 };
-Buckets bucket_points(const PointCloud& cloud, double voxel, const TileGrid& g);
+Buckets bucket_points(const PointCloud& cloud, const TileAnchors& anchors, const TileGrid& g);
 
-/// The tiles to visit, sorted: those within g.reach voxels of a sample's kernel centre.
+/// The tiles to visit, sorted: those within g.reach voxels of a sample's anchor.
 std::vector<TileKey> tiles_to_visit(const PointCloud& cloud, const Buckets& b, const TileGrid& g,
-                                    double voxel);
+                                    const TileAnchors& anchors);
 
 /// Tile t's piece of the surface from the samples in its halo (`part`, in the whole cloud's
-/// order): splat in the whole cloud's frame, close, mesh, keep the tile's own triangles.
+/// order): presummed (whole cells: TileAnchors) and splat in the whole cloud's frame, close,
+/// mesh, keep the tile's own triangles.
 /// Statistics are added to `stats`. Empty when no voxel near the tile is valid.
 ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& options,
                                const TileSetup& setup, const TileKey& t, TiledResult& stats);

@@ -168,3 +168,18 @@ def test_memory_budget_refuses_before_the_grids_or_tiles():
     whole = vdbrecon.reconstruct(points, normals, voxel=0.01, return_result=True)
     assert whole.tile == 0 and whole.auto_tiled == ""
     assert len(whole.mesh.faces) == len(r.mesh.faces)
+
+
+def test_presumming_by_keyword():
+    """aggregate= presums the splat's samples (off by default); Fusion's aggregate= is its depth
+    option, as --aggregate in `vdbrecon fuse`."""
+    points, normals = sphere(20000, 1.0)
+    plain = vdbrecon.splat(points, normals, voxel=0.05)
+    summed = vdbrecon.splat(points, normals, voxel=0.05, aggregate=1.5)
+    assert plain.points == plain.samples == 20000
+    assert summed.samples == 20000 and summed.points < 15000
+    assert summed.updates < plain.updates
+    with pytest.raises(ValueError, match="depth.aggregate"):
+        vdbrecon.Fusion(0.05, aggregate=9.0)
+    with pytest.raises(ValueError, match="splat.aggregate"):
+        vdbrecon.splat(points, normals, voxel=0.05, aggregate=9.0)

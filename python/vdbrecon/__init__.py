@@ -799,7 +799,9 @@ class Fusion:
         depth = {}
         for name in list(options):
             field = name[len("depth_"):] if name.startswith("depth_") else name
-            if field in _DEPTH_FIELDS and name not in _RECONSTRUCT_NAMES:
+            # `aggregate` is also the splat's (points), which a fusion does not use: the depth
+            # option's here, as --aggregate in `vdbrecon fuse`.
+            if field in _DEPTH_FIELDS and (name not in _RECONSTRUCT_NAMES or name == "aggregate"):
                 depth[field] = options.pop(name)
         if "voxel_size" in options or "splat_voxel_size" in options:
             raise TypeError("Fusion(): give voxel, not voxel_size")

@@ -193,10 +193,9 @@ void help_splat() {
         << "                         crease: each face's own field, no blend ["
         << fmt(d.splat.crease_angle) << "; 0: off]\n"
         << "  --aggregate C          presum the samples of one cell of C sigmas (one sigma\n"
-        << "                         level, normals within the crease angle) into one kernel:\n"
-        << "                         fewer kernels, rougher open borders; a point cloud's\n"
-        << "                         cells at most " << fmt(d.splat.aggregate_max_cell)
-        << " voxels; 0 = off [" << fmt(d.splat.aggregate)
+        << "                         level, normals within the crease angle) into one kernel;\n"
+        << "                         a point cloud's cells at most "
+        << fmt(d.splat.aggregate_max_cell) << " voxels; 0 = off [" << fmt(d.splat.aggregate)
         << "; fuse: " << fmt(DepthOptions{}.aggregate) << "]\n";
 }
 

@@ -36,7 +36,7 @@ constexpr int kCellBits = detail::PresumCells::kBits;
 constexpr std::int64_t kCellBias = detail::PresumCells::kBias;
 /// No key: the level (<= 14) in the top four bits never makes one all ones.
 constexpr std::uint64_t kNoKey = std::numeric_limits<std::uint64_t>::max();
-/// A usable sample 2^19 cells or more from the origin (level 15: no cell's).
+/// A usable sample 2^18 cells or more from the origin (a level no cell has).
 constexpr std::uint64_t kOutside = kNoKey - 1;
 
 double length(const Vec3f& n) {
@@ -50,8 +50,8 @@ int bits_for(std::uint64_t n) {
     return b;
 }
 
-/// A sample's cell, (level, z, y, x) packed 4 + 3 x 20 bits with the cell coordinates biased by
-/// 2^19 (kNoKey for a sample the splat would skip), and its sigma in voxels.
+/// A sample's cell, (level, z, y, x) packed 7 + 3 x 19 bits with the cell coordinates biased by
+/// 2^18 (kNoKey for a sample the splat would skip), and its kernel's sigma in voxels.
 struct SampleKey {
     std::uint64_t key;
     float sigma;
@@ -65,10 +65,10 @@ void key_fields(std::uint64_t key, std::uint32_t f[4]) {
     }
 }
 
-/// Each sample's key and sigma, in parallel; false when one reaches 2^19 cells or more from
-/// the origin (its key kOutside).
+/// Each sample's key and sigma, in parallel (levels by the sigma before the clamp with
+/// raw_levels); false when one reaches 2^18 cells or more from the origin (its key kOutside).
 bool sample_keys(const PointCloud& cloud, const SplatOptions& o, const detail::PresumCells& cells,
-                 std::vector<SampleKey>& keys) {
+                 bool raw_levels, std::vector<SampleKey>& keys) {
     const std::size_t n = cloud.size();
     const Vec3f* pos = cloud.positions.data();
     const Vec3f* nrm = cloud.normals.data();
@@ -84,8 +84,9 @@ bool sample_keys(const PointCloud& cloud, const SplatOptions& o, const detail::P
                 !(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) {
                 continue;
             }
-            const double s = kernel_sigma_voxels(o, scale ? scale[i] : 0.0f);
-            const int level = cells.level(s);
+            const float si = scale ? scale[i] : 0.0f;
+            const double s = kernel_sigma_voxels(o, si);
+            const int level = cells.level(raw_levels ? raw_sigma_voxels(o, si) : s);
             std::uint64_t key = std::uint64_t(level);
             for (int a = 2; a >= 0 && key != kOutside; --a) {
                 std::int64_t c;
@@ -208,7 +209,7 @@ namespace detail {
 PresumCells::PresumCells(const SplatOptions& options, double cell, double max_cell)
     : min_sigma_(options.min_sigma_voxels) {
     for (int l = 0; l < kLevels; ++l) {
-        double edge = cell * options.min_sigma_voxels * std::exp2(0.5 * l);
+        double edge = cell * options.min_sigma_voxels * std::exp2(0.5 * (l - kBelow));
         if (max_cell > 0.0) edge = std::min(edge, max_cell);
         inv_edge_[l] = 1.0 / (edge * options.voxel_size);
     }
@@ -269,7 +270,7 @@ bool CellGroups::add(const PointCloud& cloud) {
     if (n >= kNone || groups_.size() + n >= kNone) return false;
     const float* conf = cloud.has_confidences() ? cloud.confidences.data() : nullptr;
     std::vector<SampleKey> keys;
-    if (!sample_keys(cloud, options_, cells_of_, keys)) return false;
+    if (!sample_keys(cloud, options_, cells_of_, false, keys)) return false;
     // Room for a cell per four samples, made at once.
     if (2 * (cells_ + n / 4) > slots_.size()) grow(cells_ + n / 4);
     // Each sample joins the first group of its cell whose summed normal is less than 90
@@ -473,13 +474,13 @@ PointCloud presum_sorted(const PointCloud& cloud, const SplatOptions& o,
 }  // namespace
 
 PointCloud aggregate_samples(PointCloud cloud, const SplatOptions& options, double cell,
-                             double max_cell, double max_angle) {
+                             double max_cell, double max_angle, bool raw_levels) {
     if (!(cell > 0.0) || cloud.empty() || !cloud.has_normals()) return cloud;
     options.validate();
     if (cloud.size() >= std::size_t(UINT32_MAX)) return cloud;
     const detail::PresumCells cells(options, cell, max_cell);
     std::vector<SampleKey> keys;
-    const bool outside = !sample_keys(cloud, options, cells, keys);
+    const bool outside = !sample_keys(cloud, options, cells, raw_levels, keys);
     // 90 degrees exactly: the sign test (the cosine of pi / 2 in double is not 0).
     const double cos_max = max_angle >= 90.0 ? 0.0 : std::cos(max_angle * M_PI / 180.0);
     return presum_sorted(cloud, options, keys, outside, cos_max);

@@ -1303,9 +1303,10 @@ Volume detail::make_volume(openvdb::FloatGrid::Ptr sdf, openvdb::FloatGrid::Ptr 
 
 namespace {
 
-/// splat(), in the whole cloud's frame (frame == nullptr: this cloud's own).
+/// splat(), in the whole cloud's frame (frame == nullptr: this cloud's own). `samples`: the
+/// samples the crease model reads when `cloud` holds their presummed groups (nullptr: cloud).
 SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
-                        const detail::KernelFrame* frame) {
+                        const detail::KernelFrame* frame, const PointCloud* samples = nullptr) {
     options.validate();
     initialize_openvdb();
     check_cloud(cloud);
@@ -1334,9 +1335,12 @@ SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
     kernels.set_median_sigma(result.sigma_median / voxel);
     sum_kernels(kernels, cloud, options, nullptr, sums);
     Grids g = assemble(sums.blocks, cloud.has_colors(), sums.background, options, result);
-    // Next to sharp creases, the field of each face on its own, combined as the solid they bound.
+    // Next to sharp creases, the field of each face on its own, combined as the solid they
+    // bound, from the samples themselves (groups would blend a crease's few samples).
+    Kernels sample_kernels(samples ? *samples : cloud, options);
+    sample_kernels.set_median_sigma(result.sigma_median / voxel);
     const detail::CreaseStats creases =
-        detail::sharpen_creases(g.sdf->tree(), kernels, cloud.size(), voxel,
+        detail::sharpen_creases(g.sdf->tree(), sample_kernels, sample_kernels.size(), voxel,
                                 options.crease_angle * M_PI / 180.0, sums.background, reach);
     result.crease_voxels = creases.modelled;
     finish_volume(std::move(g), cloud.origin, cloud.size(), options, result);
@@ -1350,7 +1354,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
     // The groups' kernels in the samples' frame (median sigma, band, crease reach), as the
     // tiles of the same cloud splat them (tiles.cpp).
     const detail::KernelFrame frame = detail::kernel_frame(cloud, options);
-    SplatResult r = splat_cloud(detail::presum(cloud, options), options, &frame);
+    SplatResult r = splat_cloud(detail::presum(cloud, options), options, &frame, &cloud);
     r.samples = cloud.size();
     r.skipped_points = frame.skipped;
     return r;
@@ -1358,7 +1362,7 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
 
 PointCloud detail::presum(const PointCloud& cloud, const SplatOptions& options) {
     return aggregate_samples(cloud.view(), options, options.aggregate, options.aggregate_max_cell,
-                             options.crease_angle > 0.0 ? options.crease_angle : 90.0);
+                             options.crease_angle > 0.0 ? options.crease_angle : 90.0, true);
 }
 
 void detail::check_kernel_range(double max_index, float max_r, std::size_t skipped,
@@ -1415,8 +1419,8 @@ detail::KernelFrame detail::kernel_frame(const PointCloud& cloud, const SplatOpt
 }
 
 SplatResult detail::splat_in_frame(const PointCloud& cloud, const SplatOptions& options,
-                                   const KernelFrame& frame) {
-    return splat_cloud(cloud, options, &frame);
+                                   const KernelFrame& frame, const PointCloud* samples) {
+    return splat_cloud(cloud, options, &frame, samples);
 }
 
 SplatAccumulator::SplatAccumulator(const SplatOptions& options, const Vec3d& origin)

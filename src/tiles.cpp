@@ -94,7 +94,7 @@ openvdb::Vec3d TileAnchors::operator()(const PointCloud& cloud, std::size_t i) c
     if (!cells_) return kernel_centre(cloud, i, voxel);
     const Vec3f& p = cloud.positions[i];
     const int level =
-        cells_->level(kernel_sigma_voxels(options_, cloud.has_scales() ? cloud.scales[i] : 0.0f));
+        cells_->level(raw_sigma_voxels(options_, cloud.has_scales() ? cloud.scales[i] : 0.0f));
     openvdb::Vec3d a;
     for (int k = 0; k < 3; ++k) {
         std::int64_t c;
@@ -273,7 +273,7 @@ ClassifiedSurface tile_surface(const PointCloud& part, const TiledOptions& optio
     if (part.empty() || !any_usable(part)) return {};
     SplatResult s;
     try {
-        s = splat_in_frame(presum(part, options.splat), options.splat, setup.frame);
+        s = splat_in_frame(presum(part, options.splat), options.splat, setup.frame, &part);
     } catch (const NumericalError&) {
         return {};  // no valid voxel near this tile: no surface in it
     }

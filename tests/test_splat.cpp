@@ -703,3 +703,30 @@ TEST_CASE(
     CHECK(worst < 0.05 * voxel);
     CHECK(mean / double(near) < 0.01 * voxel);
 }
+
+TEST_CASE("splat()'s presumming cells follow the samples' own spacing, not the clamped sigma",
+          "[splat][aggregate]") {
+    // A plane sampled at a quarter of a voxel, each sample's scale its spacing: the kernels'
+    // sigma is clamped to a voxel, but the cells are 1.5 x a quarter voxel, so a group holds a
+    // few samples (cells of the clamped sigma would hold ~36).
+    const double voxel = 0.04, h = voxel / 4.0;
+    PointCloud plane;
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    for (int i = 0; i < 64000; ++i) {
+        plane.positions.push_back({u(rng), u(rng), 0.0f});
+        plane.normals.push_back({0.0f, 0.0f, 1.0f});
+        plane.scales.push_back(float(h));
+    }
+    SplatOptions o;
+    o.voxel_size = voxel;
+    o.aggregate = 1.5;
+    const PointCloud groups = detail::presum(plane, o);
+    const double per_group = double(plane.size()) / double(groups.size());
+    INFO(per_group << " samples a group");
+    CHECK(per_group > 1.5);
+    CHECK(per_group < 5.0);
+    const PointCloud clamped = aggregate_samples(plane.view(), o, 1.5, 1.25, 30.0, false);
+    CHECK(double(plane.size()) / double(clamped.size()) > 20.0);
+    CHECK(splat(plane, o).sigma_median == Approx(voxel));  // the kernels' sigma: clamped
+}

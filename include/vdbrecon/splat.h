@@ -65,17 +65,18 @@ struct SplatOptions {
     /// sharp and the sign stays right where few samples reach. 0 = off.
     double crease_angle = 30.0;
     /// Presumming (aggregate_samples below): splat() first sums the samples of one cell of
-    /// this many sigmas (one sigma level, normals within crease_angle of the group's, or 90
-    /// degrees without a crease model) into one kernel; 0 (the default) = every sample its own
-    /// kernel, FSSR's sum as it is. The sum is linear in the samples' planes, so what changes is
-    /// that a group's Gaussians share one centre, and the mesher's support test measures from
-    /// the groups: the Stanford bunny at 0.5 mm with 1.5 gives 188k kernels for 361k samples,
-    /// 40M kernel updates instead of 66M and the same F-score, but on samples much denser than
-    /// the voxel a scan's open border comes out ragged (a 2 x 2 patch at half a voxel's
-    /// spacing: border 9.08 long instead of 8.30) and a crease next to a curved face rounder
-    /// (a drilled hole's rim at 3x the spacing 0.14 instead of <= 0.10 voxel off), so it is not
-    /// on by default for points. Range-image fusion presums its frames by
-    /// DepthOptions::aggregate (on by default; SplatAccumulator does not presum again).
+    /// this many sigmas into one kernel; 0 (the default) = every sample its own kernel, FSSR's
+    /// sum as it is. A group: one sigma level, normals within crease_angle of the group's (90
+    /// degrees without a crease model), and cells sized by the samples' own sigma before the
+    /// clamp to min_sigma_voxels, so that samples much denser than the voxel get small cells
+    /// (with cells of the clamped sigma a dense patch's open border came out ragged: the
+    /// mesher's support test measures from the groups). The sum is linear in the samples'
+    /// planes, so what changes is that a group's Gaussians share one centre; the crease model
+    /// still reads the samples. Stanford bunny at 0.5 mm with 1.5: 193k kernels for 361k
+    /// samples, 41M kernel updates instead of 66M, the same F-scores. Not the default: a hole
+    /// that --close fills in an open sphere (7 voxels across) got a cap 1.1 voxel high
+    /// (0.2 without). Range-image fusion presums its frames by DepthOptions::aggregate (on by
+    /// default; SplatAccumulator does not presum).
     double aggregate = 0.0;
     /// ... with cells no wider than this, voxels (0 = no cap): a sampled surface then stays
     /// within the mesher's gap test (MeshOptions::max_gap, 2 voxels) of its groups. Uncapped,
@@ -119,6 +120,13 @@ struct SplatResult {
     std::size_t crease_voxels = 0;   ///< voxels next to creases whose value the crease model set
 };
 
+/// A sample's sigma in voxels before the clamp: scale_factor * scale / voxel for a scale > 0,
+/// else sigma_voxels.
+inline double raw_sigma_voxels(const SplatOptions& options, float scale) {
+    return scale > 0.0f ? options.scale_factor * double(scale) / options.voxel_size
+                        : options.sigma_voxels;
+}
+
 /// A sample's sigma in voxels by the rule above: scale_factor * scale / voxel for a scale > 0,
 /// else sigma_voxels; clamped to [min_sigma_voxels, max_sigma_voxels].
 inline double kernel_sigma_voxels(const SplatOptions& options, float scale) {
@@ -147,12 +155,15 @@ inline bool kernel_usable(double normal_length, float confidence) {
 /// sums what their samples would (src/aggregate.cpp). Samples the splat would skip (no normal,
 /// confidence <= 0, not finite) are left out. `cell` <= 0 returns the cloud as it is. `max_cell`
 /// > 0 caps a cell's edge, in voxels; `max_angle` < 90 degrees narrows the normals a group
-/// takes (the samples' normals within max_angle of its summed normal). Deterministic: each group
+/// takes (the samples' normals within max_angle of its summed normal); `raw_levels` sizes the
+/// cells by the sigma before the clamp (raw_sigma_voxels; levels down to 1/16 of
+/// min_sigma_voxels), not the kernel's. Deterministic: each group
 /// sums its samples in increasing order, in double, and the groups come cells in (level, z, y, x)
-/// order, a cell's in the order they were opened; samples 2^19 cells or more from the origin
+/// order, a cell's in the order they were opened; samples 2^18 cells or more from the origin
 /// follow, each a group of its own. Sorted by cell and summed by chunks of cells in parallel.
 PointCloud aggregate_samples(PointCloud cloud, const SplatOptions& options, double cell,
-                             double max_cell = 0.0, double max_angle = 90.0);
+                             double max_cell = 0.0, double max_angle = 90.0,
+                             bool raw_levels = false);
 
 /// Splats an oriented cloud (normals required) into a Volume. Throws InvalidArgument when the
 /// cloud has no normals or the options are out of range.

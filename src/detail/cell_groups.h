@@ -16,27 +16,30 @@ namespace vdbrecon::detail {
 /// aggregate_samples() for samples that come in runs of one cell (a depth frame's, in image
 /// order): the cells in CellGroups' hash table, which remembers the last cell, instead of a
 /// sort (Kinect frames fused at 1 cm: 17 % slower with the sort). The same groups; a cloud
-/// reaching 2^19 cells or more from the origin is returned as it is.
+/// reaching 2^18 cells or more from the origin is returned as it is.
 PointCloud presum_in_order(PointCloud cloud, const SplatOptions& options, double cell);
 
-/// Presumming's cells (aggregate_samples): a sample's sigma level (half octaves above
-/// min_sigma_voxels) and its cell on that level's grid, fixed in the cloud's frame: `cell`
-/// sigmas of the level on an edge, at most `max_cell` voxels (0: no cap).
+/// Presumming's cells (aggregate_samples): a sample's sigma level (half octaves about
+/// min_sigma_voxels, kBelow of them below it for sigmas before the clamp) and its cell on that
+/// level's grid, fixed in the cloud's frame: `cell` sigmas of the level on an edge, at most
+/// `max_cell` voxels (0: no cap).
 class PresumCells {
   public:
-    static constexpr int kLevels = 15;  ///< sigma levels
+    static constexpr int kBelow = 8;             ///< levels below min_sigma_voxels
+    static constexpr int kLevels = kBelow + 15;  ///< sigma levels
     PresumCells(const SplatOptions& options, double cell, double max_cell);
     /// The level of a kernel of sigma s (voxels).
     int level(double s) const {
-        // Level 0 below 2^0.25 min_sigma (1.18920712 ...), where the rounded 2 log2 is 0.
-        return s <= 1.189 * min_sigma_
-                   ? 0
-                   : std::min(int(std::lround(2.0 * std::log2(s / min_sigma_))), kLevels - 1);
+        // The level of min_sigma up to 2^0.25 min_sigma (1.18920712 ...), where the rounded
+        // 2 log2 is 0, without a log.
+        if (s >= min_sigma_ && s <= 1.189 * min_sigma_) return kBelow;
+        const int l = int(std::lround(2.0 * std::log2(s / min_sigma_)));
+        return std::clamp(l, -kBelow, kLevels - 1 - kBelow) + kBelow;
     }
     /// Coordinate x (world units, the cloud's frame) as the level's cell index, or false when it
-    /// lies 2^19 cells or more from the origin.
+    /// lies 2^18 cells or more from the origin.
     bool cell(double x, int level, std::int64_t& c) const {
-        // floor(x) for |x| < 2^19 as a truncation of the positive x + 2^20 (no libm call where
+        // floor(x) for |x| < 2^18 as a truncation of the positive x + 2^19 (no libm call where
         // the target lacks SSE4.1's rounding instruction).
         const double y = x * inv_edge_[level];
         if (!(std::fabs(y) < double(kBias))) return false;
@@ -47,7 +50,7 @@ class PresumCells {
     double centre(std::int64_t c, int level) const { return (double(c) + 0.5) / inv_edge_[level]; }
     /// Half the largest cell's diagonal, world units.
     double max_half_diagonal() const;
-    static constexpr int kBits = 20;  ///< bits of a biased cell index
+    static constexpr int kBits = 19;  ///< bits of a biased cell index
     static constexpr std::int64_t kBias = std::int64_t(1) << (kBits - 1);
 
   private:
@@ -72,7 +75,7 @@ class CellGroups {
     CellGroups(const SplatOptions& options, double cell, bool colors);
 
     /// Adds the cloud's samples in order (those the splat would skip are left out); false,
-    /// adding nothing, when one reaches more than 2^19 cells from the origin.
+    /// adding nothing, when one reaches 2^18 cells or more from the origin.
     bool add(const PointCloud& cloud);
     /// The groups as samples, cells in (level, z, y, x) order and each cell's groups in the
     /// order they were opened, in `origin`'s frame; empties this.

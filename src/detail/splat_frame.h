@@ -38,8 +38,9 @@ PointCloud presum(const PointCloud& cloud, const SplatOptions& options);
 
 /// splat() in a given frame instead of the cloud's own: every voxel whose kernels are all in
 /// `cloud` gets the value the whole cloud's splat gives it, bit for bit. Splats the kernels it
-/// is given: no presumming (a presummed splat() is this of presum() in the samples' frame).
+/// is given: no presumming (a presummed splat() is this of presum() in the samples' frame,
+/// `samples` the samples themselves, which the crease model reads).
 SplatResult splat_in_frame(const PointCloud& cloud, const SplatOptions& options,
-                           const KernelFrame& frame);
+                           const KernelFrame& frame, const PointCloud* samples = nullptr);
 
 }  // namespace vdbrecon::detail

@@ -87,14 +87,15 @@ bool sample_keys(const PointCloud& cloud, const SplatOptions& o, const detail::P
             const float si = scale ? scale[i] : 0.0f;
             const double s = kernel_sigma_voxels(o, si);
             const int level = cells.level(raw_levels ? raw_sigma_voxels(o, si) : s);
-            std::uint64_t key = std::uint64_t(level);
-            for (int a = 2; a >= 0 && key != kOutside; --a) {
-                std::int64_t c;
-                key = cells.cell(double(p[a]), level, c)
-                          ? key << kCellBits | std::uint64_t(c + kCellBias)
-                          : kOutside;
+            std::int64_t c[3];
+            std::uint64_t key = kOutside;
+            if (cells.cell(p, level, c)) {
+                key = std::uint64_t(level);
+                for (int a = 2; a >= 0; --a)
+                    key = key << kCellBits | std::uint64_t(c[a] + kCellBias);
+            } else {
+                outside = true;
             }
-            if (key == kOutside) outside = true;
             keys[i] = {key, float(s)};
         }
     });
@@ -136,6 +137,13 @@ struct GroupColumns {
         if (colors) rgb.resize(n);
         scales.resize(n);
         confidences.resize(n);
+    }
+    /// The groups as samples, in order, but those whose normals cancel.
+    void fill(const std::vector<detail::GroupSums>& groups, const SplatOptions& o, bool colors) {
+        resize(groups.size(), colors);
+        std::size_t k = 0;
+        for (const detail::GroupSums& g : groups) k += put(k, g, o, colors) ? 1 : 0;
+        resize(k, colors);
     }
     /// Writes group s as sample k; false (nothing written) for normals that cancel: no plane.
     bool put(std::size_t k, const detail::GroupSums& s, const SplatOptions& o, bool colors) {
@@ -441,20 +449,10 @@ PointCloud presum_sorted(const PointCloud& cloud, const SplatOptions& o,
             alone.push_back(detail::GroupSums{});
             add_sample(alone.back(), cloud, i, conf ? double(conf[i]) : 1.0, keys[i].sigma, colors);
         }
-        GroupColumns& part = parts.back();
-        part.resize(alone.size(), colors);
-        std::size_t k = 0;
-        for (const detail::GroupSums& g : alone) k += part.put(k, g, o, colors) ? 1 : 0;
-        part.resize(k, colors);
+        parts.back().fill(alone, o, colors);
     }
     detail::for_each_chunk(m, [&](std::size_t c, std::size_t begin, std::size_t end) {
-        const std::vector<detail::GroupSums> groups =
-            cell_groups(cloud, entries, keys, begin, end, cos_max);
-        GroupColumns& part = parts[c];
-        part.resize(groups.size(), colors);
-        std::size_t k = 0;
-        for (const detail::GroupSums& g : groups) k += part.put(k, g, o, colors) ? 1 : 0;
-        part.resize(k, colors);
+        parts[c].fill(cell_groups(cloud, entries, keys, begin, end, cos_max), o, colors);
     });
     std::vector<std::size_t> first(parts.size() + 1, 0);
     for (std::size_t c = 0; c < parts.size(); ++c) first[c + 1] = first[c] + parts[c].scales.size();

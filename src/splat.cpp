@@ -1337,10 +1337,14 @@ SplatResult splat_cloud(const PointCloud& cloud, const SplatOptions& options,
     Grids g = assemble(sums.blocks, cloud.has_colors(), sums.background, options, result);
     // Next to sharp creases, the field of each face on its own, combined as the solid they
     // bound, from the samples themselves (groups would blend a crease's few samples).
-    Kernels sample_kernels(samples ? *samples : cloud, options);
-    sample_kernels.set_median_sigma(result.sigma_median / voxel);
+    std::optional<Kernels> sample_kernels;
+    if (samples) {
+        sample_kernels.emplace(*samples, options);
+        sample_kernels->set_median_sigma(result.sigma_median / voxel);
+    }
+    const Kernels& crease_kernels = sample_kernels ? *sample_kernels : kernels;
     const detail::CreaseStats creases =
-        detail::sharpen_creases(g.sdf->tree(), sample_kernels, sample_kernels.size(), voxel,
+        detail::sharpen_creases(g.sdf->tree(), crease_kernels, crease_kernels.size(), voxel,
                                 options.crease_angle * M_PI / 180.0, sums.background, reach);
     result.crease_voxels = creases.modelled;
     finish_volume(std::move(g), cloud.origin, cloud.size(), options, result);

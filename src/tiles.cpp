@@ -92,17 +92,13 @@ TileAnchors::TileAnchors(const SplatOptions& options) : options_(options) {
 openvdb::Vec3d TileAnchors::operator()(const PointCloud& cloud, std::size_t i) const {
     const double voxel = options_.voxel_size;
     if (!cells_) return kernel_centre(cloud, i, voxel);
-    const Vec3f& p = cloud.positions[i];
     const int level =
         cells_->level(raw_sigma_voxels(options_, cloud.has_scales() ? cloud.scales[i] : 0.0f));
-    openvdb::Vec3d a;
-    for (int k = 0; k < 3; ++k) {
-        std::int64_t c;
-        // A sample beyond the cells' range is splat as it is (aggregate_samples).
-        if (!cells_->cell(double(p[k]), level, c)) return kernel_centre(cloud, i, voxel);
-        a[k] = cells_->centre(c, level) / voxel;
-    }
-    return a;
+    std::int64_t c[3];
+    // A sample beyond the cells' range is splat as it is (aggregate_samples).
+    if (!cells_->cell(cloud.positions[i], level, c)) return kernel_centre(cloud, i, voxel);
+    return {cells_->centre(c[0], level) / voxel, cells_->centre(c[1], level) / voxel,
+            cells_->centre(c[2], level) / voxel};
 }
 
 Buckets bucket_points(const PointCloud& cloud, const TileAnchors& anchors, const TileGrid& g) {

@@ -46,6 +46,14 @@ class PresumCells {
         c = std::int64_t(y + double(2 * kBias)) - 2 * kBias;
         return true;
     }
+    /// Point p's cell on the level's grid, or false when an axis lies 2^18 cells or more from
+    /// the origin (the one rule of presumming's keys and the tiles' anchors).
+    bool cell(const Vec3f& p, int level, std::int64_t c[3]) const {
+        for (int a = 0; a < 3; ++a) {
+            if (!cell(double(p[a]), level, c[a])) return false;
+        }
+        return true;
+    }
     /// The centre of cell c of the level along one axis, world units.
     double centre(std::int64_t c, int level) const { return (double(c) + 0.5) / inv_edge_[level]; }
     /// Half the largest cell's diagonal, world units.

@@ -112,7 +112,6 @@ class TileAnchors {
     explicit TileAnchors(const SplatOptions& options);
     openvdb::Vec3d operator()(const PointCloud& cloud, std::size_t i) const;
     double slack() const { return slack_; }
-    double voxel() const { return options_.voxel_size; }
 
   private:
     SplatOptions options_;

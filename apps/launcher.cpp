@@ -4,13 +4,15 @@
 //
 // glibc reads its tunables (GLIBC_TUNABLES) only when a process starts. glibc.malloc.hugetlb=1
 // (glibc >= 2.35) makes malloc advise transparent huge pages for the memory it takes from the
-// kernel, so a run faults its heap in 2 MB at a time instead of 4 kB (bunny at 0.5 mm on the
-// 2-core VM, where a fault costs ~5 us: 33.8k -> 2.3k page faults, wall 1.15 -> 0.86 s).
+// kernel, so a run faults its heap in 2 MB at a time instead of 4 kB (bunny at 0.5 mm: 33.8k ->
+// 2.3k page faults; on the 2-core VM, runs back to back 2-6 % faster).
 // glibc advises only heap growths of at least 2 MB, so glibc.malloc.top_pad=64 MB grows the heap
 // 64 MB (of address space) at a time from the start; a small run's heap would otherwise never
 // get a huge page. The tunables are added only where the kernel hands out huge pages on request
-// (THP mode "madvise", Debian's default: "always" needs no advice, "never" ignores it) and when
-// GLIBC_TUNABLES does not name glibc.malloc.hugetlb already (set it to 0 to turn this off).
+// (THP mode "madvise", Debian's default: "always" needs no advice, "never" ignores it), not on a
+// virtual machine that hands freed memory back to its host (apps/huge_pages.h: there a run that
+// faults its memory in anew was a quarter slower with huge pages), and when GLIBC_TUNABLES does
+// not name glibc.malloc.hugetlb already (set it to 0 to turn this off).
 //
 // Before, the command line executed itself once more with the tunables, which loaded
 // libopenvdb.so twice. Loading it is expensive: it is linked with BIND_NOW, so the dynamic
@@ -24,6 +26,8 @@
 #include <cstring>
 #include <string>
 
+#include "huge_pages.h"
+
 namespace {
 
 /// The directory this executable is in ("" where /proc/self/exe cannot be read).
@@ -35,22 +39,13 @@ std::string own_directory() {
     return path.substr(0, path.rfind('/') + 1);
 }
 
-/// True when the kernel's transparent huge page mode is "madvise".
-bool thp_on_request() {
-    std::FILE* f = std::fopen("/sys/kernel/mm/transparent_hugepage/enabled", "r");
-    if (!f) return false;
-    char line[256] = {};
-    const bool read = std::fgets(line, sizeof line, f) != nullptr;
-    std::fclose(f);
-    return read && std::strstr(line, "[madvise]") != nullptr;
-}
-
 }  // namespace
 
 int main(int, char** argv) {
     const char* old = std::getenv("GLIBC_TUNABLES");
     const std::string previous = old ? old : "";
-    if (previous.find("glibc.malloc.hugetlb") == std::string::npos && thp_on_request()) {
+    if (previous.find("glibc.malloc.hugetlb") == std::string::npos &&
+        vdbrecon::launcher::huge_pages_help("/sys")) {
         const std::string value =
             (previous.empty() ? "" : previous + ":") +
             "glibc.malloc.hugetlb=1:glibc.malloc.top_pad=" + std::to_string(64 << 20);

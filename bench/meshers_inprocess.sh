@@ -22,7 +22,7 @@ for b in "${BUILDS[@]}"; do
     -I"$src/include" -I"$src/src" -isystem /usr/include/Imath bench/meshers_inprocess.cpp \
     "$b/libvdbrecon.a" -lopenvdb -ltbb -lImath-3_1 -lOpenEXR-3_1 -lz -llz4 -lpthread -o "$(exe "$b")"
 done
-# The CLI's huge-page heap (apps/launcher.cpp).
+# The heap the CLI has where huge pages help (apps/huge_pages.h); the rounds run back to back.
 export GLIBC_TUNABLES=glibc.malloc.hugetlb=1:glibc.malloc.top_pad=$((64 << 20))
 machine_line
 echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg); best of 3 x $N runs, seconds"

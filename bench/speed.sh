@@ -5,7 +5,7 @@
 # of $POISSON_REPEAT), each scored against the zippered reference. The runs are interleaved
 # (2 threads, 1 thread, now and then Poisson), so that a burst of load on the VM meets every
 # side of the ratios. Prints the times, the vdbrecon / Poisson ratio and the 1 -> 2 thread gain
-# of the whole process.
+# of the whole process, and the best of 3 runs after 3 s idle each.
 #   bench/speed.sh [build-dir]     (needs ../shared/data; installs python3-open3d if missing)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -53,15 +53,25 @@ for ((k = 0; k < REPEAT; ++k)); do
   done
 done
 while ((done_p < POISSON_REPEAT)); do poisson_run; done_p=$((done_p + 1)); done
+# A user's run is mostly the first in a while: 2 threads after 3 s idle, best of 3 (on a VM that
+# hands freed memory back to its host, such a run faults its memory in anew; bench/RESULTS.md).
+wc=""
+for ((k = 0; k < 3; ++k)); do
+  sleep 3
+  /usr/bin/time -f "%e" -o "$OUT/time.txt" "$BIN" "$BUNNY" -o "$OUT/cold.ply" --threads 2 \
+    --voxel 0.0005 2>/dev/null >/dev/null
+  w=$(tail -n 1 "$OUT/time.txt")
+  if better "$w" "$wc"; then wc=$w; fi
+done
 "$BIN" eval "$OUT/speed.ply" "$GT" --tau 0.0005,0.001 > "$OUT/speed.json"
 stages2=$(stage_times "$OUT/speed.2.log" read outliers normals splat mesh clean "vdb (in the background)")
 stages1=$(stage_times "$OUT/speed.1.log" read outliers normals splat mesh clean "vdb (in the background)")
 "$BIN" eval "$OUT/poisson.ply" "$GT" --tau 0.0005,0.001 > "$OUT/poisson.json"
 
-/usr/bin/python3 - "$OUT" "$w2" "$w1" "$wp" "$rss2" "$stages2" "$stages1" <<'PY'
+/usr/bin/python3 - "$OUT" "$w2" "$w1" "$wp" "$rss2" "$stages2" "$stages1" "$wc" <<'PY'
 import json, sys
-out, w2, w1, wp, rss2, s2, s1 = sys.argv[1:]
-w2, w1, wp = float(w2), float(w1), float(wp)
+out, w2, w1, wp, rss2, s2, s1, wc = sys.argv[1:]
+w2, w1, wp, wc = float(w2), float(w1), float(wp), float(wc)
 def row(label, wall, j, extra):
     d = json.load(open(j))
     f = d["fscore"]
@@ -71,6 +81,7 @@ print("| run | wall s | F@0.5mm | F@1mm | Chamfer-L1 um | stages: read, outliers
 print("|---|---|---|---|---|---|")
 row("vdbrecon 0.5 mm, 2 threads", w2, out + "/speed.json", s2.replace("|", ", ") + "; peak " + rss2 + " MB")
 row("vdbrecon 0.5 mm, 1 thread", w1, out + "/speed.json", s1.replace("|", ", "))
+row("vdbrecon 0.5 mm, 2 threads, after 3 s idle", wc, out + "/speed.json", "")
 row("Open3D Poisson depth 10, trim 1 %", wp, out + "/poisson.json", "")
 print()
 print("vdbrecon (2 threads) vs Open3D Poisson depth 10: %.1fx; vdbrecon 1 -> 2 threads: %.2fx"

@@ -2,6 +2,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "huge_pages.h"
 #include "support.h"
 #include "vdbrecon/io.h"
 #include "vdbrecon/splat.h"
@@ -111,7 +112,10 @@ TEST_CASE("cli: the huge-page tunables change nothing but the speed", "[cli]") {
 
 TEST_CASE("cli: the launcher passes arguments and tunables on, and says what it cannot run",
           "[cli]") {
-    const bool advised = thp_mode().find("[madvise]") != std::string::npos;
+    // The rule itself is tested on made-up sysfs trees below; here it decides on this machine's.
+    const bool advised = vdbrecon::launcher::huge_pages_help("/sys");
+    INFO("THP mode: " << thp_mode() << "; free pages reported to a host: "
+                      << vdbrecon::launcher::free_memory_goes_to_host("/sys"));
     TempDir dir;
     const std::string launcher = dir.file("vdbrecon");
     std::filesystem::copy_file(VDBRECON_CLI, launcher);
@@ -142,6 +146,64 @@ TEST_CASE("cli: the launcher passes arguments and tunables on, and says what it 
             "glibc.malloc.arena_max=1" + (advised ? ":" + tunables : "") + "|a b|it's|");
     REQUIRE(run("env GLIBC_TUNABLES=glibc.malloc.hugetlb=0") == 0);
     REQUIRE(read_bytes(dir.file("out")) == "glibc.malloc.hugetlb=0|a b|it's|");
+}
+
+namespace {
+
+/// A made-up sysfs tree: the THP mode line and virtio devices (id, negotiated features, bound).
+struct FakeSys {
+    TempDir dir;
+    explicit FakeSys(const std::string& thp) {
+        std::filesystem::create_directories(dir.file("kernel/mm/transparent_hugepage"));
+        std::ofstream(dir.file("kernel/mm/transparent_hugepage/enabled")) << thp << "\n";
+    }
+    void device(const std::string& name, const std::string& id, const std::string& features,
+                bool bound = true) {
+        const std::string d = dir.file("bus/virtio/devices/" + name);
+        std::filesystem::create_directories(d);
+        std::ofstream(d + "/device") << id << "\n";
+        std::ofstream(d + "/features") << features << "\n";
+        if (bound) std::filesystem::create_directories(d + "/driver");
+    }
+    std::string root() const { return dir.path(); }
+};
+
+}  // namespace
+
+TEST_CASE("launcher: huge pages where the kernel gives them on request and memory stays", "[cli]") {
+    using vdbrecon::launcher::free_memory_goes_to_host;
+    using vdbrecon::launcher::huge_pages_help;
+    // Bit 5 (VIRTIO_BALLOON_F_REPORTING) of a balloon's features: this VM's balloon, and one
+    // with the same bits but for bit 5.
+    const std::string reporting = "0110010100000000000000000000000010000000";
+    const std::string silent = "0110000100000000000000000000000010000000";
+    {
+        FakeSys sys("always [madvise] never");  // bare metal: no virtio at all
+        CHECK_FALSE(free_memory_goes_to_host(sys.root()));
+        CHECK(huge_pages_help(sys.root()));
+    }
+    {
+        FakeSys sys("always [madvise] never");
+        sys.device("virtio0", "0x0005", reporting);
+        sys.device("virtio1", "0x0002", silent);  // a disk
+        CHECK(free_memory_goes_to_host(sys.root()));
+        CHECK_FALSE(huge_pages_help(sys.root()));
+    }
+    {
+        FakeSys sys("always [madvise] never");
+        sys.device("virtio0", "0x0005", silent);            // a balloon that does not report
+        sys.device("virtio1", "0x0002", reporting);         // bit 5 of another device means else
+        sys.device("virtio2", "0x0005", reporting, false);  // no driver bound: nothing reported
+        CHECK_FALSE(free_memory_goes_to_host(sys.root()));
+        CHECK(huge_pages_help(sys.root()));
+    }
+    {
+        FakeSys sys("[always] madvise never");  // huge pages without advice: nothing to add
+        CHECK_FALSE(huge_pages_help(sys.root()));
+        FakeSys never("always madvise [never]");
+        CHECK_FALSE(huge_pages_help(never.root()));
+    }
+    CHECK_FALSE(huge_pages_help("/nonexistent/sys"));  // nothing readable: glibc's defaults
 }
 
 // Bad inputs, bad --voxel values and unwritable outputs: tests/test_bad_input.cpp.

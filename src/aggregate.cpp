@@ -34,7 +34,7 @@ namespace {
 
 constexpr int kCellBits = detail::PresumCells::kBits;
 constexpr std::int64_t kCellBias = detail::PresumCells::kBias;
-/// No key: the level (<= 14) in the top four bits never makes one all ones.
+/// No key: the level (<= 22) in the top seven bits never makes one all ones.
 constexpr std::uint64_t kNoKey = std::numeric_limits<std::uint64_t>::max();
 /// A usable sample 2^18 cells or more from the origin (a level no cell has).
 constexpr std::uint64_t kOutside = kNoKey - 1;
@@ -65,10 +65,10 @@ void key_fields(std::uint64_t key, std::uint32_t f[4]) {
     }
 }
 
-/// Each sample's key and sigma, in parallel (levels by the sigma before the clamp with
-/// raw_levels); false when one reaches 2^18 cells or more from the origin (its key kOutside).
+/// Each sample's key and sigma, in parallel; false when one reaches 2^18 cells or more from the
+/// origin (its key kOutside).
 bool sample_keys(const PointCloud& cloud, const SplatOptions& o, const detail::PresumCells& cells,
-                 bool raw_levels, std::vector<SampleKey>& keys) {
+                 std::vector<SampleKey>& keys) {
     const std::size_t n = cloud.size();
     const Vec3f* pos = cloud.positions.data();
     const Vec3f* nrm = cloud.normals.data();
@@ -86,7 +86,7 @@ bool sample_keys(const PointCloud& cloud, const SplatOptions& o, const detail::P
             }
             const float si = scale ? scale[i] : 0.0f;
             const double s = kernel_sigma_voxels(o, si);
-            const int level = cells.level(raw_levels ? raw_sigma_voxels(o, si) : s);
+            const int level = cells.sample_level(o, si, s);
             std::int64_t c[3];
             std::uint64_t key = kOutside;
             if (cells.cell(p, level, c)) {
@@ -214,8 +214,8 @@ struct KeyPacking {
 
 namespace detail {
 
-PresumCells::PresumCells(const SplatOptions& options, double cell, double max_cell)
-    : min_sigma_(options.min_sigma_voxels) {
+PresumCells::PresumCells(const SplatOptions& options, double cell, double max_cell, bool raw_levels)
+    : min_sigma_(options.min_sigma_voxels), raw_levels_(raw_levels) {
     for (int l = 0; l < kLevels; ++l) {
         double edge = cell * options.min_sigma_voxels * std::exp2(0.5 * (l - kBelow));
         if (max_cell > 0.0) edge = std::min(edge, max_cell);
@@ -232,7 +232,7 @@ double PresumCells::max_half_diagonal() const {
 CellGroups::CellGroups(const SplatOptions& options, double cell, bool colors)
     : options_(options),
       colors_(colors),
-      cells_of_(options, cell, 0.0),
+      cells_of_(options, cell, 0.0, false),
       slots_(1024, Slot{kNoKey, kNone}) {}
 
 void CellGroups::grow(std::size_t cells) {
@@ -278,7 +278,7 @@ bool CellGroups::add(const PointCloud& cloud) {
     if (n >= kNone || groups_.size() + n >= kNone) return false;
     const float* conf = cloud.has_confidences() ? cloud.confidences.data() : nullptr;
     std::vector<SampleKey> keys;
-    if (!sample_keys(cloud, options_, cells_of_, false, keys)) return false;
+    if (!sample_keys(cloud, options_, cells_of_, keys)) return false;
     // Room for a cell per four samples, made at once.
     if (2 * (cells_ + n / 4) > slots_.size()) grow(cells_ + n / 4);
     // Each sample joins the first group of its cell whose summed normal is less than 90
@@ -471,17 +471,25 @@ PointCloud presum_sorted(const PointCloud& cloud, const SplatOptions& o,
 
 }  // namespace
 
-PointCloud aggregate_samples(PointCloud cloud, const SplatOptions& options, double cell,
-                             double max_cell, double max_angle, bool raw_levels) {
-    if (!(cell > 0.0) || cloud.empty() || !cloud.has_normals()) return cloud;
+PointCloud detail::presum_in_cells(PointCloud cloud, const SplatOptions& options,
+                                   const PresumCells& cells, double max_angle) {
+    if (cloud.empty() || !cloud.has_normals()) return cloud;
     options.validate();
     if (cloud.size() >= std::size_t(UINT32_MAX)) return cloud;
-    const detail::PresumCells cells(options, cell, max_cell);
     std::vector<SampleKey> keys;
-    const bool outside = !sample_keys(cloud, options, cells, raw_levels, keys);
+    const bool outside = !sample_keys(cloud, options, cells, keys);
     // 90 degrees exactly: the sign test (the cosine of pi / 2 in double is not 0).
     const double cos_max = max_angle >= 90.0 ? 0.0 : std::cos(max_angle * M_PI / 180.0);
     return presum_sorted(cloud, options, keys, outside, cos_max);
+}
+
+PointCloud aggregate_samples(PointCloud cloud, const SplatOptions& options, double cell,
+                             double max_cell, double max_angle, bool raw_levels) {
+    if (!(cell > 0.0) || cloud.empty() || !cloud.has_normals()) return cloud;
+    options.validate();  // before the cells are made from it
+    return detail::presum_in_cells(std::move(cloud), options,
+                                   detail::PresumCells(options, cell, max_cell, raw_levels),
+                                   max_angle);
 }
 
 }  // namespace vdbrecon

@@ -30,6 +30,7 @@
 #include <immintrin.h>
 #endif
 
+#include "detail/cell_groups.h"
 #include "detail/creases.h"
 #include "detail/exp8.h"
 #include "detail/fill_later.h"
@@ -1365,8 +1366,10 @@ SplatResult splat(const PointCloud& cloud, const SplatOptions& options) {
 }
 
 PointCloud detail::presum(const PointCloud& cloud, const SplatOptions& options) {
-    return aggregate_samples(cloud.view(), options, options.aggregate, options.aggregate_max_cell,
-                             options.crease_angle > 0.0 ? options.crease_angle : 90.0, true);
+    if (!(options.aggregate > 0.0)) return cloud.view();
+    options.validate();  // before the cells are made from it
+    return presum_in_cells(cloud.view(), options, PresumCells::of_splat(options),
+                           options.crease_angle > 0.0 ? options.crease_angle : 90.0);
 }
 
 void detail::check_kernel_range(double max_index, float max_r, std::size_t skipped,

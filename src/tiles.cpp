@@ -84,7 +84,7 @@ void add_tiles_near(const openvdb::Vec3d& c, const TileGrid& g, std::vector<Tile
 
 TileAnchors::TileAnchors(const SplatOptions& options) : options_(options) {
     if (options.aggregate > 0.0) {
-        cells_.emplace(options, options.aggregate, options.aggregate_max_cell);
+        cells_ = PresumCells::of_splat(options);
         slack_ = cells_->max_half_diagonal() / options.voxel_size;
     }
 }
@@ -92,8 +92,8 @@ TileAnchors::TileAnchors(const SplatOptions& options) : options_(options) {
 openvdb::Vec3d TileAnchors::operator()(const PointCloud& cloud, std::size_t i) const {
     const double voxel = options_.voxel_size;
     if (!cells_) return kernel_centre(cloud, i, voxel);
-    const int level =
-        cells_->level(raw_sigma_voxels(options_, cloud.has_scales() ? cloud.scales[i] : 0.0f));
+    const float scale = cloud.has_scales() ? cloud.scales[i] : 0.0f;
+    const int level = cells_->sample_level(options_, scale, kernel_sigma_voxels(options_, scale));
     std::int64_t c[3];
     // A sample beyond the cells' range is splat as it is (aggregate_samples).
     if (!cells_->cell(cloud.positions[i], level, c)) return kernel_centre(cloud, i, voxel);

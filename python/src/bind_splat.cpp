@@ -26,7 +26,8 @@ void bind_splat(py::module_& m) {
                "voxels of the surface, which need a fifth of it; dimensionless (CLI --min-weight).")
         .field("aggregate", &SplatOptions::aggregate,
                "Presumming: the samples of one cell of this many sigmas (one sigma level, normals "
-               "within 90 degrees) become one kernel; 0 = every sample its own (CLI --aggregate).")
+               "within crease_angle, 90 degrees without one) become one kernel; 0 = every "
+               "sample its own (CLI --aggregate).")
         .field("aggregate_max_cell", &SplatOptions::aggregate_max_cell,
                "... cells no wider than this, voxels; 0 = no cap.")
         .field("max_memory", &SplatOptions::max_memory,

@@ -22,12 +22,22 @@ PointCloud presum_in_order(PointCloud cloud, const SplatOptions& options, double
 /// Presumming's cells (aggregate_samples): a sample's sigma level (half octaves about
 /// min_sigma_voxels, kBelow of them below it for sigmas before the clamp) and its cell on that
 /// level's grid, fixed in the cloud's frame: `cell` sigmas of the level on an edge, at most
-/// `max_cell` voxels (0: no cap).
+/// `max_cell` voxels (0: no cap). `raw_levels`: a sample's level follows its sigma before the
+/// clamp (raw_sigma_voxels), else its kernel's.
 class PresumCells {
   public:
     static constexpr int kBelow = 8;             ///< levels below min_sigma_voxels
     static constexpr int kLevels = kBelow + 15;  ///< sigma levels
-    PresumCells(const SplatOptions& options, double cell, double max_cell);
+    PresumCells(const SplatOptions& options, double cell, double max_cell, bool raw_levels);
+    /// The cells splat() presums in (SplatOptions::aggregate, aggregate_max_cell, raw levels):
+    /// the one rule of its groups and of the tiles' anchors, which must agree.
+    static PresumCells of_splat(const SplatOptions& options) {
+        return PresumCells(options, options.aggregate, options.aggregate_max_cell, true);
+    }
+    /// The level of a sample of this scale (0: none) whose kernel's sigma is s (voxels).
+    int sample_level(const SplatOptions& options, float scale, double s) const {
+        return level(raw_levels_ ? raw_sigma_voxels(options, scale) : s);
+    }
     /// The level of a kernel of sigma s (voxels).
     int level(double s) const {
         // The level of min_sigma up to 2^0.25 min_sigma (1.18920712 ...), where the rounded
@@ -63,8 +73,13 @@ class PresumCells {
 
   private:
     double min_sigma_;
+    bool raw_levels_;
     double inv_edge_[kLevels];  ///< 1 / the cell edge of each level, world units
 };
+
+/// aggregate_samples() in given cells (see there; `max_angle` likewise).
+PointCloud presum_in_cells(PointCloud cloud, const SplatOptions& options, const PresumCells& cells,
+                           double max_angle);
 
 /// A group's sums (the samples' confidence c, c sigma, c p, c n and c rgb), in double.
 struct GroupSums {

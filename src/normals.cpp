@@ -2,10 +2,12 @@
 #include "vdbrecon/normals.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -14,6 +16,8 @@
 
 #include "detail/normal_rules.h"
 #include "detail/pca.h"
+#include "detail/plane_count.h"
+#include "detail/radix_sort.h"
 #include "detail/select.h"
 #include "detail/union_find.h"
 #include "vdbrecon/error.h"
@@ -101,6 +105,7 @@ struct Patch {
     const Eigen::Vector3d* q;
     int m;
     double tol;
+    const detail::PlanePoints* axes;  ///< q by axis, for count_on
 
     bool on(const Eigen::Vector3d& u, double offset, int j, double band) const {
         return std::fabs(u.dot(q[j]) - offset) <= band;
@@ -112,12 +117,22 @@ struct Patch {
     double crisp_band() const { return 0.1 * tol; }
     double crisp_rms() const { return 0.05 * tol; }
 
+    /// How many neighbours, each counted by its weight w[j] (1 or 0), are on() the plane
+    /// u . x = offset within `band`, by the same arithmetic (detail::count_on_plane; the
+    /// triples' inlier counts were most of the normal stage's time on overlapping scans).
+    int count_on(const Eigen::Vector3d& u, double offset, double band, const double* w) const {
+        const double v[3] = {u[0], u[1], u[2]};
+        return detail::count_on_plane(*axes, w, v, offset, band);
+    }
+
     /// The plane through three of the neighbours `among` (of the `nearest`, at most 16) that
     /// most of them lie on, within `band` (a deterministic RANSAC); returns how many, 0 with no
     /// plane.
     int triple_plane(const bool* among, double band, FitPlane& f, int nearest = 16) const {
         int best = 0;
         const int near = std::min({m, nearest, 16});
+        double weight[64];
+        detail::plane_weights(among, m, weight);
         for (int a = 0; a < near; ++a) {
             for (int b = a + 1; b < near && among[a]; ++b) {
                 for (int c = b + 1; c < near && among[b]; ++c) {
@@ -126,8 +141,7 @@ struct Patch {
                     if (!(u.norm() > 0.0)) continue;
                     u.normalize();
                     const double off = u.dot(q[a]);
-                    int count = 0;
-                    for (int j = 0; j < m; ++j) count += among[j] && on(u, off, j, band);
+                    const int count = count_on(u, off, band, weight);
                     if (count > best) {
                         best = count;
                         f.u = u;
@@ -199,7 +213,9 @@ int own_side(const Patch& p, const bool* own, const std::vector<FitPlane>& plane
 /// The neighbourhood of point i: its k neighbours' positions relative to it (at most 64).
 struct Neighbourhood {
     Eigen::Vector3d q[64];
-    Patch patch{q, 0, 0.0};  // points into q: not to be copied
+    detail::PlanePoints axes;
+    double ones[64];
+    Patch patch{q, 0, 0.0, &axes};  // points into q and axes: not to be copied
 
     Neighbourhood(const Neighbourhood&) = delete;
     Neighbourhood& operator=(const Neighbourhood&) = delete;
@@ -212,9 +228,14 @@ struct Neighbourhood {
             const Vec3f& p = pts[std::size_t(nb[j])];
             q[j] = Eigen::Vector3d(double(p[0]) - c[0], double(p[1]) - c[1], double(p[2]) - c[2]);
             reach += q[j].norm();
+            axes.x[j] = q[j][0];
+            axes.y[j] = q[j][1];
+            axes.z[j] = q[j][2];
+            ones[j] = 1.0;
         }
+        axes.m = m;
         // "On a plane": within a tenth of the neighbours' mean distance.
-        patch = Patch{q, m, 0.1 * reach / double(m)};
+        patch = Patch{q, m, 0.1 * reach / double(m), &axes};
     }
     /// Two or more neighbours within twice the tolerance of the point: they pin down little
     /// of a plane through it (tilted by 3 degrees or more, it still holds them within the
@@ -230,11 +251,7 @@ struct Neighbourhood {
         }
         return close >= 2;
     }
-    int inliers(const Eigen::Vector3d& u) const {
-        int count = 0;
-        for (int j = 0; j < patch.m; ++j) count += patch.on(u, 0.0, j);
-        return count;
-    }
+    int inliers(const Eigen::Vector3d& u) const { return patch.count_on(u, 0.0, patch.tol, ones); }
     /// The truncated quadratic of MSAC (Torr & Zisserman 2000): neighbours nearer the plane
     /// count more, so a face whose points lie on it beats a plane tilted to graze a few points
     /// of both faces along an edge.
@@ -508,25 +525,75 @@ bool detail::neighbourhood_normal(Span<Vec3f> pts, std::size_t i, const int* nb,
 
 namespace {
 
+/// A set of point indices, cleared in O(1): open addressing over a table that marks its entries
+/// with the generation they were added in (for the few hundred points two hops from one point).
+class SeenSet {
+  public:
+    void clear() {
+        if (++generation_ == 0) {  // wrapped: no stale entry may pass for a current one
+            std::fill(table_.begin(), table_.end(), Slot{0, 0});
+            generation_ = 1;
+        }
+        size_ = 0;
+    }
+    /// Adds i; false when it was there already.
+    bool insert(std::int32_t i) {
+        if (2 * (size_ + 1) > table_.size()) grow();
+        const std::size_t mask = table_.size() - 1;
+        for (std::size_t at = hash(i) & mask;; at = (at + 1) & mask) {
+            Slot& s = table_[at];
+            if (s.generation != generation_) {
+                s = Slot{generation_, i};
+                ++size_;
+                return true;
+            }
+            if (s.index == i) return false;
+        }
+    }
+
+  private:
+    struct Slot {
+        std::uint32_t generation;
+        std::int32_t index;
+    };
+    static std::size_t hash(std::int32_t i) { return std::uint32_t(i) * 2654435761u >> 8; }
+    void grow() {
+        std::vector<Slot> old;
+        old.swap(table_);
+        table_.assign(std::max<std::size_t>(1024, 2 * old.size()), Slot{0, 0});
+        size_ = 0;
+        for (const Slot& s : old) {
+            if (s.generation == generation_) insert(s.index);
+        }
+    }
+    std::vector<Slot> table_;
+    std::uint32_t generation_ = 1;
+    std::size_t size_ = 0;
+};
+
 /// Point i's k nearest and their k nearest (i itself left out), each once, sorted by squared
 /// distance to i, then index: the candidates of the wider look, found with no second search.
 void two_hop_ring(Span<Vec3f> pts, std::size_t i, int k,
                   const std::function<const int*(std::size_t)>& list,
                   std::vector<std::pair<float, int>>& ring) {
+    // Each point once (most are reached through several neighbours), then sorted.
+    thread_local SeenSet seen;
+    seen.clear();
     ring.clear();
     const int* own = list(i);
     for (int j = 0; j < k; ++j) {
         const int a = own[j];
-        ring.push_back({KnnResult::squared_distance(pts[i], pts[std::size_t(a)]), a});
+        if (seen.insert(a)) {
+            ring.push_back({KnnResult::squared_distance(pts[i], pts[std::size_t(a)]), a});
+        }
         const int* theirs = list(std::size_t(a));
         for (int l = 0; l < k; ++l) {
             const int c = theirs[l];
-            if (std::size_t(c) == i) continue;
+            if (std::size_t(c) == i || !seen.insert(c)) continue;
             ring.push_back({KnnResult::squared_distance(pts[i], pts[std::size_t(c)]), c});
         }
     }
     std::sort(ring.begin(), ring.end());
-    ring.erase(std::unique(ring.begin(), ring.end()), ring.end());
 }
 
 }  // namespace
@@ -731,9 +798,11 @@ std::vector<std::pair<std::int32_t, std::int32_t>> coplanar_bridges(
         return d2 > 0.0f && a * a <= lim && b * b <= lim &&
                std::fabs(dot(normals[i], normals[j])) >= kParallel;
     };
+    tbb::enumerable_thread_specific<SeenSet> seen_sets;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024),
                       [&](const tbb::blocked_range<std::size_t>& r) {
         std::vector<std::pair<float, std::int32_t>> cand;
+        SeenSet& seen = seen_sets.local();
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
             if (state[i] == kExcluded) continue;
             bool torn = false;
@@ -743,13 +812,16 @@ std::vector<std::pair<std::int32_t, std::int32_t>> coplanar_bridges(
                        Readings(pts[i], normals[i], pts[j], normals[j]).torn();
             }
             if (!torn) continue;
+            // Each point two hops away once (most are reached through several neighbours).
             cand.clear();
+            seen.clear();
             for (std::size_t e = start[i]; e < start[i + 1]; ++e) {
                 const std::size_t h = std::size_t(adj[e]);
                 for (std::size_t f = start[h]; f < start[h + 1]; ++f) {
                     const std::size_t j = std::size_t(adj[f]);
                     float d2;
-                    if (j != i && state[j] != kExcluded && in_plane(i, j, d2)) {
+                    if (j != i && state[j] != kExcluded && seen.insert(std::int32_t(j)) &&
+                        in_plane(i, j, d2)) {
                         cand.push_back({d2, std::int32_t(j)});
                     }
                 }
@@ -783,7 +855,7 @@ std::vector<std::pair<std::int32_t, std::int32_t>> coplanar_bridges(
             }
         }
     }
-    std::sort(bridges.begin(), bridges.end());
+    tbb::parallel_sort(bridges.begin(), bridges.end());
     bridges.erase(std::unique(bridges.begin(), bridges.end()), bridges.end());
     return bridges;
 }
@@ -875,10 +947,11 @@ OrientTree grow_tree(Span<Vec3f> pts, std::vector<Vec3f>& normals, const EdgeRea
     OrientTree tree;
     tree.parent.assign(n, -1);
     tree.component.assign(n, -1);
+    // 16 bytes: the entry's lean is all the sign needs (EdgeReadings::sign).
     struct Edge {
         float cost;
         std::int32_t to, from;
-        std::size_t entry;
+        bool against;  // readings.lean[e] < 0
         bool operator>(const Edge& o) const {
             if (cost != o.cost) return cost > o.cost;
             if (to != o.to) return to > o.to;
@@ -897,11 +970,11 @@ OrientTree grow_tree(Span<Vec3f> pts, std::vector<Vec3f>& normals, const EdgeRea
     auto push_neighbours = [&](std::size_t i) {
         for (std::size_t e = start[i]; e < start[i + 1]; ++e) {
             const std::size_t j = std::size_t(adj[e]);
-            if (done[j] || state[j] != kFree) continue;
+            if (done[j]) continue;  // so is every point not free
             const std::pair<float, std::int32_t> key(readings.cost[e], std::int32_t(i));
             if (!(key < least[j])) continue;
             least[j] = key;
-            heap.push({key.first, std::int32_t(j), key.second, e});
+            heap.push({key.first, std::int32_t(j), key.second, readings.lean[e] < 0});
         }
     };
     auto grow = [&](std::int32_t component) {
@@ -913,7 +986,7 @@ OrientTree grow_tree(Span<Vec3f> pts, std::vector<Vec3f>& normals, const EdgeRea
             done[j] = 1;
             tree.parent[j] = e.from;
             tree.component[j] = component;
-            if (readings.sign(e.entry, turned[std::size_t(e.from)], turned[j]) < 0) {
+            if (e.against != (turned[std::size_t(e.from)] != turned[j])) {
                 flip(normals[j]);
                 turned[j] ^= 1;
             }
@@ -937,7 +1010,7 @@ OrientTree grow_tree(Span<Vec3f> pts, std::vector<Vec3f>& normals, const EdgeRea
     centroid /= double(n);
     std::vector<std::int32_t> order(n);
     for (std::size_t i = 0; i < n; ++i) order[i] = std::int32_t(i);
-    std::sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) {
+    tbb::parallel_sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) {
         if (pts[std::size_t(a)][2] != pts[std::size_t(b)][2]) {
             return pts[std::size_t(a)][2] > pts[std::size_t(b)][2];
         }
@@ -966,12 +1039,15 @@ OrientTree grow_tree(Span<Vec3f> pts, std::vector<Vec3f>& normals, const EdgeRea
 
 /// Patches of points the tree oriented with certainty, and the links between them.
 struct Patches {
+    struct Link {
+        std::int32_t to;  // the patch linked to
+        float strength;   // the best pair's 1 - cost
+        double vote;      // the summed vote of the pairs near the best
+    };
     std::vector<std::int32_t> of;    // per point its patch, -1 where excluded
     std::vector<char> anchored;      // per patch: holds a fixed point
     std::vector<std::size_t> start;  // the links in CSR form: patch p's are
-    std::vector<std::int32_t> adj;   // adj[start[p] .. start[p + 1]),
-    std::vector<float> strength;     // each with the best pair's 1 - cost
-    std::vector<double> vote;        // and the summed vote of the pairs near the best
+    std::vector<Link> links;         // links[start[p] .. start[p + 1])
 };
 
 /// A graph edge between two patches: its cost and its vote (sure_patches).
@@ -991,38 +1067,36 @@ struct Pair {
 /// both points lie as far from the tip), and the tip is the weakest link between its faces.
 void link_patches(std::vector<Pair>& pairs, Patches& patches) {
     constexpr float kNear = 0.25f;
-    std::sort(pairs.begin(), pairs.end(), [](const Pair& x, const Pair& y) {
+    // A total order (pairs equal in it are equal), so the parallel sort's result is unique.
+    tbb::parallel_sort(pairs.begin(), pairs.end(), [](const Pair& x, const Pair& y) {
         if (x.a != y.a) return x.a < y.a;
         if (x.b != y.b) return x.b < y.b;
         if (x.cost != y.cost) return x.cost < y.cost;
         return x.vote < y.vote;
     });
-    std::vector<Pair> links;  // per patch pair: cost = best, vote = summed near it
+    // Per patch pair one link, in place of its first pair: cost = best, vote = summed near it.
+    std::size_t links = 0;
     for (const Pair& p : pairs) {
-        if (links.empty() || links.back().a != p.a || links.back().b != p.b) {
-            links.push_back(p);
-        } else if (p.cost <= links.back().cost + kNear) {
-            links.back().vote += p.vote;
+        Pair& last = pairs[links - (links > 0 ? 1 : 0)];
+        if (links == 0 || last.a != p.a || last.b != p.b) {
+            pairs[links++] = p;
+        } else if (p.cost <= last.cost + kNear) {
+            last.vote += p.vote;
         }
     }
+    pairs.resize(links);
     const std::size_t count = patches.anchored.size();
     patches.start.assign(count + 1, 0);
-    for (const Pair& l : links) {
+    for (const Pair& l : pairs) {
         ++patches.start[std::size_t(l.a) + 1];
         ++patches.start[std::size_t(l.b) + 1];
     }
     for (std::size_t p = 0; p < count; ++p) patches.start[p + 1] += patches.start[p];
-    patches.adj.resize(patches.start.back());
-    patches.strength.resize(patches.start.back());
-    patches.vote.resize(patches.start.back());
+    patches.links.resize(patches.start.back());
     std::vector<std::size_t> fill(patches.start.begin(), patches.start.end() - 1);
-    for (const Pair& l : links) {
-        for (const auto& [from, to] : {std::pair(l.a, l.b), std::pair(l.b, l.a)}) {
-            const std::size_t e = fill[std::size_t(from)]++;
-            patches.adj[e] = to;
-            patches.strength[e] = 1.0f - l.cost;
-            patches.vote[e] = l.vote;
-        }
+    for (const Pair& l : pairs) {
+        patches.links[fill[std::size_t(l.a)]++] = {l.b, 1.0f - l.cost, l.vote};
+        patches.links[fill[std::size_t(l.b)]++] = {l.a, 1.0f - l.cost, l.vote};
     }
 }
 
@@ -1039,13 +1113,15 @@ Patches sure_patches(const EdgeReadings& readings, const std::vector<std::int32_
         const std::size_t j = std::size_t(adj[e]);
         return std::abs(readings.lean[e]) == 2 && readings.sign(e, turned[i], turned[j]) > 0;
     };
-    detail::MinUnionFind sets(n);
-    for (std::size_t i = 0; i < n; ++i) {
-        for (std::size_t e = start[i]; e < start[i + 1]; ++e) {
-            if (std::size_t(adj[e]) > i && sure(i, e)) sets.unite(std::int32_t(i), adj[e]);
+    detail::ConcurrentMinUnionFind sets(n);
+    detail::for_each_chunk(n, [&](std::size_t, std::size_t begin, std::size_t end) {
+        for (std::size_t i = begin; i < end; ++i) {
+            for (std::size_t e = start[i]; e < start[i + 1]; ++e) {
+                if (std::size_t(adj[e]) > i && sure(i, e)) sets.unite(std::int32_t(i), adj[e]);
+            }
         }
-    }
-    const std::vector<std::int32_t> root = std::move(sets).labels();
+    });
+    const std::vector<std::int32_t> root = sets.labels();
     Patches patches;
     patches.of.assign(n, -1);
     std::vector<std::int32_t> id(n, -1);
@@ -1060,20 +1136,43 @@ Patches sure_patches(const EdgeReadings& readings, const std::vector<std::int32_
     for (std::size_t i = 0; i < n; ++i) {
         if (state[i] == kFixed) patches.anchored[std::size_t(patches.of[i])] = 1;
     }
-    std::vector<Pair> pairs;
-    for (std::size_t i = 0; i < n; ++i) {
-        if (state[i] == kExcluded) continue;
+    // The pairs by chunks of points in parallel: counted, then each chunk's listed from its
+    // offset, in the order of a serial pass and with no slack capacity (the largest array of
+    // the orientation: 2.3M pairs on the bunny scans).
+    auto across = [&](std::size_t i, auto&& take) {
+        if (state[i] == kExcluded) return;
         for (std::size_t e = start[i]; e < start[i + 1]; ++e) {
             const std::size_t j = std::size_t(adj[e]);
             if (j <= i || state[j] == kExcluded || patches.of[i] == patches.of[j]) continue;
             const bool tree = parent[j] == std::int32_t(i) || parent[i] == std::int32_t(j);
             const float cost = std::min(readings.cost[e], 1.0f);
             if (cost >= 1.0f && !tree) continue;
-            const std::int32_t a = patches.of[i], b = patches.of[j];
-            const double vote = readings.sign(e, turned[i], turned[j]) * (1.0 - double(cost));
-            pairs.push_back({std::min(a, b), std::max(a, b), cost, vote + (tree ? kTreeTie : 0.0)});
+            take(e, j, cost, tree);
         }
-    }
+    };
+    std::size_t total = 0;
+    const std::vector<std::size_t> first = detail::chunk_offsets(
+        n,
+        [&](std::size_t, std::size_t begin, std::size_t end) {
+            std::size_t count = 0;
+            for (std::size_t i = begin; i < end; ++i) {
+                across(i, [&](std::size_t, std::size_t, float, bool) { ++count; });
+            }
+            return count;
+        },
+        total);
+    std::vector<Pair> pairs(total);
+    detail::for_each_chunk(n, [&](std::size_t c, std::size_t begin, std::size_t end) {
+        std::size_t at = first[c];
+        for (std::size_t i = begin; i < end; ++i) {
+            across(i, [&](std::size_t e, std::size_t j, float cost, bool tree) {
+                const std::int32_t a = patches.of[i], b = patches.of[j];
+                const double vote = readings.sign(e, turned[i], turned[j]) * (1.0 - double(cost));
+                pairs[at++] = {std::min(a, b), std::max(a, b), cost,
+                               vote + (tree ? kTreeTie : 0.0)};
+            });
+        }
+    });
     link_patches(pairs, patches);
     return patches;
 }
@@ -1100,18 +1199,27 @@ std::vector<signed char> orient_patches(const Patches& patches, const OrientTree
         }
     };
     std::priority_queue<Step> heap;
+    // The best step to each patch pushed so far (strength, then from): one that would pop after
+    // it finds the patch signed and is not pushed (as grow_tree's `least`).
+    std::vector<Step> best(count, Step{-std::numeric_limits<float>::infinity(), 0,
+                                       std::numeric_limits<std::int32_t>::max()});
     auto push = [&](std::int32_t p) {
         for (std::size_t e = patches.start[std::size_t(p)]; e < patches.start[std::size_t(p) + 1];
              ++e) {
-            if (sign[std::size_t(patches.adj[e])] == 0) {
-                heap.push({patches.strength[e], patches.adj[e], p});
-            }
+            const std::int32_t q = patches.links[e].to;
+            if (sign[std::size_t(q)] != 0) continue;
+            const Step s{patches.links[e].strength, q, p};
+            Step& b = best[std::size_t(q)];
+            b.to = q;
+            if (!(b < s)) continue;
+            b = s;
+            heap.push(s);
         }
     };
     // The sign the link entry e (of patch p, to a patch with a sign) asks of p.
     auto asked = [&](std::size_t e) {
-        const signed char other = sign[std::size_t(patches.adj[e])];
-        return patches.vote[e] < 0.0 ? -other : other;
+        const signed char other = sign[std::size_t(patches.links[e].to)];
+        return patches.links[e].vote < 0.0 ? -other : other;
     };
     auto grow = [&]() {
         while (!heap.empty()) {
@@ -1123,9 +1231,9 @@ std::vector<signed char> orient_patches(const Patches& patches, const OrientTree
             double sum = 0.0;
             int reached = 1;  // the sign the reaching link asks for
             for (std::size_t e = patches.start[p]; e < patches.start[p + 1]; ++e) {
-                if (sign[std::size_t(patches.adj[e])] == 0) continue;
-                sum += double(patches.strength[e]) * asked(e);
-                if (patches.adj[e] == s.from) reached = asked(e);
+                if (sign[std::size_t(patches.links[e].to)] == 0) continue;
+                sum += double(patches.links[e].strength) * asked(e);
+                if (patches.links[e].to == s.from) reached = asked(e);
             }
             const int own = sum != 0.0 ? (sum < 0.0 ? -1 : 1) : reached;
             sign[p] = static_cast<signed char>(own);

@@ -1,10 +1,12 @@
 #include <tbb/global_control.h>
 #include <tbb/task_arena.h>
 
+#include <Eigen/Core>
 #include <algorithm>
 #include <cstdlib>
 #include <random>
 
+#include "detail/plane_count.h"
 #include "shapes.h"
 #include "support.h"
 #include "vdbrecon/error.h"
@@ -294,6 +296,54 @@ TEST_CASE("kNN: the neighbours of a subset come from those of the whole set", "[
     for (std::size_t i = 0; i < kept.size(); ++i) {
         for (int j = 0; j < 10; ++j) REQUIRE(sub_bare.sq_dist(kept, i, j) == sub.sq_dists(i)[j]);
     }
+}
+
+TEST_CASE("plane inlier counts: the two- and four-lane loops give Eigen's dot product's counts",
+          "[normals]") {
+    // The crisp-face searches count the neighbours within a band of a plane millions of times;
+    // the vector loops must agree with |u.dot(q) - offset| <= band to the last point, also for
+    // points exactly on the band's edge and for every tail length.
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> coord(-1.0, 1.0);
+    std::bernoulli_distribution take(0.7);
+    int edge_cases = 0;
+    for (int trial = 0; trial < 2000; ++trial) {
+        detail::PlanePoints p;
+        p.m = 1 + trial % detail::kPlanePoints;
+        std::vector<Eigen::Vector3d> q(std::size_t(p.m));
+        bool among[detail::kPlanePoints];
+        double w[detail::kPlanePoints];
+        for (int j = 0; j < p.m; ++j) {
+            q[std::size_t(j)] = Eigen::Vector3d(coord(rng), coord(rng), 0.01 * coord(rng));
+            p.x[j] = q[std::size_t(j)][0];
+            p.y[j] = q[std::size_t(j)][1];
+            p.z[j] = q[std::size_t(j)][2];
+            among[j] = take(rng);
+        }
+        detail::plane_weights(among, p.m, w);
+        const Eigen::Vector3d u =
+            Eigen::Vector3d(0.02 * coord(rng), 0.02 * coord(rng), 1.0).normalized();
+        const double uv[3] = {u[0], u[1], u[2]};
+        const double offset = 0.001 * coord(rng);
+        // Every other trial: the band ends exactly at one point's distance.
+        const Eigen::Vector3d& at = q[std::size_t(trial % p.m)];
+        const double band = trial % 2 ? std::fabs(u.dot(at) - offset) : 0.004;
+        int expected = 0;
+        for (int j = 0; j < p.m; ++j) {
+            const double d = std::fabs(u.dot(q[std::size_t(j)]) - offset);
+            expected += among[j] && d <= band;
+            edge_cases += among[j] && d == band;
+        }
+        REQUIRE(detail::count_on_plane_scalar(p, w, uv, offset, band) == expected);
+        REQUIRE(detail::count_on_plane(p, w, uv, offset, band) == expected);
+#ifdef VDBRECON_PLANE_COUNT_X86
+        REQUIRE(detail::count_on_plane_sse2(p, w, uv, offset, band) == expected);
+        if (detail::plane_count_avx()) {
+            REQUIRE(detail::count_on_plane_avx(p, w, uv, offset, band) == expected);
+        }
+#endif
+    }
+    CHECK(edge_cases > 500);  // the band's edge was met, and counted as on the plane
 }
 
 TEST_CASE("PCA normals on a sphere are radial and MST orients them all outwards", "[normals]") {

@@ -30,15 +30,22 @@ inline void plane_weights(const bool* take, int m, double* w) {
     for (int j = 0; j < m; ++j) w[j] = take[j] ? 1.0 : 0.0;
 }
 
-/// The reference loop: the sum of w[j] over the points within `band` of u . x = offset.
-inline int count_on_plane_scalar(const PlanePoints& p, const double* w, const double u[3],
-                                 double offset, double band) {
+/// The reference loop over the points from `first` on: the sum of w[j] over those within
+/// `band` of u . x = offset.
+inline double count_on_plane_from(const PlanePoints& p, int first, const double* w,
+                                  const double u[3], double offset, double band) {
     double count = 0.0;
-    for (int j = 0; j < p.m; ++j) {
+    for (int j = first; j < p.m; ++j) {
         const double d = u[0] * p.x[j] + u[1] * p.y[j] + u[2] * p.z[j] - offset;
         count += std::fabs(d) <= band ? w[j] : 0.0;
     }
-    return int(count);
+    return count;
+}
+
+/// The sum of w[j] over the points within `band` of u . x = offset, one point at a time.
+inline int count_on_plane_scalar(const PlanePoints& p, const double* w, const double u[3],
+                                 double offset, double band) {
+    return int(count_on_plane_from(p, 0, w, u, offset, band));
 }
 
 #ifdef VDBRECON_PLANE_COUNT_X86
@@ -59,12 +66,8 @@ inline int count_on_plane_sse2(const PlanePoints& p, const double* w, const doub
     }
     double lanes[2];
     _mm_storeu_pd(lanes, acc);
-    double count = lanes[0] + lanes[1];  // whole numbers: exact in any order
-    for (; j < p.m; ++j) {
-        const double d = u[0] * p.x[j] + u[1] * p.y[j] + u[2] * p.z[j] - offset;
-        count += std::fabs(d) <= band ? w[j] : 0.0;
-    }
-    return int(count);
+    // Whole numbers: exact in any order.
+    return int(lanes[0] + lanes[1] + count_on_plane_from(p, j, w, u, offset, band));
 }
 
 /// count_on_plane_scalar four points at a time (AVX2's 256-bit registers; AVX suffices).
@@ -85,12 +88,8 @@ __attribute__((target("avx"))) inline int count_on_plane_avx(const PlanePoints& 
     }
     double lanes[4];
     _mm256_storeu_pd(lanes, acc);
-    double count = (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]);
-    for (; j < p.m; ++j) {
-        const double d = u[0] * p.x[j] + u[1] * p.y[j] + u[2] * p.z[j] - offset;
-        count += std::fabs(d) <= band ? w[j] : 0.0;
-    }
-    return int(count);
+    return int((lanes[0] + lanes[1]) + (lanes[2] + lanes[3]) +
+               count_on_plane_from(p, j, w, u, offset, band));
 }
 #endif
 

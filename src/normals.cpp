@@ -7,7 +7,6 @@
 #include <tbb/parallel_sort.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -1074,14 +1073,14 @@ void link_patches(std::vector<Pair>& pairs, Patches& patches) {
         if (x.cost != y.cost) return x.cost < y.cost;
         return x.vote < y.vote;
     });
-    // Per patch pair one link, in place of its first pair: cost = best, vote = summed near it.
+    // One link per patch pair, in place of its first pair: cost = best, vote = summed near it.
     std::size_t links = 0;
-    for (const Pair& p : pairs) {
-        Pair& last = pairs[links - (links > 0 ? 1 : 0)];
-        if (links == 0 || last.a != p.a || last.b != p.b) {
+    for (std::size_t r = 0; r < pairs.size(); ++r) {
+        const Pair p = pairs[r];
+        if (links > 0 && pairs[links - 1].a == p.a && pairs[links - 1].b == p.b) {
+            if (p.cost <= pairs[links - 1].cost + kNear) pairs[links - 1].vote += p.vote;
+        } else {
             pairs[links++] = p;
-        } else if (p.cost <= last.cost + kNear) {
-            last.vote += p.vote;
         }
     }
     pairs.resize(links);
@@ -1199,21 +1198,20 @@ std::vector<signed char> orient_patches(const Patches& patches, const OrientTree
         }
     };
     std::priority_queue<Step> heap;
-    // The best step to each patch pushed so far (strength, then from): one that would pop after
-    // it finds the patch signed and is not pushed (as grow_tree's `least`).
-    std::vector<Step> best(count, Step{-std::numeric_limits<float>::infinity(), 0,
-                                       std::numeric_limits<std::int32_t>::max()});
+    // The best step to each patch pushed so far (strength, then from): a step that would pop
+    // after it would find the patch signed, so it is not pushed (as grow_tree's `least`).
+    std::vector<std::pair<float, std::int32_t>> best(
+        count, {-std::numeric_limits<float>::infinity(), std::numeric_limits<std::int32_t>::max()});
     auto push = [&](std::int32_t p) {
         for (std::size_t e = patches.start[std::size_t(p)]; e < patches.start[std::size_t(p) + 1];
              ++e) {
             const std::int32_t q = patches.links[e].to;
             if (sign[std::size_t(q)] != 0) continue;
-            const Step s{patches.links[e].strength, q, p};
-            Step& b = best[std::size_t(q)];
-            b.to = q;
-            if (!(b < s)) continue;
-            b = s;
-            heap.push(s);
+            const float strength = patches.links[e].strength;
+            std::pair<float, std::int32_t>& b = best[std::size_t(q)];
+            if (!(strength > b.first || (strength == b.first && p < b.second))) continue;
+            b = {strength, p};
+            heap.push({strength, q, p});
         }
     };
     // The sign the link entry e (of patch p, to a patch with a sign) asks of p.

@@ -100,8 +100,8 @@ std::string orientation_text(const NormalResult& n) {
     if (n.orientation == "viewpoint") return "facing the viewpoint";
     if (n.orientation == "up") return "facing the up direction";
     if (n.orientation == "sensor at the origin") {
-        return "facing the origin (a height field along z seen from the origin: a depth "
-               "camera's frame; --viewpoint or --orient mst to override)";
+        return "facing the origin (seen as from a camera there, one surface along each ray: a "
+               "depth camera's frame; --viewpoint or --orient mst to override)";
     }
     if (n.orientation == "height field") {
         s << "facing up (a height field: most normals near vertical, one surface over most "

@@ -474,7 +474,6 @@ PointCloud presum_sorted(const PointCloud& cloud, const SplatOptions& o,
 PointCloud detail::presum_in_cells(PointCloud cloud, const SplatOptions& options,
                                    const PresumCells& cells, double max_angle) {
     if (cloud.empty() || !cloud.has_normals()) return cloud;
-    options.validate();
     if (cloud.size() >= std::size_t(UINT32_MAX)) return cloud;
     std::vector<SampleKey> keys;
     const bool outside = !sample_keys(cloud, options, cells, keys);

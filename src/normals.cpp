@@ -1504,16 +1504,19 @@ Shape cloud_shape(const PointCloud& cloud, const std::vector<Vec3f>& normals,
         reach.push_back(knn.sq_dist(pts, i, k - 1));
     }
     if (free < 16) return Shape::other;
+    // A camera sees surfaces that face it, one along each ray (a closed object before it, two).
+    double depth = 0.0;
+    const bool camera =
+        double(facing) >= 0.6 * double(free) && seen_from_origin(cloud, state, depth);
+    const bool upright = double(vertical) >= 0.6 * double(free);
+    if (!camera && !upright) return Shape::other;  // most clouds: no layers to count
     std::nth_element(reach.begin(), reach.begin() + std::ptrdiff_t(reach.size() / 2), reach.end());
     const double cell = 2.0 * std::sqrt(double(reach[reach.size() / 2]));
     if (!(cell > 0.0)) return Shape::other;
-    // A camera sees surfaces that face it, one along each ray (a closed object before it, two).
-    double depth = 0.0;
-    if (double(facing) >= 0.6 * double(free) && seen_from_origin(cloud, state, depth) &&
-        single_layer(cloud, state, cell / depth, cell, true) >= 0.75 * double(free)) {
+    if (camera && single_layer(cloud, state, cell / depth, cell, true) >= 0.75 * double(free)) {
         return Shape::sensor_frame;
     }
-    if (double(vertical) < 0.6 * double(free)) return Shape::other;
+    if (!upright) return Shape::other;
     const std::size_t single = single_layer(cloud, state, cell, cell, false);
     log_info("normals: height-field test: " +
              std::to_string(int(100.0 * double(vertical) / double(free))) +

@@ -83,9 +83,7 @@ namespace {
 
 /// The kernel's transparent huge page modes, the chosen one in brackets ("" where unknown).
 std::string thp_mode() {
-    std::string mode;
-    std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), mode);
-    return mode;
+    return vdbrecon::launcher::first_line("/sys/kernel/mm/transparent_hugepage/enabled");
 }
 
 }  // namespace

@@ -127,11 +127,10 @@ inline double raw_sigma_voxels(const SplatOptions& options, float scale) {
                         : options.sigma_voxels;
 }
 
-/// A sample's sigma in voxels by the rule above: scale_factor * scale / voxel for a scale > 0,
-/// else sigma_voxels; clamped to [min_sigma_voxels, max_sigma_voxels].
+/// A sample's sigma in voxels by the rule above: raw_sigma_voxels clamped to
+/// [min_sigma_voxels, max_sigma_voxels].
 inline double kernel_sigma_voxels(const SplatOptions& options, float scale) {
-    const double s = scale > 0.0f ? options.scale_factor * double(scale) / options.voxel_size
-                                  : options.sigma_voxels;
+    const double s = raw_sigma_voxels(options, scale);
     return s < options.min_sigma_voxels ? options.min_sigma_voxels
                                         : (s > options.max_sigma_voxels ? options.max_sigma_voxels : s);
 }

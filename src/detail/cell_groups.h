@@ -77,7 +77,8 @@ class PresumCells {
     double inv_edge_[kLevels];  ///< 1 / the cell edge of each level, world units
 };
 
-/// aggregate_samples() in given cells (see there; `max_angle` likewise).
+/// aggregate_samples() in given cells (see there; `max_angle` likewise), `options` validated by
+/// the caller (it made the cells from them).
 PointCloud presum_in_cells(PointCloud cloud, const SplatOptions& options, const PresumCells& cells,
                            double max_angle);
 
